@@ -1,0 +1,1 @@
+"""Capture kinds: each loader turns a capture on disk (or a synthetic scene) into Surface + Observations."""

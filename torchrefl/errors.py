@@ -1,0 +1,30 @@
+"""The error family of torchrefl.
+
+Every bad input raises a TorchReflError subclass whose message names the file,
+the key or the field and what was expected. Callers (the CLI) print the message
+without a traceback; library users can catch TorchReflError.
+"""
+
+
+class TorchReflError(Exception):
+    """Base class of every error torchrefl raises on bad input or bad state."""
+
+
+class ConfigError(TorchReflError):
+    """A configuration file, key or value is missing, unknown or out of range."""
+
+
+class CaptureError(TorchReflError):
+    """Capture data (images, light tables, masks, normals) is missing or inconsistent."""
+
+
+class GeometryError(TorchReflError):
+    """Geometry (range image, mesh, normals) is unusable: NaN, non-unit, degenerate."""
+
+
+class FitError(TorchReflError):
+    """The fit cannot proceed (nothing to fit, diverged)."""
+
+
+class RigError(TorchReflError):
+    """The capture rig (serial port, GRBL controller, camera) failed or refused a command."""

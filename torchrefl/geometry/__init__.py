@@ -1,0 +1,1 @@
+"""Geometry: range-image preprocessing, the texel Surface, meshes."""

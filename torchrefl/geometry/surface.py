@@ -1,0 +1,116 @@
+"""The texel Surface every method works on.
+
+A Surface is a grid of texels (H, W) of which T are valid; only valid texels are
+stored. Texels carry a 3-D position, a unit normal and an area; the triangle mesh
+that rays are traced against travels with it (None when the capture has no depth,
+as in photometric stereo).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+import torch
+
+from torchrefl.errors import GeometryError
+
+UNIT_TOLERANCE = 1e-3
+
+
+@dataclass
+class Surface:
+    """Texel geometry.
+
+    grid_shape: (H, W) of the texel grid (the parameter maps).
+    texel_index: (T,) int64, flat index (row * W + col) of each valid texel, increasing.
+    positions: (T, 3) float, world frame, millimetres (or the capture's units).
+    normals: (T, 3) float, world frame, unit length.
+    areas: (T,) float, surface area of each texel (mm^2); ones where unknown.
+    mesh_vertices / mesh_faces: the triangle mesh rays are traced against
+        ((V, 3) float, (F, 3) int) or None when the capture has no depth.
+    units: length unit of positions.
+    """
+
+    grid_shape: tuple[int, int]
+    texel_index: torch.Tensor
+    positions: torch.Tensor
+    normals: torch.Tensor
+    areas: torch.Tensor
+    mesh_vertices: Optional[np.ndarray] = None
+    mesh_faces: Optional[np.ndarray] = None
+    units: str = "mm"
+    source: str = "<memory>"
+    extras: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @property
+    def num_texels(self) -> int:
+        return int(self.texel_index.shape[0])
+
+    @property
+    def has_mesh(self) -> bool:
+        return self.mesh_vertices is not None and self.mesh_faces is not None
+
+    def validate(self) -> None:
+        """Raise GeometryError naming the field when the geometry is unusable."""
+        H, W = self.grid_shape
+        T = self.num_texels
+        where = f"surface from {self.source}"
+        if T == 0:
+            raise GeometryError(f"{where}: the mask selects no texel (expected at least one valid texel)")
+        if self.texel_index.min() < 0 or self.texel_index.max() >= H * W:
+            raise GeometryError(f"{where}: texel_index out of range for grid {H}x{W}")
+        for name, shape in (("positions", (T, 3)), ("normals", (T, 3)), ("areas", (T,))):
+            value = getattr(self, name)
+            if tuple(value.shape) != shape:
+                raise GeometryError(f"{where}: field '{name}' has shape {tuple(value.shape)}, expected {shape}")
+            if not torch.isfinite(value).all():
+                bad = int((~torch.isfinite(value)).reshape(T, -1).any(dim=1).sum())
+                raise GeometryError(f"{where}: field '{name}' has NaN or inf values at {bad} texels")
+        lengths = self.normals.norm(dim=-1)
+        off = (lengths - 1).abs() > UNIT_TOLERANCE
+        if off.any():
+            raise GeometryError(
+                f"{where}: field 'normals' must be unit vectors; {int(off.sum())} texels have length "
+                f"outside 1 +- {UNIT_TOLERANCE} (e.g. {float(lengths[off][0]):.4g})"
+            )
+
+    def mask(self) -> np.ndarray:
+        """(H, W) bool: True at valid texels."""
+        H, W = self.grid_shape
+        m = np.zeros(H * W, dtype=bool)
+        m[self.texel_index.cpu().numpy()] = True
+        return m.reshape(H, W)
+
+    def to_grid(self, values, fill: float = 0.0) -> np.ndarray:
+        """Scatter per-texel values (T, ...) into a (H, W, ...) numpy array filled with `fill`."""
+        values = values.detach().cpu().numpy() if isinstance(values, torch.Tensor) else np.asarray(values)
+        H, W = self.grid_shape
+        out = np.full((H * W,) + values.shape[1:], fill, dtype=values.dtype if values.dtype != bool else bool)
+        out[self.texel_index.cpu().numpy()] = values
+        return out.reshape((H, W) + values.shape[1:])
+
+    def from_grid(self, grid) -> torch.Tensor:
+        """Gather a (H, W, ...) grid at the valid texels into (T, ...)."""
+        grid = torch.as_tensor(np.asarray(grid))
+        H, W = self.grid_shape
+        return grid.reshape((H * W,) + tuple(grid.shape[2:]))[self.texel_index.cpu()]
+
+    def to(self, dtype: torch.dtype) -> "Surface":
+        """A copy with float tensors in `dtype`."""
+        return Surface(
+            grid_shape=self.grid_shape,
+            texel_index=self.texel_index,
+            positions=self.positions.to(dtype),
+            normals=self.normals.to(dtype),
+            areas=self.areas.to(dtype),
+            mesh_vertices=self.mesh_vertices,
+            mesh_faces=self.mesh_faces,
+            units=self.units,
+            source=self.source,
+            extras=self.extras,
+        )
