@@ -1,0 +1,150 @@
+"""Reflectance models as plain differentiable functions.
+
+All functions broadcast over leading dimensions. Directions are unit vectors in
+the world frame: n the surface normal, l towards the light, v towards the camera.
+Angles come from atan2(|a x b|, a.b), never acos of a dot product (acos has an
+infinite derivative at the specular peak).
+
+The quantity the transport code needs is the cosine-weighted BRDF
+    g = f(l, v) * max(n.l, 0),
+so that the measured value of a point light is i = kappa * Y / C^2 * g. Keeping
+the cosine inside lets the Torrance-Sparrow 1/cos(theta_l) cancel analytically,
+which keeps grazing lights finite.
+
+Models (DESIGN.md "One model"):
+- "torrance_sparrow" (eq. 2.9): f = Pd/pi + Ps exp(-theta_h^2 / (2 sigma^2)) / (pi cos_l cos_v).
+  With kappa = pi: i = Y/C^2 (Pd cos_l + Ps exp(-theta_h^2/(2 sigma^2)) / cos_v)  (eq. 2.9).
+- "ward" (eq. 5.9): f = Pd/pi + Ps exp(-tan^2 theta_h / sigma^2) / (4 pi sigma^2),
+  optionally times 1/sqrt(cos_l cos_v) (the standard Ward normalisation; the seed drops it).
+
+Numerical guards (the only clamps in the physics, documented here):
+- cos_v is clamped below at COS_EPS before dividing (grazing views are excluded
+  from fitting anyway by the validity mask; the clamp keeps values finite);
+- cos(theta_h) is clamped below at COS_EPS inside tan(theta_h);
+- sigma is clamped below at SIGMA_EPS inside the exponent.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from torchrefl.errors import ConfigError
+
+COS_EPS = 1e-4
+SIGMA_EPS = 1e-4
+_TINY = 1e-30
+
+BRDF_NAMES = ("torrance_sparrow", "ward", "ward_normalised", "lambertian")
+
+
+def check_brdf_name(name: str, where: str = "fit.brdf") -> str:
+    """Return `name` if it is a known BRDF, else raise ConfigError naming `where`."""
+    if name not in BRDF_NAMES:
+        raise ConfigError(f"{where}: unknown BRDF '{name}', expected one of {', '.join(BRDF_NAMES)}")
+    return name
+
+
+def dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """(..., 3) x (..., 3) -> (...) dot product."""
+    return (a * b).sum(dim=-1)
+
+
+def safe_normalize(x: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
+    """x / |x| with a floor on |x| (a zero vector stays finite)."""
+    return x / torch.sqrt((x * x).sum(dim=-1, keepdim=True) + eps * eps)
+
+
+def angle_between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """(...) angle in radians between vectors a and b (..., 3), by atan2(|a x b|, a.b).
+
+    The norm of the cross product is taken as sqrt(|a x b|^2 + tiny) so that the
+    gradient stays finite where a and b are parallel (the specular peak).
+    """
+    cross = torch.linalg.cross(a, b, dim=-1)
+    s = torch.sqrt((cross * cross).sum(dim=-1) + _TINY)
+    return torch.atan2(s, dot(a, b))
+
+
+def half_vector(l: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """(..., 3) unit half vector (l + v) / |l + v|."""
+    return safe_normalize(l + v)
+
+
+def half_angle(n: torch.Tensor, l: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """(...) theta_h: angle between the normal and the half vector (eq. 2.15, via atan2)."""
+    return angle_between(n, half_vector(l, v))
+
+
+def specular_lobe(model: str, theta_h: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+    """The specular distribution D so that the specular part of f*cos_l is Ps * D * geometric factor.
+
+    torrance_sparrow: exp(-theta_h^2 / (2 sigma^2))
+    ward*:            exp(-tan^2 theta_h / sigma^2) / (4 pi sigma^2)
+    theta_h, sigma broadcastable; returns their broadcast shape.
+    """
+    sig = sigma.clamp_min(SIGMA_EPS)
+    if model == "torrance_sparrow":
+        return torch.exp(-(theta_h * theta_h) / (2.0 * sig * sig))
+    if model in ("ward", "ward_normalised"):
+        c = torch.cos(theta_h).clamp_min(COS_EPS)
+        tan2 = (torch.sin(theta_h) / c) ** 2
+        return torch.exp(-tan2 / (sig * sig)) / (4.0 * math.pi * sig * sig)
+    if model == "lambertian":
+        return torch.zeros_like(theta_h + sig)
+    raise ConfigError(f"fit.brdf: unknown BRDF '{model}', expected one of {', '.join(BRDF_NAMES)}")
+
+
+def specular_geometry(model: str, cos_l: torch.Tensor, cos_v: torch.Tensor) -> torch.Tensor:
+    """The factor G such that the specular part of f * max(cos_l, 0) equals Ps * D * G.
+
+    torrance_sparrow: 1 / (pi cos_v)              (cos_l cancels)
+    ward:             cos_l                       (seed's eq. 5.9)
+    ward_normalised:  sqrt(cos_l / cos_v)         (cos_l / sqrt(cos_l cos_v))
+    Zero where cos_l <= 0.
+    """
+    cl = cos_l.clamp_min(0.0)
+    cv = cos_v.clamp_min(COS_EPS)
+    lit = (cos_l > 0).to(cl.dtype)
+    if model == "torrance_sparrow":
+        return lit / (math.pi * cv)
+    if model == "ward":
+        return cl
+    if model == "ward_normalised":
+        return torch.sqrt(cl / cv + _TINY) * lit
+    if model == "lambertian":
+        return torch.zeros_like(cl * cv)
+    raise ConfigError(f"fit.brdf: unknown BRDF '{model}', expected one of {', '.join(BRDF_NAMES)}")
+
+
+def cosine_weighted_brdf(
+    model: str,
+    n: torch.Tensor,
+    l: torch.Tensor,
+    v: torch.Tensor,
+    pd: torch.Tensor,
+    ps: torch.Tensor,
+    sigma: torch.Tensor,
+) -> torch.Tensor:
+    """g = f(l, v) * max(n.l, 0), per channel.
+
+    n, l, v: (..., 3) unit vectors; pd: (..., C) diffuse reflectance; ps: (..., C) or (..., 1)
+    specular reflectance (grey broadcasts); sigma: (...) roughness in radians.
+    Returns (..., C).
+    """
+    cos_l = dot(n, l)
+    cos_v = dot(n, v)
+    theta_h = half_angle(n, l, v)
+    diffuse = pd * (cos_l.clamp_min(0.0) / math.pi).unsqueeze(-1)
+    spec = (specular_lobe(model, theta_h, sigma) * specular_geometry(model, cos_l, cos_v)).unsqueeze(-1)
+    return diffuse + ps * spec
+
+
+def brdf(model: str, n, l, v, pd, ps, sigma) -> torch.Tensor:
+    """The BRDF value f(l, v) itself (..., C); diverges like 1/cos_l at grazing light for Torrance-Sparrow.
+
+    Provided for rendering and photon scattering; the fitter uses cosine_weighted_brdf.
+    """
+    cos_l = dot(n, l).clamp_min(COS_EPS)
+    return cosine_weighted_brdf(model, n, l, v, pd, ps, sigma) / cos_l.unsqueeze(-1)

@@ -1,0 +1,347 @@
+"""Typed configuration: dataclasses with a default and a one-line doc for every field.
+
+Loading is strict: an unknown or misspelt key is a ConfigError that names the file,
+the dotted key and the nearest valid key; a value of the wrong type or outside its
+choices is a ConfigError naming the key and what was expected. Dotted overrides
+(`output.dir=/tmp/x fit.holdout=[5,11,17]`) are parsed as YAML values and checked
+the same way. The resolved config is written next to the outputs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Union
+
+import yaml
+
+from torchrefl.errors import ConfigError
+
+
+def opt(default, doc: str, choices: tuple = (), low: float | None = None, high: float | None = None):
+    """A config field with a default, a one-line doc and optional choices/range."""
+    meta = {"doc": doc, "choices": choices, "low": low, "high": high}
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda d=default: list(d) if isinstance(d, list) else dict(d), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+PI = math.pi
+
+
+@dataclass
+class LightGridConfig:
+    """Candidate light positions on a 2-D grid in the scanner-head frame (co-rotating with the scan)."""
+
+    columns: int = opt(10, "number of grid positions along the lateral axis", low=1)
+    rows: int = opt(6, "number of grid positions along the vertical axis", low=1)
+    spacing_mm: float = opt(50.0, "grid spacing in mm (the seed: 5 cm)", low=0.0)
+    radial_mm: float = opt(300.0, "distance of the grid plane from the rotation axis, mm", low=0.0)
+    center_lateral_mm: float = opt(0.0, "lateral offset of the grid centre from the camera, mm")
+    center_vertical_mm: float = opt(0.0, "height of the grid centre, mm (world y)")
+
+
+@dataclass
+class SyntheticConfig:
+    """A synthetic object scanned by the seed's cylindrical rig (capture.kind: synthetic_cylindrical)."""
+
+    object: str = opt("ellipsoid", "synthetic object shape", choices=("ellipsoid", "sphere", "blob"))
+    size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
+    materials: str = opt("regions", "ground-truth material layout", choices=("regions", "uniform"))
+    brdf: str = opt("torrance_sparrow", "BRDF used to render the synthetic images", choices=("torrance_sparrow", "ward", "ward_normalised"))
+    columns: int = opt(512, "texels around (scan angles); the seed: 512", low=8)
+    rows: int = opt(450, "texels along the axis (scan heights); the seed: 450", low=8)
+    angle_step_deg: float = opt(0.7, "scan angle step in degrees; the seed: 0.7", low=0.0)
+    height_step_mm: float = opt(0.56, "scan height step in mm; the seed: 0.56", low=0.0)
+    camera_distance_mm: float = opt(300.0, "radial distance of the virtual camera from the axis, mm", low=0.0)
+    camera_height_mm: float = opt(0.0, "height (world y) of the virtual camera, mm")
+    light_intensity: float = opt(60000.0, "radiant intensity Y of the light (sensor full range x mm^2)", low=0.0)
+    supersample: int = opt(3, "sub-samples per texel side used to render textures (finer than the fitter)", low=1)
+    mesh_subdivisions: int = opt(6, "icosphere subdivisions of the object mesh (the truth geometry)", low=1)
+    noise_dn: float = opt(0.3, "Gaussian sensor noise, in 8-bit digital numbers", low=0.0)
+    range_noise_mm: float = opt(0.0, "Gaussian range noise in mm", low=0.0)
+    range_bits: Optional[int] = opt(None, "quantise the range image to this many bits (the seed's scanner: 8); null = no quantisation")
+    texture_bits: int = opt(8, "bit depth of the texture images (the seed: 8)", choices=(8, 16))
+
+
+@dataclass
+class CaptureConfig:
+    """Where the photographs and geometry come from."""
+
+    kind: str = opt(
+        "synthetic_cylindrical",
+        "capture kind",
+        choices=("synthetic_cylindrical", "cylindrical_scan", "photometric_stereo"),
+    )
+    path: str = opt("", "capture folder (relative paths are relative to the config file); unused for synthetic")
+    saturation_level: float = opt(0.995, "fraction of full range at or above which a channel is saturated", low=0.0, high=1.0)
+    kappa: list = opt([PI, PI, PI], "camera calibration gain per channel (i = kappa * L_o); pi reduces to eq. 2.9")
+    light_subset: Optional[list] = opt(None, "indices of the lights to load (null = all)")
+
+
+@dataclass
+class GeometryConfig:
+    """Range-image preprocessing (dissertation 2.3)."""
+
+    median_size: int = opt(5, "median filter window (odd)", low=1)
+    fit_window: int = opt(5, "Yokoya-Levine quadratic fit window (odd)", low=3)
+    shadow_offset_mm: float = opt(0.05, "origin offset along the normal for shadow rays, mm", low=0.0)
+
+
+@dataclass
+class SelectionConfig:
+    """Automatic light-position selection (dissertation Ch.2)."""
+
+    enabled: bool = opt(True, "select lights among the candidates (synthetic captures render only those)")
+    grid: LightGridConfig = field(default_factory=LightGridConfig, metadata={"doc": "candidate light grid"})
+    stop_ratio: float = opt(0.8, "th1: stop when specular coverage reaches this fraction of the all-candidates coverage", low=0.0, high=1.0)
+    max_lights: int = opt(20, "never select more lights than this", low=1)
+    num_lights: Optional[int] = opt(None, "select exactly this many lights (overrides the stop rule)")
+
+
+@dataclass
+class ReflectanceConfig:
+    """The reflectance model and the observation classes (dissertation 2.4, 3.2)."""
+
+    brdf: str = opt("torrance_sparrow", "specular lobe", choices=("torrance_sparrow", "ward", "ward_normalised", "lambertian"))
+    ps_channels: int = opt(3, "specular reflectance channels: 3 = RGB, 1 = grey", choices=(1, 3))
+    theta_diffuse_deg: float = opt(60.0, "theta_th1: half-angle above which an observation is diffuse only (eq. 2.20)", low=0.0, high=90.0)
+    theta_specular_deg: float = opt(20.0, "theta_th2: half-angle at or below which specular is strong (eq. 2.21)", low=0.0, high=90.0)
+    sigma_min: float = opt(0.01, "lower bound of the roughness sigma (radians)", low=1e-4)
+    sigma_max: float = opt(0.6, "upper bound of the roughness sigma (radians)", low=1e-3)
+    min_cos_view: float = opt(0.05, "observations with n.v at or below this are not used (grazing view)", low=0.0, high=1.0)
+    min_cos_light: float = opt(0.02, "observations with n.l at or below this are not used (grazing light)", low=0.0, high=1.0)
+
+
+@dataclass
+class FitConfig:
+    """Fitting of the texel parameter tensors."""
+
+    model: str = opt("local", "transport level (this release: local)", choices=("local",))
+    optimizer: str = opt("lbfgs", "refinement optimiser", choices=("lbfgs", "adam", "none"))
+    iterations: int = opt(60, "refinement iterations (LBFGS outer steps or Adam steps)", low=0)
+    learning_rate: float = opt(0.05, "Adam learning rate (LBFGS uses a strong-Wolfe line search)", low=0.0)
+    loss: str = opt("huber", "robust loss on 8-bit residuals", choices=("l2", "huber", "cauchy"))
+    loss_scale_8bit: float = opt(3.0, "robust loss scale, in 8-bit digital numbers", low=1e-6)
+    holdout: list = opt([], "light indices excluded from fitting and evaluated afterwards")
+    interpolation_window: int = opt(5, "W: window for interpolating undetermined texels (W x W)", low=1)
+    smoothness: float = opt(0.0, "weight of a neighbour-difference prior on log Ps and sigma (0 = independent texels)", low=0.0)
+    prior_weight: float = opt(1e-3, "weight pulling texels without specular evidence towards their interpolated Ps, sigma", low=0.0)
+
+
+@dataclass
+class OutputConfig:
+    """What is written and where."""
+
+    dir: str = opt("outputs/default", "output folder (relative paths are relative to the current directory)")
+    map_lights: int = opt(3, "number of lights for observed / re-rendered / difference PNGs", low=0)
+    progress: bool = opt(True, "show progress bars")
+
+
+@dataclass
+class Config:
+    """A torchrefl run."""
+
+    seed: int = opt(0, "seed of every random number (noise, sampling)")
+    device: str = opt("cpu", "torch device for the fit", choices=("cpu", "cuda", "auto"))
+    dtype: str = opt("float32", "floating point precision of the fit", choices=("float32", "float64"))
+    threads: int = opt(2, "CPU threads for Embree and torch", low=1)
+    capture: CaptureConfig = field(default_factory=CaptureConfig, metadata={"doc": "capture"})
+    synthetic: SyntheticConfig = field(default_factory=SyntheticConfig, metadata={"doc": "synthetic scene"})
+    geometry: GeometryConfig = field(default_factory=GeometryConfig, metadata={"doc": "geometry"})
+    selection: SelectionConfig = field(default_factory=SelectionConfig, metadata={"doc": "light selection"})
+    reflectance: ReflectanceConfig = field(default_factory=ReflectanceConfig, metadata={"doc": "reflectance model"})
+    fit: FitConfig = field(default_factory=FitConfig, metadata={"doc": "fit"})
+    output: OutputConfig = field(default_factory=OutputConfig, metadata={"doc": "outputs"})
+    config_dir: str = field(default=".", metadata={"doc": "(set by the loader) folder of the config file", "internal": True})
+
+
+# ---------------------------------------------------------------------------- machinery
+
+
+def _is_section(tp) -> bool:
+    return isinstance(tp, type) and dataclasses.is_dataclass(tp)
+
+
+def _field_types(cls) -> dict:
+    hints = typing.get_type_hints(cls)
+    return {f.name: (f, hints[f.name]) for f in dataclasses.fields(cls)}
+
+
+def _type_name(tp) -> str:
+    origin = typing.get_origin(tp)
+    if origin in (Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return " or ".join(_type_name(a) for a in args) + " or null"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _coerce(value: Any, tp, key: str, where: str, meta: dict) -> Any:
+    """Check `value` against type `tp` (and choices/range); return it converted."""
+    origin = typing.get_origin(tp)
+    if origin in (Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)][0]
+        return _coerce(value, inner, key, where, meta)
+    bad = lambda: ConfigError(f"{where}: key '{key}' = {value!r} has the wrong type, expected {_type_name(tp)}")
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise bad()
+    elif tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad()
+    elif tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise bad()
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: key '{key}' = {value!r} must be a finite number")
+    elif tp is str:
+        if not isinstance(value, str):
+            raise bad()
+    elif tp is list or origin is list:
+        if not isinstance(value, list):
+            raise bad()
+    choices = meta.get("choices") or ()
+    if choices and value not in choices:
+        near = difflib.get_close_matches(str(value), [str(c) for c in choices], n=1)
+        hint = f" (did you mean '{near[0]}'?)" if near else ""
+        raise ConfigError(f"{where}: key '{key}' = {value!r} is not one of {list(choices)}{hint}")
+    low, high = meta.get("low"), meta.get("high")
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if low is not None and value < low:
+            raise ConfigError(f"{where}: key '{key}' = {value!r} must be >= {low}")
+        if high is not None and value > high:
+            raise ConfigError(f"{where}: key '{key}' = {value!r} must be <= {high}")
+    return value
+
+
+def _apply(obj, data: dict, prefix: str, where: str) -> None:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: key '{prefix.rstrip('.') or '<top>'}' must be a mapping, got {type(data).__name__}")
+    fields = _field_types(type(obj))
+    public = [n for n, (f, _) in fields.items() if not f.metadata.get("internal")]
+    for key, value in data.items():
+        dotted = prefix + str(key)
+        if key not in public:
+            near = difflib.get_close_matches(str(key), public, n=1, cutoff=0.5)
+            hint = f"; did you mean '{prefix}{near[0]}'?" if near else f"; valid keys here: {', '.join(public)}"
+            raise ConfigError(f"{where}: unknown key '{dotted}'{hint}")
+        f, tp = fields[key]
+        if _is_section(tp):
+            _apply(getattr(obj, key), value if value is not None else {}, dotted + ".", where)
+        else:
+            setattr(obj, key, _coerce(value, tp, dotted, where, dict(f.metadata)))
+
+
+def _validate(cfg: Config, where: str) -> None:
+    if cfg.reflectance.sigma_min >= cfg.reflectance.sigma_max:
+        raise ConfigError(f"{where}: reflectance.sigma_min ({cfg.reflectance.sigma_min}) must be < reflectance.sigma_max ({cfg.reflectance.sigma_max})")
+    if cfg.reflectance.theta_specular_deg >= cfg.reflectance.theta_diffuse_deg:
+        raise ConfigError(f"{where}: reflectance.theta_specular_deg must be < reflectance.theta_diffuse_deg")
+    if len(cfg.capture.kappa) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.capture.kappa):
+        raise ConfigError(f"{where}: key 'capture.kappa' must be a list of 3 positive numbers, got {cfg.capture.kappa!r}")
+    if len(cfg.synthetic.size_mm) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.synthetic.size_mm):
+        raise ConfigError(f"{where}: key 'synthetic.size_mm' must be a list of 3 positive numbers, got {cfg.synthetic.size_mm!r}")
+    for key, lst in (("fit.holdout", cfg.fit.holdout), ("capture.light_subset", cfg.capture.light_subset or [])):
+        if not all(isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in lst):
+            raise ConfigError(f"{where}: key '{key}' must be a list of non-negative light indices, got {lst!r}")
+    if cfg.capture.kind != "synthetic_cylindrical" and not cfg.capture.path:
+        raise ConfigError(f"{where}: key 'capture.path' is required for capture.kind '{cfg.capture.kind}'")
+    for key in ("geometry.median_size", "geometry.fit_window", "fit.interpolation_window"):
+        section, name = key.split(".")
+        if getattr(getattr(cfg, section), name) % 2 != 1:
+            raise ConfigError(f"{where}: key '{key}' must be an odd number")
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """'a.b=value' -> ('a.b', yaml value)."""
+    if "=" not in text:
+        raise ConfigError(f"override '{text}': expected dotted.key=value")
+    key, raw = text.split("=", 1)
+    try:
+        value = yaml.safe_load(raw) if raw != "" else ""
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"override '{text}': value is not valid YAML ({exc.problem})") from None
+    return key.strip(), value
+
+
+def _nest(key: str, value: Any) -> dict:
+    out: dict = {}
+    cur = out
+    parts = key.split(".")
+    for p in parts[:-1]:
+        cur[p] = {}
+        cur = cur[p]
+    cur[parts[-1]] = value
+    return out
+
+
+def load_config(path: Optional[str | Path] = None, overrides: list[str] = ()) -> Config:
+    """Load a YAML config strictly, apply dotted overrides, validate; returns Config."""
+    cfg = Config()
+    if path is not None:
+        path = Path(path)
+        where = str(path)
+        if not path.is_file():
+            raise ConfigError(f"{where}: config file not found")
+        try:
+            data = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            loc = f" at line {mark.line + 1}" if mark else ""
+            raise ConfigError(f"{where}: not valid YAML{loc}: {getattr(exc, 'problem', exc)}") from None
+        _apply(cfg, data or {}, "", where)
+        cfg.config_dir = str(path.resolve().parent)
+    for text in overrides:
+        key, value = parse_override(text)
+        _apply(cfg, _nest(key, value), "", f"command-line override '{text}'")
+    _validate(cfg, str(path) if path is not None else "config")
+    return cfg
+
+
+def to_dict(cfg) -> dict:
+    """Plain dict of a config (for YAML dumps)."""
+    out = {}
+    for f in dataclasses.fields(cfg):
+        if f.metadata.get("internal"):
+            continue
+        value = getattr(cfg, f.name)
+        out[f.name] = to_dict(value) if dataclasses.is_dataclass(value) else value
+    return out
+
+
+def dump_config(cfg: Config, path: str | Path) -> None:
+    """Write the resolved config as YAML."""
+    Path(path).write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
+
+
+def describe(cls=Config, prefix: str = "") -> list[str]:
+    """One line per option: dotted key, default, choices, doc (for --help)."""
+    lines = []
+    inst = cls()
+    for name, (f, tp) in _field_types(cls).items():
+        if f.metadata.get("internal"):
+            continue
+        if _is_section(tp):
+            lines.append(f"{prefix}{name}:  ({f.metadata.get('doc', '')})")
+            lines.extend(describe(tp, prefix + name + "."))
+            continue
+        meta = f.metadata
+        choices = f" {{{', '.join(map(str, meta['choices']))}}}" if meta.get("choices") else ""
+        default = getattr(inst, name)
+        lines.append(f"  {prefix}{name} = {default!r}{choices}  -- {meta.get('doc', '')}")
+    return lines
+
+
+def resolve_path(cfg: Config, value: str) -> Path:
+    """A path from the config, relative to the config file's folder."""
+    p = Path(value)
+    return p if p.is_absolute() else Path(cfg.config_dir) / p

@@ -1,0 +1,1 @@
+"""Fitting: observation classes, closed forms, interpolation, parameter tensors, refinement."""

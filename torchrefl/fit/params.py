@@ -1,0 +1,54 @@
+"""Texel parameter tensors with constraint-preserving parametrisations.
+
+Pd = softplus_b(raw_pd)   (>= 0; softplus with sharpness b = 20, nearly linear above 0.05)
+Ps = softplus_b(raw_ps)   (>= 0)
+sigma = sigma_min + (sigma_max - sigma_min) * sigmoid(raw_sigma)   (inside the bounds)
+Every map stays inside its constraint for any raw value, so the optimisers need no
+projection, and values and gradients stay finite at the bounds.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+SHARPNESS = 20.0
+_EDGE = 1e-6
+
+
+def softplus_b(x: torch.Tensor) -> torch.Tensor:
+    """softplus(b x) / b with b = SHARPNESS."""
+    return F.softplus(x, beta=SHARPNESS)
+
+
+def inverse_softplus_b(y: torch.Tensor) -> torch.Tensor:
+    """Inverse of softplus_b for y > 0 (y is floored at 1e-6)."""
+    y = y.clamp_min(_EDGE)
+    return y + torch.log(-torch.expm1(-SHARPNESS * y)) / SHARPNESS
+
+
+class TexelParams(nn.Module):
+    """pd (T, 3), ps (T, C), sigma (T,) as constrained functions of raw tensors."""
+
+    def __init__(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor, sigma_min: float, sigma_max: float):
+        super().__init__()
+        self.sigma_min = float(sigma_min)
+        self.sigma_max = float(sigma_max)
+        span = self.sigma_max - self.sigma_min
+        u = ((sigma - self.sigma_min) / span).clamp(_EDGE, 1 - _EDGE)
+        self.raw_pd = nn.Parameter(inverse_softplus_b(pd).detach().clone())
+        self.raw_ps = nn.Parameter(inverse_softplus_b(ps).detach().clone())
+        self.raw_sigma = nn.Parameter(torch.logit(u).detach().clone())
+
+    def pd(self) -> torch.Tensor:
+        return softplus_b(self.raw_pd)
+
+    def ps(self) -> torch.Tensor:
+        return softplus_b(self.raw_ps)
+
+    def sigma(self) -> torch.Tensor:
+        return self.sigma_min + (self.sigma_max - self.sigma_min) * torch.sigmoid(self.raw_sigma)
+
+    def values(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        return self.pd(), self.ps(), self.sigma()

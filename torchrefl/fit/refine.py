@@ -1,0 +1,140 @@
+"""Autograd refinement of the texel parameter tensors (LBFGS or Adam).
+
+Objective (per fitted observation, residuals in 8-bit digital numbers of the sensor range):
+    mean over (p, t, c) of rho(255 * (i_hat - i))
+  + prior_weight * mean over texels without specular evidence of
+        (ln(Ps + eps) - ln(Ps0 + eps))^2 + ((sigma - sigma0) / 0.05)^2
+  + smoothness * mean over grid-neighbour pairs of the same two differences,
+with rho the robust loss (l2, huber, cauchy) at scale `loss_scale_8bit`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import torch
+
+from torchrefl.errors import FitError
+from torchrefl.fit.params import TexelParams
+
+_LOG_EPS = 1e-3
+_SIGMA_SCALE = 0.05
+
+
+def robust_loss(r: torch.Tensor, kind: str, scale: float) -> torch.Tensor:
+    """Elementwise rho(r) for residuals r (any shape); all equal r^2/2 near 0."""
+    if kind == "l2":
+        return 0.5 * r * r
+    if kind == "huber":
+        a = r.abs()
+        return torch.where(a <= scale, 0.5 * r * r, scale * (a - 0.5 * scale))
+    if kind == "cauchy":
+        return 0.5 * scale * scale * torch.log1p((r / scale) ** 2)
+    raise FitError(f"fit.loss: unknown robust loss '{kind}', expected l2, huber or cauchy")
+
+
+@dataclass
+class Objective:
+    """Everything the objective needs besides the parameters.
+
+    predict: callable (pd, ps, sigma) -> (P, T, 3) predicted intensities.
+    intensity: (P, T, 3) measured; weight: (P, T) bool observations that are fitted.
+    prior_mask: (T,) bool texels pulled to (ps0, sigma0); neighbours: (E, 2) texel index pairs or None.
+    """
+
+    predict: Callable
+    intensity: torch.Tensor
+    weight: torch.Tensor
+    loss: str = "huber"
+    loss_scale_8bit: float = 3.0
+    prior_weight: float = 0.0
+    prior_mask: Optional[torch.Tensor] = None
+    ps0: Optional[torch.Tensor] = None
+    sigma0: Optional[torch.Tensor] = None
+    smoothness: float = 0.0
+    neighbours: Optional[torch.Tensor] = None
+
+    def __post_init__(self):
+        self._w = self.weight.to(self.intensity.dtype)[..., None]
+        self._count = float(self.weight.sum()) * self.intensity.shape[-1]
+        if self._count == 0:
+            raise FitError("nothing to fit: no valid observation is left after masking (check fit.holdout and the capture)")
+
+    def __call__(self, params: TexelParams) -> torch.Tensor:
+        pd, ps, sigma = params.values()
+        pred = self.predict(pd, ps, sigma)
+        r = (pred - self.intensity) * 255.0
+        total = (robust_loss(r, self.loss, self.loss_scale_8bit) * self._w).sum() / self._count
+        if self.prior_weight > 0 and self.prior_mask is not None and self.prior_mask.any():
+            m = self.prior_mask
+            d_ps = torch.log(ps[m] + _LOG_EPS) - torch.log(self.ps0[m] + _LOG_EPS)
+            d_sg = (sigma[m] - self.sigma0[m]) / _SIGMA_SCALE
+            total = total + self.prior_weight * ((d_ps ** 2).sum(-1) + d_sg ** 2).mean()
+        if self.smoothness > 0 and self.neighbours is not None and len(self.neighbours):
+            i, j = self.neighbours[:, 0], self.neighbours[:, 1]
+            lp = torch.log(ps + _LOG_EPS)
+            d_ps = lp[i] - lp[j]
+            d_sg = (sigma[i] - sigma[j]) / _SIGMA_SCALE
+            total = total + self.smoothness * ((d_ps ** 2).sum(-1) + d_sg ** 2).mean()
+        return total
+
+
+def refine(params: TexelParams, objective: Objective, optimizer: str = "lbfgs", iterations: int = 60,
+           learning_rate: float = 0.05, progress=None) -> list[float]:
+    """Minimise the objective in place; returns the loss history (one value per iteration)."""
+    history: list[float] = []
+    if optimizer == "none" or iterations == 0:
+        with torch.no_grad():
+            history.append(float(objective(params)))
+        return history
+    if optimizer == "lbfgs":
+        opt = torch.optim.LBFGS(params.parameters(), lr=1.0, max_iter=iterations, max_eval=int(iterations * 1.5),
+                                history_size=20, tolerance_grad=1e-10, tolerance_change=1e-12,
+                                line_search_fn="strong_wolfe")
+
+        def closure():
+            opt.zero_grad()
+            loss = objective(params)
+            loss.backward()
+            history.append(float(loss))
+            if progress is not None:
+                progress.update(1)
+                progress.set_postfix(loss=f"{float(loss):.4g}")
+            return loss
+
+        opt.step(closure)
+    elif optimizer == "adam":
+        opt = torch.optim.Adam(params.parameters(), lr=learning_rate)
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=iterations, eta_min=learning_rate * 0.02)
+        for _ in range(iterations):
+            opt.zero_grad()
+            loss = objective(params)
+            loss.backward()
+            opt.step()
+            sched.step()
+            history.append(float(loss))
+            if progress is not None:
+                progress.update(1)
+                progress.set_postfix(loss=f"{float(loss):.4g}")
+    else:
+        raise FitError(f"fit.optimizer: unknown optimiser '{optimizer}', expected lbfgs, adam or none")
+    if not all(map(lambda v: v == v and abs(v) != float("inf"), history)):
+        raise FitError(f"the {optimizer} refinement diverged (loss became NaN or inf)")
+    return history
+
+
+def grid_neighbours(texel_index: torch.Tensor, grid_shape: tuple[int, int]) -> torch.Tensor:
+    """(E, 2) pairs of valid texels that are right or down neighbours on the (H, W) grid."""
+    H, W = grid_shape
+    lookup = torch.full((H * W,), -1, dtype=torch.long)
+    lookup[texel_index] = torch.arange(texel_index.numel())
+    rows, cols = texel_index // W, texel_index % W
+    pairs = []
+    for dr, dc in ((0, 1), (1, 0)):
+        ok = (rows + dr < H) & (cols + dc < W)
+        other = lookup[((rows + dr) * W + cols + dc)[ok]]
+        src = torch.arange(texel_index.numel())[ok]
+        good = other >= 0
+        pairs.append(torch.stack([src[good], other[good]], 1))
+    return torch.cat(pairs)

@@ -1,0 +1,55 @@
+"""Triangle meshes and texel areas from a grid of 3-D points (a range image)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def grid_triangulation(points: np.ndarray, valid: np.ndarray, wrap: bool = False,
+                       max_edge_ratio: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
+    """Two triangles per grid quad whose four corners are valid.
+
+    points: (H, W, 3) float; valid: (H, W) bool. Quads spanning a depth discontinuity
+    (an edge longer than max_edge_ratio times the median edge length) are left out.
+    wrap=True also joins the last column to the first (a full turn).
+    Returns vertices (H*W, 3) float64 (invalid grid points set to 0, unused) and faces (F, 3) int64.
+    """
+    H, W = valid.shape
+    verts = np.where(valid[..., None], points, 0.0).reshape(-1, 3).astype(np.float64)
+    cols = np.arange(W if wrap else W - 1)
+    rows = np.arange(H - 1)
+    R, C = np.meshgrid(rows, cols, indexing="ij")
+    C1 = (C + 1) % W
+    a = R * W + C
+    b = R * W + C1
+    c = (R + 1) * W + C
+    d = (R + 1) * W + C1
+    vflat = valid.ravel()
+    ok = vflat[a] & vflat[b] & vflat[c] & vflat[d]
+    a, b, c, d = a[ok], b[ok], c[ok], d[ok]
+    if a.size == 0:
+        return verts, np.zeros((0, 3), dtype=np.int64)
+    edges = np.stack([
+        np.linalg.norm(verts[a] - verts[b], axis=-1), np.linalg.norm(verts[a] - verts[c], axis=-1),
+        np.linalg.norm(verts[d] - verts[b], axis=-1), np.linalg.norm(verts[d] - verts[c], axis=-1),
+        np.linalg.norm(verts[a] - verts[d], axis=-1) / np.sqrt(2.0),
+    ])
+    scale = np.median(edges[:4])
+    keep = (edges.max(axis=0) <= max_edge_ratio * max(scale, 1e-12))
+    a, b, c, d = a[keep], b[keep], c[keep], d[keep]
+    faces = np.concatenate([np.stack([a, c, b], -1), np.stack([b, c, d], -1)])
+    return verts, faces.astype(np.int64)
+
+
+def texel_areas(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(H, W) area of each texel, |dS/drow x dS/dcol| from central differences (one-sided at borders).
+
+    Texels whose neighbours are invalid use the valid side; isolated texels get the median area.
+    """
+    p = np.where(valid[..., None], points, np.nan)
+    d_row = np.gradient(p, axis=0)
+    d_col = np.gradient(p, axis=1)
+    area = np.linalg.norm(np.cross(d_row, d_col), axis=-1)
+    good = np.isfinite(area) & valid
+    fill = float(np.median(area[good])) if good.any() else 1.0
+    return np.where(good, area, np.where(valid, fill, 0.0))

@@ -1,0 +1,161 @@
+"""Automatic light-position selection (dissertation Ch.2).
+
+For every candidate light p and texel x:
+- measurable (eq. 2.17 plus cast shadows): V.N > 0, L.N > 0 and the segment to the light is
+  unblocked (Embree occlusion rays);
+- diffuse only (eq. 2.20): measurable and theta_h > theta_th1 (60 deg);
+- strong specular (eq. 2.21): measurable and theta_h <= theta_th2 (20 deg).
+A texel is covered diffusely once it has one diffuse-only observation and specularly once it
+has two strong-specular observations (eq. 3.5 needs two). Greedy selection: each round adds
+the candidate that covers the most still-uncovered texels diffusely (while diffuse coverage
+is below what all candidates reach) and the one that adds the most strong-specular
+observations to texels that still need them (the seed's max D_p / max S_q). Selection stops
+when diffuse coverage equals the all-candidates value and specular coverage reaches th1
+(stop_ratio, 80 %) of the all-candidates value, or at max_lights; num_lights forces a count.
+Coverage is over the texels the camera sees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from torchrefl.errors import ConfigError
+
+
+@dataclass
+class SelectionResult:
+    """chosen: candidate indices in selection order; roles: 'diffuse' or 'specular' per pick;
+    diffuse_curve / specular_curve: coverage (fraction of seen texels) after each pick;
+    all_diffuse / all_specular: coverage with every candidate."""
+
+    chosen: list
+    roles: list
+    diffuse_curve: list
+    specular_curve: list
+    all_diffuse: float
+    all_specular: float
+    num_candidates: int
+    seen_texels: int
+    positions: np.ndarray = field(default=None)
+
+    @property
+    def num_diffuse_picks(self) -> int:
+        return sum(r == "diffuse" for r in self.roles)
+
+    def table(self) -> dict:
+        """A Table 2.2 analogue."""
+        return {
+            "lights_selected": len(self.chosen),
+            "lights_for_diffuse": self.num_diffuse_picks,
+            "diffuse_coverage": self.diffuse_curve[-1] if self.diffuse_curve else 0.0,
+            "specular_coverage": self.specular_curve[-1] if self.specular_curve else 0.0,
+            "diffuse_coverage_all_candidates": self.all_diffuse,
+            "specular_coverage_all_candidates": self.all_specular,
+            "candidates": self.num_candidates,
+        }
+
+    def to_json(self) -> dict:
+        out = self.table()
+        out.update({
+            "chosen": [int(c) for c in self.chosen], "roles": list(self.roles),
+            "diffuse_curve": [float(x) for x in self.diffuse_curve],
+            "specular_curve": [float(x) for x in self.specular_curve],
+            "positions_mm": None if self.positions is None else np.asarray(self.positions)[self.chosen].tolist(),
+        })
+        return out
+
+
+def measurability(theta_h: np.ndarray, measurable: np.ndarray, theta_diffuse_deg: float = 60.0,
+                  theta_specular_deg: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
+    """(P, T) bool diffuse-only (eq. 2.20) and strong-specular (eq. 2.21) masks."""
+    diffuse = measurable & (theta_h > math.radians(theta_diffuse_deg))
+    specular = measurable & (theta_h <= math.radians(theta_specular_deg))
+    return diffuse, specular
+
+
+def greedy_select(diffuse: np.ndarray, specular: np.ndarray, seen: np.ndarray, stop_ratio: float = 0.8,
+                  max_lights: int = 20, num_lights: int | None = None) -> SelectionResult:
+    """Greedy max-D / max-S selection over candidate masks (P, T) restricted to seen texels (T,)."""
+    P = diffuse.shape[0]
+    if num_lights is not None and not (1 <= num_lights <= P):
+        raise ConfigError(f"selection.num_lights = {num_lights} must be between 1 and the {P} candidates")
+    Dm = diffuse[:, seen].astype(np.float32)
+    Sm = specular[:, seen].astype(np.float32)
+    n = max(int(seen.sum()), 1)
+    all_d = float((Dm.sum(0) >= 1).sum()) / n
+    all_s = float((Sm.sum(0) >= 2).sum()) / n
+    d_count = np.zeros(Dm.shape[1], dtype=np.float32)
+    s_count = np.zeros(Dm.shape[1], dtype=np.float32)
+    chosen, roles, dcurve, scurve = [], [], [], []
+    available = np.ones(P, dtype=bool)
+    target = num_lights if num_lights is not None else max_lights
+
+    def cov():
+        return float((d_count >= 1).sum()) / n, float((s_count >= 2).sum()) / n
+
+    def take(p: int, role: str) -> None:
+        available[p] = False
+        chosen.append(p)
+        roles.append(role)
+        d_count[:] += Dm[p]
+        s_count[:] += Sm[p]
+        dc, sc = cov()
+        dcurve.append(dc)
+        scurve.append(sc)
+
+    def pick(role: str) -> bool:
+        need = (d_count < 1) if role == "diffuse" else (s_count < 2)
+        gain = (Dm if role == "diffuse" else Sm) @ need.astype(np.float32)
+        gain = np.where(available, gain, -1.0)
+        p = int(np.argmax(gain))
+        if gain[p] <= 0:
+            return False
+        take(p, role)
+        return True
+
+    while len(chosen) < target and available.any():
+        dc, sc = cov()
+        diffuse_done = dc >= all_d - 1e-12
+        spec_done = sc >= stop_ratio * all_s - 1e-12
+        if num_lights is None and diffuse_done and spec_done:
+            break
+        progressed = False
+        if not diffuse_done:
+            progressed |= pick("diffuse")
+        if len(chosen) < target and (not spec_done or num_lights is not None):
+            progressed |= pick("specular")
+        if not progressed:
+            if num_lights is None:
+                break
+            # forced count and no candidate adds coverage: take the one with most observations
+            score = np.where(available, Sm.sum(1) + Dm.sum(1), -1.0)
+            take(int(np.argmax(score)), "specular")
+    return SelectionResult(chosen, roles, dcurve, scurve, all_d, all_s, P, int(seen.sum()))
+
+
+def plot_coverage(result: SelectionResult, path) -> None:
+    """A Fig. 2.12 analogue: diffuse and specular coverage against the number of selected lights."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    k = np.arange(1, len(result.chosen) + 1)
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
+    for ax, curve, full, title in (
+        (axes[0], result.diffuse_curve, result.all_diffuse, "diffuse only (1 observation)"),
+        (axes[1], result.specular_curve, result.all_specular, "strong specular (2 observations)"),
+    ):
+        ax.plot(k, np.array(curve) * 100, "o-", label="selected")
+        ax.axhline(full * 100, color="grey", ls="--", label=f"all {result.num_candidates} candidates")
+        ax.set_xlabel("number of selected lights")
+        ax.set_ylabel("coverage of seen texels [%]")
+        ax.set_title(title)
+        ax.set_ylim(0, 105)
+        ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -1,0 +1,1 @@
+"""Outputs: metrics, maps, plots, stage timing and progress."""

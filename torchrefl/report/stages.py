@@ -1,0 +1,43 @@
+"""Stage timing and progress bars.
+
+`Stages` times named stages (wall clock) for metrics.json and prints a summary table;
+`bar` makes a tqdm progress bar that is silent when progress is off or stderr is not a terminal
+and the run is short.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from contextlib import contextmanager
+
+from tqdm import tqdm
+
+
+class Stages:
+    """Collects wall-clock seconds per stage, in order."""
+
+    def __init__(self, log=None):
+        self.timing: dict[str, float] = {}
+        self.log = log
+
+    @contextmanager
+    def stage(self, name: str):
+        start = time.perf_counter()
+        if self.log:
+            self.log(f"[{name}] ...")
+        try:
+            yield
+        finally:
+            self.timing[name] = self.timing.get(name, 0.0) + time.perf_counter() - start
+            if self.log:
+                self.log(f"[{name}] done in {self.timing[name]:.2f} s")
+
+    def total(self) -> float:
+        return sum(self.timing.values())
+
+
+def bar(total: int, desc: str, enabled: bool = True, unit: str = "it"):
+    """A tqdm progress bar on stderr (disabled when enabled is False)."""
+    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr, leave=False,
+                dynamic_ncols=True, mininterval=0.5)

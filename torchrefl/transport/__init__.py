@@ -1,0 +1,1 @@
+"""Transport levels: local (direct light with shadows); later radiosity and photon."""
