@@ -1,0 +1,113 @@
+"""Config: strict YAML, nearest-key hints, overrides, types, ranges, help, resolved dump."""
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import yaml
+
+from torchrefl.config import Config, describe, dump_config, load_config
+from torchrefl.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def write(tmp_path, text, name="c.yaml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_every_field_has_a_default_and_a_doc():
+    def walk(cls):
+        for f in dataclasses.fields(cls):
+            if f.metadata.get("internal"):
+                continue
+            assert f.metadata.get("doc"), f"{cls.__name__}.{f.name} has no doc"
+            assert f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+            if dataclasses.is_dataclass(f.type) or (isinstance(f.default_factory, type) and dataclasses.is_dataclass(f.default_factory)):
+                walk(f.default_factory)
+    walk(Config)
+
+
+@pytest.mark.parametrize("name", ["default.yaml", "diligent_ball.yaml"])
+def test_bundled_configs_load(name):
+    cfg = load_config(ROOT / "configs" / name)
+    assert cfg.fit.model == "local"
+
+
+def test_misspelt_key_names_file_key_and_nearest(tmp_path):
+    p = write(tmp_path, "fit:\n  optimiser: adam\n")
+    with pytest.raises(ConfigError) as e:
+        load_config(p)
+    msg = str(e.value)
+    assert str(p) in msg and "fit.optimiser" in msg and "fit.optimizer" in msg
+
+
+def test_unknown_top_level_key(tmp_path):
+    with pytest.raises(ConfigError, match="unknown key 'sede'.*'seed'"):
+        load_config(write(tmp_path, "sede: 3\n"))
+
+
+def test_wrong_type_and_choice_and_range(tmp_path):
+    with pytest.raises(ConfigError, match="fit.iterations.*expected int"):
+        load_config(write(tmp_path, "fit:\n  iterations: many\n"))
+    with pytest.raises(ConfigError, match="reflectance.brdf.*'phong'"):
+        load_config(write(tmp_path, "reflectance:\n  brdf: phong\n"))
+    with pytest.raises(ConfigError, match="reflectance.theta_specular_deg.*<= 90"):
+        load_config(write(tmp_path, "reflectance:\n  theta_specular_deg: 120\n"))
+    with pytest.raises(ConfigError, match="sigma_min"):
+        load_config(write(tmp_path, "reflectance:\n  sigma_min: 0.5\n  sigma_max: 0.1\n"))
+
+
+def test_section_must_be_mapping(tmp_path):
+    with pytest.raises(ConfigError, match="'fit' must be a mapping"):
+        load_config(write(tmp_path, "fit: 3\n"))
+
+
+def test_invalid_yaml_names_line(tmp_path):
+    with pytest.raises(ConfigError, match="c.yaml: not valid YAML at line [0-9]"):
+        load_config(write(tmp_path, "fit:\n  iterations: [1, 2\n"))
+
+
+def test_missing_file():
+    with pytest.raises(ConfigError, match="config file not found"):
+        load_config("/nonexistent/torchrefl.yaml")
+
+
+def test_overrides_parse_yaml_values(tmp_path):
+    cfg = load_config(write(tmp_path, "seed: 1\n"), ["output.dir=/tmp/x", "fit.holdout=[5,11,17]", "seed=7", "fit.smoothness=0.5"])
+    assert cfg.output.dir == "/tmp/x" and cfg.fit.holdout == [5, 11, 17] and cfg.seed == 7 and cfg.fit.smoothness == 0.5
+
+
+def test_bad_overrides():
+    with pytest.raises(ConfigError, match="expected dotted.key=value"):
+        load_config(None, ["fit.holdout"])
+    with pytest.raises(ConfigError, match="override 'fit.holdout=\\[1,-2\\]'|fit.holdout"):
+        load_config(None, ["fit.holdout=[1,-2]"])
+    with pytest.raises(ConfigError, match="unknown key 'fit.nope'"):
+        load_config(None, ["fit.nope=1"])
+
+
+def test_capture_path_required_for_disk_captures():
+    with pytest.raises(ConfigError, match="capture.path"):
+        load_config(None, ["capture.kind=photometric_stereo"])
+
+
+def test_even_window_rejected():
+    with pytest.raises(ConfigError, match="fit.interpolation_window.*odd"):
+        load_config(None, ["fit.interpolation_window=4"])
+
+
+def test_dump_round_trips(tmp_path):
+    cfg = load_config(None, ["fit.holdout=[1,2]", "reflectance.brdf=ward"])
+    dump_config(cfg, tmp_path / "resolved.yaml")
+    again = load_config(tmp_path / "resolved.yaml")
+    assert again.fit.holdout == [1, 2] and again.reflectance.brdf == "ward"
+    assert "config_dir" not in yaml.safe_load((tmp_path / "resolved.yaml").read_text())
+
+
+def test_help_lists_every_option():
+    text = "\n".join(describe())
+    for key in ("fit.holdout", "output.dir", "selection.grid.spacing_mm", "reflectance.brdf", "synthetic.range_bits"):
+        assert key in text
