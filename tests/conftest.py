@@ -1,0 +1,56 @@
+"""Shared test scene: texels on a gently curved patch lit by point lights, observations from
+the exact local model (so closed forms and fits can be checked against known parameters)."""
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from torchrefl.capture.observations import Observations  # noqa: E402
+
+
+def point_light_observations(normals, positions, light_positions, camera, intensity=1.0e5, dtype=torch.float64):
+    """Observations (no intensities yet: zeros) for point lights (P, 3) and a pinhole camera position (3,)."""
+    x = torch.as_tensor(positions, dtype=dtype)
+    n = torch.as_tensor(normals, dtype=dtype)
+    L = torch.as_tensor(light_positions, dtype=dtype)
+    to_l = L[:, None, :] - x[None]
+    dist = to_l.norm(dim=-1)
+    l = to_l / dist[..., None]
+    v = torch.as_tensor(camera, dtype=dtype) - x
+    v = v / v.norm(dim=-1, keepdim=True)
+    P, T = l.shape[:2]
+    valid = ((n[None] * l).sum(-1) > 0) & ((n * v).sum(-1) > 0)[None]
+    return Observations(
+        intensity=torch.zeros(P, T, 3, dtype=dtype), valid=valid, saturated=torch.zeros(P, T, dtype=torch.bool),
+        shadowed=torch.zeros(P, T, dtype=torch.bool), light_dir=l, falloff=1.0 / dist ** 2,
+        light_intensity=torch.full((P, 3), float(intensity), dtype=dtype), view_dir=v,
+        kappa=torch.full((3,), math.pi, dtype=dtype), light_positions=L,
+    )
+
+
+def dome_scene(T=400, seed=0, dtype=torch.float64):
+    """Texels on a shallow spherical cap (normals within ~25 deg of +z), oblique camera, a 9 x 9 grid of low
+    lights above the cap. Returns normals (T, 3), positions (T, 3), lights (81, 3), camera (3,)."""
+    rng = np.random.default_rng(seed)
+    R = 200.0
+    xy = rng.uniform(-80, 80, size=(T, 2))
+    z = np.sqrt(R ** 2 - (xy ** 2).sum(1)) - R
+    pos = np.column_stack([xy, z])
+    nrm = pos - np.array([0.0, 0.0, -R])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    g = np.linspace(-450, 450, 9)
+    gx, gy = np.meshgrid(g, g)
+    lights = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, 100.0)])
+    camera = np.array([400.0, 0.0, 250.0])
+    return nrm, pos, lights, camera
+
+
+@pytest.fixture
+def dome():
+    return dome_scene()
