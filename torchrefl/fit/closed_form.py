@@ -4,9 +4,8 @@ Written on the precomputed local terms i = Pd * A + Ps * D(theta_h; sigma) * B
 (torchrefl.transport.local.LocalTerms), which generalises the seed's Y/C^2 factors
 to any kappa, light intensity and falloff.
 
-- Pd (eq. 3.3): Pd = i / A from the T_diff observation with the smallest theta_h.
-  Texels with no T_diff observation get the smallest i / A over their valid observations
-  (an upper bound of Pd, since specular light only adds) and are flagged.
+- Pd (eq. 3.3): Pd = i / A, least squares over the T_diff observations (see closed_form_pd).
+  Texels with no T_diff observation get an upper bound of Pd and are flagged.
 - Ps, sigma (eq. 3.4-3.5): the specular part a_k = (i_k - Pd A_k) / B_k = Ps D(theta_k; sigma)
   of the T_spec observations. D is exp(-x / (c sigma^2)) up to a sigma-only factor, with
   x = theta_h^2, c = 2 (Torrance-Sparrow) or x = tan^2 theta_h, c = 1 (Ward), so
@@ -43,23 +42,34 @@ class ClosedForm:
     spec_determined: torch.Tensor
 
 
-def closed_form_pd(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tensor, usable: torch.Tensor):
-    """Eq. 3.3. intensity (P, T, 3), cls (P, T) class codes, usable (P, T) observations allowed.
+def closed_form_pd(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tensor, usable: torch.Tensor,
+                   min_signal: float = 8.0 / 255.0):
+    """Eq. 3.3 over the T_diff observations. intensity (P, T, 3), cls (P, T), usable (P, T).
 
+    With one T_diff observation this is the seed's Pd = C^2 i / (Y cos theta_d); with several it is
+    their least-squares combination Pd = sum(A i) / sum(A^2), which weights bright (reliable)
+    observations most: the seed's "smallest theta_h above theta_th1" is often a grazing, nearly
+    black observation where 8-bit quantisation dominates. Texels without a T_diff observation take
+    the smallest i / A over their observations brighter than `min_signal` (an upper bound of Pd,
+    since specular light only adds); if none is that bright, the least squares over all of them.
     Returns pd (T, 3), from_diffuse (T,), defined (T,).
     """
     A = terms.diffuse
+    lit = A.min(-1).values > 0
+    diff_ok = ((cls == T_DIFF) & usable & lit)[..., None].to(A.dtype)
+    num = (diff_ok * A * intensity).sum(0)
+    den = (diff_ok * A * A).sum(0)
+    from_diffuse = den.min(-1).values > 0
+    pd_diff = num / den.clamp_min(1e-30)
+    any_ok = usable & lit
     ratio = intensity / A.clamp_min(1e-12)
-    inf = torch.tensor(float("inf"), dtype=terms.theta_h.dtype)
-    diff_ok = (cls == T_DIFF) & usable & (A.min(-1).values > 0)
-    th = torch.where(diff_ok, terms.theta_h, inf)
-    best = th.argmin(dim=0)                                     # smallest theta_h above theta_th1
-    from_diffuse = diff_ok.any(dim=0)
-    pd_diff = ratio.gather(0, best[None, :, None].expand(1, -1, 3))[0]
-    any_ok = usable & (A.min(-1).values > 0)
-    lum = torch.where(any_ok, ratio.mean(-1), inf)
-    low = lum.argmin(dim=0)                                     # upper bound from the darkest-ratio observation
+    bright = any_ok & (intensity.mean(-1) >= min_signal)
+    inf = torch.tensor(float("inf"), dtype=A.dtype)
+    low = torch.where(bright, ratio.mean(-1), inf).argmin(dim=0)
     pd_bound = ratio.gather(0, low[None, :, None].expand(1, -1, 3))[0]
+    w = any_ok[..., None].to(A.dtype)
+    pd_ls = (w * A * intensity).sum(0) / (w * A * A).sum(0).clamp_min(1e-30)
+    pd_bound = torch.where(bright.any(0)[:, None], pd_bound, pd_ls)
     defined = any_ok.any(dim=0)
     pd = torch.where(from_diffuse[:, None], pd_diff, pd_bound)
     pd = torch.where(defined[:, None], pd, torch.zeros_like(pd)).clamp_min(0.0)

@@ -28,11 +28,21 @@ def inverse_softplus_b(y: torch.Tensor) -> torch.Tensor:
     return y + torch.log(-torch.expm1(-SHARPNESS * y)) / SHARPNESS
 
 
-class TexelParams(nn.Module):
-    """pd (T, 3), ps (T, C), sigma (T,) as constrained functions of raw tensors."""
+INIT_FLOOR = 0.01
 
-    def __init__(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor, sigma_min: float, sigma_max: float):
+
+class TexelParams(nn.Module):
+    """pd (T, 3), ps (T, C), sigma (T,) as constrained functions of raw tensors.
+
+    Initial Pd and Ps are floored at init_floor: softplus is flat far below zero, so a parameter
+    started at ~0 would barely move; any value down to 0 is still reachable by the optimiser.
+    """
+
+    def __init__(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor, sigma_min: float, sigma_max: float,
+                 init_floor: float = INIT_FLOOR):
         super().__init__()
+        pd = pd.clamp_min(init_floor)
+        ps = ps.clamp_min(init_floor)
         self.sigma_min = float(sigma_min)
         self.sigma_max = float(sigma_max)
         span = self.sigma_max - self.sigma_min

@@ -97,10 +97,10 @@ def refine(params: TexelParams, objective: Objective, optimizer: str = "lbfgs", 
             opt.zero_grad()
             loss = objective(params)
             loss.backward()
-            history.append(float(loss))
+            history.append(float(loss.detach()))
             if progress is not None:
                 progress.update(1)
-                progress.set_postfix(loss=f"{float(loss):.4g}")
+                progress.set_postfix(loss=f"{history[-1]:.4g}")
             return loss
 
         opt.step(closure)
@@ -113,7 +113,7 @@ def refine(params: TexelParams, objective: Objective, optimizer: str = "lbfgs", 
             loss.backward()
             opt.step()
             sched.step()
-            history.append(float(loss))
+            history.append(float(loss.detach()))
             if progress is not None:
                 progress.update(1)
                 progress.set_postfix(loss=f"{float(loss):.4g}")

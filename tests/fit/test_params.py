@@ -1,0 +1,44 @@
+"""Constraint-preserving parametrisation: exact round trip, bounds, finite gradients at the bounds."""
+
+import torch
+
+from torchrefl.fit.params import TexelParams, inverse_softplus_b, softplus_b
+
+
+def test_round_trip_of_initial_values():
+    pd = torch.tensor([[0.0, 1e-4, 0.5], [1.0, 0.02, 2.0]], dtype=torch.float64)
+    ps = torch.tensor([[0.3], [1e-5]], dtype=torch.float64)
+    sigma = torch.tensor([0.01, 0.6], dtype=torch.float64)
+    p = TexelParams(pd, ps, sigma, 0.01, 0.6, init_floor=1e-6)
+    a, b, c = p.values()
+    torch.testing.assert_close(a, pd.clamp_min(1e-6), atol=2e-6, rtol=1e-6)
+    torch.testing.assert_close(b, ps.clamp_min(1e-6), atol=2e-6, rtol=1e-6)
+    assert (c >= 0.01).all() and (c <= 0.6).all()
+    torch.testing.assert_close(c, sigma, atol=1e-6, rtol=0)
+
+
+def test_init_floor_keeps_parameters_movable():
+    p = TexelParams(torch.zeros(2, 3), torch.zeros(2, 1), torch.full((2,), 0.1), 0.01, 0.6)
+    assert (p.pd() >= 0.01 - 1e-6).all()
+    (p.pd().sum() + p.ps().sum()).backward()
+    assert (p.raw_pd.grad > 0.1).all() and (p.raw_ps.grad > 0.1).all()
+
+
+def test_any_raw_value_stays_feasible_with_finite_gradients():
+    raw = torch.tensor([-1e4, -50.0, 0.0, 50.0, 1e4], dtype=torch.float64, requires_grad=True)
+    y = softplus_b(raw)
+    assert (y >= 0).all() and torch.isfinite(y).all()
+    y.sum().backward()
+    assert torch.isfinite(raw.grad).all()
+    p = TexelParams(torch.ones(5, 3), torch.ones(5, 3), torch.full((5,), 0.1), 0.01, 0.6)
+    with torch.no_grad():
+        p.raw_sigma.copy_(raw.detach().float())
+    s = p.sigma()
+    assert (s >= 0.01).all() and (s <= 0.6).all()
+    s.sum().backward()
+    assert torch.isfinite(p.raw_sigma.grad).all()
+
+
+def test_inverse_softplus_b_is_the_inverse():
+    y = torch.linspace(1e-3, 3, 50, dtype=torch.float64)
+    torch.testing.assert_close(softplus_b(inverse_softplus_b(y)), y)

@@ -1,0 +1,75 @@
+"""Refinement: LBFGS and Adam recover known parameters from noisy 8-bit observations; robust loss."""
+
+import pytest
+import torch
+
+from conftest import dome_scene, point_light_observations
+from torchrefl.fit.classify import classify
+from torchrefl.fit.closed_form import closed_form
+from torchrefl.fit.params import TexelParams
+from torchrefl.fit.refine import Objective, grid_neighbours, refine, robust_loss
+from torchrefl.transport.local import local_terms, predict
+
+
+def noisy_scene(T=300, seed=0, outliers=0):
+    nrm, pos, lights, cam = dome_scene(T=T, seed=seed)
+    obs = point_light_observations(nrm, pos, lights[::2], cam, intensity=2.0e4)
+    g = torch.Generator().manual_seed(seed)
+    pd = 0.2 + 0.5 * torch.rand(T, 3, generator=g, dtype=torch.float64)
+    ps = 0.1 + 0.3 * torch.rand(T, 3, generator=g, dtype=torch.float64)
+    sigma = 0.08 + 0.15 * torch.rand(T, generator=g, dtype=torch.float64)
+    terms = local_terms("torrance_sparrow", torch.as_tensor(nrm), obs)
+    clean = predict(terms, pd, ps, sigma)
+    noisy = clean + torch.randn(clean.shape, generator=g, dtype=torch.float64) * (0.5 / 255)
+    noisy = (noisy * 255).round().clamp(0, 255) / 255
+    if outliers:
+        idx = torch.randint(0, noisy.numel(), (outliers,), generator=g)
+        noisy.view(-1)[idx] = 1.0
+    obs.intensity = noisy
+    obs.valid &= clean.max(-1).values < 0.99
+    return obs, terms, (pd, ps, sigma)
+
+
+def fit(obs, terms, optimizer, loss="huber", iterations=80, lr=0.05):
+    cls = classify(terms.theta_h, obs.valid)
+    cf = closed_form(terms, obs.intensity, cls, obs.valid, 3, 0.01, 0.6)
+    ps0 = torch.where(cf.spec_determined[:, None], cf.ps, torch.full_like(cf.ps, 0.2))
+    sg0 = torch.where(cf.spec_determined, cf.sigma, torch.full_like(cf.sigma, 0.15))
+    params = TexelParams(cf.pd, ps0, sg0, 0.01, 0.6)
+    obj = Objective(lambda a, b, c: predict(terms, a, b, c), obs.intensity, obs.valid, loss=loss, loss_scale_8bit=2.0)
+    hist = refine(params, obj, optimizer, iterations, lr)
+    return params, hist, cf
+
+
+@pytest.mark.parametrize("optimizer", ["lbfgs", "adam"])
+def test_refinement_recovers_truth(optimizer):
+    obs, terms, (pd, ps, sigma) = noisy_scene()
+    params, hist, cf = fit(obs, terms, optimizer, iterations=80 if optimizer == "lbfgs" else 300)
+    assert hist[-1] < hist[0]
+    epd, eps, esg = (x.detach() for x in params.values())
+    assert torch.sqrt(((epd - pd) ** 2).mean()) < 0.01
+    assert ((esg - sigma).abs() / sigma).median() < 0.05
+    assert ((eps.mean(-1) - ps.mean(-1)).abs() / ps.mean(-1)).median() < 0.05
+
+
+def test_robust_loss_resists_outliers():
+    obs, terms, (pd, ps, sigma) = noisy_scene(outliers=400)
+    errs = {}
+    for loss in ("l2", "huber"):
+        params, _, _ = fit(obs, terms, "lbfgs", loss=loss)
+        errs[loss] = float((params.pd().detach() - pd).abs().max(-1).values.median())
+    assert errs["huber"] < 0.5 * errs["l2"]
+
+
+def test_robust_losses_agree_near_zero_and_grow_slower():
+    r = torch.tensor([0.01, 10.0], dtype=torch.float64)
+    l2 = robust_loss(r, "l2", 1.0)
+    for kind in ("huber", "cauchy"):
+        v = robust_loss(r, kind, 1.0)
+        assert abs(float(v[0] - l2[0])) < 1e-6 and v[1] < l2[1]
+
+
+def test_grid_neighbours():
+    idx = torch.tensor([0, 1, 3, 4, 8])   # 3 x 3 grid, texels 0,1,3,4,8 valid
+    pairs = {tuple(p) for p in grid_neighbours(idx, (3, 3)).tolist()}
+    assert pairs == {(0, 1), (2, 3), (0, 2), (1, 3)}
