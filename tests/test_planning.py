@@ -1,0 +1,80 @@
+"""Light selection: measurability conditions and the greedy max-D / max-S rule on known masks."""
+
+import math
+
+import numpy as np
+import pytest
+
+from torchrefl.errors import ConfigError
+from torchrefl.planning import greedy_select, measurability, plot_coverage
+
+
+def test_measurability_thresholds():
+    th = np.radians([[70.0, 60.0, 25.0, 20.0, 10.0, 10.0]])
+    meas = np.array([[True, True, True, True, True, False]])
+    d, s = measurability(th, meas, 60.0, 20.0)
+    assert d.tolist() == [[True, False, False, False, False, False]]
+    assert s.tolist() == [[False, False, False, True, True, False]]
+
+
+def toy():
+    # 6 texels, 5 candidates
+    D = np.array([
+        [1, 1, 1, 0, 0, 0],
+        [0, 0, 0, 1, 1, 0],
+        [1, 1, 1, 1, 1, 1],   # the best diffuse light covers everything
+        [0, 0, 0, 0, 0, 0],
+        [0, 0, 0, 0, 0, 0],
+    ], dtype=bool)
+    S = np.array([
+        [0, 0, 0, 0, 0, 0],
+        [1, 1, 0, 0, 0, 0],
+        [0, 0, 0, 0, 0, 0],
+        [1, 1, 1, 1, 0, 0],
+        [1, 1, 1, 1, 1, 0],
+    ], dtype=bool)
+    return D, S, np.ones(6, dtype=bool)
+
+
+def test_greedy_picks_max_gain_and_stops_at_full_coverage():
+    D, S, seen = toy()
+    r = greedy_select(D, S, seen, stop_ratio=1.0, max_lights=10)
+    assert r.chosen[0] == 2 and r.roles[0] == "diffuse"      # covers all 6 texels diffusely
+    assert r.chosen[1] == 4 and r.roles[1] == "specular"     # 5 texels need specular, light 4 gives 5
+    assert r.all_diffuse == 1.0
+    assert math.isclose(r.all_specular, 4 / 6)               # texels 0-3 can reach two specular observations
+    assert math.isclose(r.specular_curve[-1], r.all_specular)
+    assert r.diffuse_curve[-1] == 1.0
+    assert len(r.chosen) == len(set(r.chosen))
+
+
+def test_stop_ratio_stops_early():
+    D, S, seen = toy()
+    full = greedy_select(D, S, seen, stop_ratio=1.0)
+    early = greedy_select(D, S, seen, stop_ratio=0.01)
+    assert len(early.chosen) <= len(full.chosen)
+    assert early.specular_curve[-1] >= 0.01 * early.all_specular
+
+
+def test_num_lights_forces_the_count():
+    D, S, seen = toy()
+    r = greedy_select(D, S, seen, num_lights=5)
+    assert sorted(r.chosen) == [0, 1, 2, 3, 4]
+    with pytest.raises(ConfigError, match="selection.num_lights"):
+        greedy_select(D, S, seen, num_lights=9)
+
+
+def test_unseen_texels_do_not_count():
+    D, S, seen = toy()
+    seen[5] = False
+    r = greedy_select(D, S, seen, stop_ratio=1.0)
+    assert r.seen_texels == 5 and r.all_diffuse == 1.0
+
+
+def test_plot_and_table(tmp_path):
+    D, S, seen = toy()
+    r = greedy_select(D, S, seen, stop_ratio=1.0)
+    plot_coverage(r, tmp_path / "c.png")
+    assert (tmp_path / "c.png").stat().st_size > 1000
+    t = r.table()
+    assert t["lights_selected"] == len(r.chosen) and t["candidates"] == 5
