@@ -114,6 +114,7 @@ class ReflectanceConfig:
     theta_specular_deg: float = opt(20.0, "theta_th2: half-angle at or below which specular is strong (eq. 2.21)", low=0.0, high=90.0)
     sigma_min: float = opt(0.01, "lower bound of the roughness sigma (radians)", low=1e-4)
     sigma_max: float = opt(0.6, "upper bound of the roughness sigma (radians)", low=1e-3)
+    ps_max: float = opt(4.0, "upper bound of Ps (kappa = pi units: 1 = a specular peak as bright as white paper); stops tiny-sigma, huge-Ps fits of faint tails", low=1e-3)
     min_cos_view: float = opt(0.05, "observations with n.v at or below this are not used (grazing view)", low=0.0, high=1.0)
     min_cos_light: float = opt(0.02, "observations with n.l at or below this are not used (grazing light)", low=0.0, high=1.0)
 
@@ -130,6 +131,9 @@ class FitConfig:
     loss_scale_8bit: float = opt(3.0, "robust loss scale, in 8-bit digital numbers", low=1e-6)
     holdout: list = opt([], "light indices excluded from fitting and evaluated afterwards")
     interpolation_window: int = opt(5, "W: window for interpolating undetermined texels (W x W)", low=1)
+    sigma_search: int = opt(32, "sigma values of the variable-projection search that can replace the closed-form start (0 = off)", low=0)
+    specular: str = opt("texel", "Ps, sigma per texel (texel), one lobe for the whole object (shared), or per texel pulled towards the shared lobe (pooled)", choices=("texel", "shared", "pooled"))
+    pooling: float = opt(0.01, "weight of the pull towards the shared lobe when fit.specular is pooled", low=0.0)
     smoothness: float = opt(0.0, "weight of a neighbour-difference prior on log Ps and sigma (0 = independent texels)", low=0.0)
     prior_weight: float = opt(1e-3, "weight pulling texels without specular evidence towards their interpolated Ps, sigma", low=0.0)
 

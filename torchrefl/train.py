@@ -23,7 +23,8 @@ from torchrefl.fit.classify import T_DIFF, T_SPEC, class_counts, classify
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.interpolate import fill_undetermined
 from torchrefl.fit.params import TexelParams
-from torchrefl.fit.refine import Objective, grid_neighbours, refine
+from torchrefl.fit.profile_search import profile_search, sigma_grid
+from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference
 from torchrefl.report.stages import Stages, bar
@@ -157,21 +158,45 @@ def fit_local(cfg: Config, surface, obs, stages: Stages, log, device) -> dict:
         filled, how = fill_undetermined(torch.from_numpy(grid_vals), torch.from_numpy(grid_known),
                                         torch.from_numpy(grid_inside), window=fc.interpolation_window)
         flat = surface.from_grid(filled.numpy()).to(obs.intensity.dtype)
-        ps0 = flat[:, :-1].clamp_min(0)
+        ps0 = flat[:, :-1].clamp(0, rc.ps_max)
         sigma0 = flat[:, -1].clamp(rc.sigma_min, rc.sigma_max)
         if not cf.spec_determined.any():
             ps0 = torch.zeros_like(ps0) + 1e-3
             sigma0 = torch.full_like(sigma0, 0.5 * (rc.sigma_min + rc.sigma_max))
+        search_note = "off"
+        pd_init = cf.pd
+        shared_lobe = None
+        if fc.sigma_search > 0 and rc.brdf != "lambertian":
+            grid_s = sigma_grid(rc.sigma_min, rc.sigma_max, fc.sigma_search)
+            if fc.specular in ("shared", "pooled"):
+                _, ps_g, sg_g, _ = profile_search(terms, obs.intensity, fit_mask, grid_s, rc.ps_channels, shared=True, ps_max=rc.ps_max)
+                shared_lobe = (ps_g.to(ps0.dtype), sg_g.to(sigma0.dtype))
+            if fc.specular == "shared":
+                pd_s, ps_s, sg_s, err_s = profile_search(terms, obs.intensity, fit_mask, grid_s, rc.ps_channels, shared=True, ps_max=rc.ps_max)
+            else:
+                pd_s, ps_s, sg_s, err_s = profile_search(terms, obs.intensity, fit_mask, grid_s, rc.ps_channels, ps_max=rc.ps_max)
+            with torch.no_grad():
+                r0 = (predict(terms, cf.pd, ps0, sigma0) - obs.intensity) * fit_mask[..., None]
+                err0 = (r0 * r0).sum((0, 2))
+            take = err_s < err0 if fc.specular != "shared" else torch.ones_like(err0, dtype=torch.bool)
+            pd_init = torch.where(take[:, None], pd_s.to(cf.pd.dtype), cf.pd)
+            ps0 = torch.where(take[:, None], ps_s.to(ps0.dtype), ps0)
+            sigma0 = torch.where(take, sg_s.to(sigma0.dtype), sigma0)
+            search_note = f"better than the closed form at {int(take.sum())} texels"
+            if shared_lobe is not None:
+                search_note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, sigma {float(shared_lobe[1][0]):.4f}"
         coverage = torch.full((surface.num_texels,), COVER_NONE, dtype=torch.int8)
         coverage[defined] = COVER_PD_ONLY
         coverage[defined & ~cf.pd_from_diffuse] = COVER_PD_BOUND
         coverage[cf.spec_determined] = COVER_FULL
     log(f"closed form: Pd from eq. 3.3 at {int(cf.pd_from_diffuse.sum())} texels, bound at "
         f"{int((defined & ~cf.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at {int(cf.spec_determined.sum())} "
-        f"of {surface.num_texels} texels; the rest interpolated (W = {fc.interpolation_window})")
+        f"of {surface.num_texels} texels; the rest interpolated (W = {fc.interpolation_window}); "
+        f"sigma search: {search_note}")
     with stages.stage("fit"):
         dt = obs.intensity.dtype
-        params = TexelParams(cf.pd.to(dt), ps0.to(dt), sigma0.to(dt), rc.sigma_min, rc.sigma_max).to(device)
+        params = TexelParams(pd_init.to(dt), ps0.to(dt), sigma0.to(dt), rc.sigma_min, rc.sigma_max,
+                             shared_specular=fc.specular == "shared", ps_max=rc.ps_max).to(device)
         dev_terms = terms
         if device.type != "cpu":
             from dataclasses import replace
@@ -179,12 +204,15 @@ def fit_local(cfg: Config, surface, obs, stages: Stages, log, device) -> dict:
                                 cos_v=terms.cos_v.to(device), diffuse=terms.diffuse.to(device),
                                 specular=terms.specular.to(device))
         n_spec = counts["T_spec"]
+        priors = [Prior((~cf.spec_determined).to(device), ps0.to(device), sigma0.to(device), fc.prior_weight)]
+        if fc.specular == "pooled" and shared_lobe is not None:
+            T = surface.num_texels
+            priors.append(Prior(torch.ones(T, dtype=torch.bool, device=device),
+                                shared_lobe[0].expand(T, -1).to(device), shared_lobe[1].expand(T).to(device), fc.pooling))
         objective = Objective(
             predict=lambda pd, ps, sg: predict(dev_terms, pd, ps, sg),
             intensity=obs.intensity.to(device), weight=fit_mask.to(device), loss=fc.loss,
-            loss_scale_8bit=fc.loss_scale_8bit, prior_weight=fc.prior_weight,
-            prior_mask=(~cf.spec_determined).to(device), ps0=ps0.to(device), sigma0=sigma0.to(device),
-            smoothness=fc.smoothness,
+            loss_scale_8bit=fc.loss_scale_8bit, priors=priors, smoothness=fc.smoothness,
             neighbours=grid_neighbours(surface.texel_index, surface.grid_shape).to(device) if fc.smoothness > 0 else None,
         )
         with bar(fc.iterations, f"fit ({fc.optimizer})", cfg.output.progress) as pb:

@@ -1,7 +1,7 @@
 """Texel parameter tensors with constraint-preserving parametrisations.
 
 Pd = softplus_b(raw_pd)   (>= 0; softplus with sharpness b = 20, nearly linear above 0.05)
-Ps = softplus_b(raw_ps)   (>= 0)
+Ps = ps_max * sigmoid(raw_ps)   (inside (0, ps_max); ps_max = inf uses softplus_b, >= 0)
 sigma = sigma_min + (sigma_max - sigma_min) * sigmoid(raw_sigma)   (inside the bounds)
 Every map stays inside its constraint for any raw value, so the optimisers need no
 projection, and values and gradients stay finite at the bounds.
@@ -39,8 +39,14 @@ class TexelParams(nn.Module):
     """
 
     def __init__(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor, sigma_min: float, sigma_max: float,
-                 init_floor: float = INIT_FLOOR):
+                 init_floor: float = INIT_FLOOR, shared_specular: bool = False, ps_max: float = float("inf")):
         super().__init__()
+        self.ps_max = float(ps_max)
+        self.num_texels = int(pd.shape[0])
+        self.shared_specular = shared_specular
+        if shared_specular:                      # one lobe for the whole object: (1, C) and (1,)
+            ps = ps.median(dim=0, keepdim=True).values
+            sigma = sigma.median(dim=0, keepdim=True).values
         pd = pd.clamp_min(init_floor)
         ps = ps.clamp_min(init_floor)
         self.sigma_min = float(sigma_min)
@@ -48,17 +54,22 @@ class TexelParams(nn.Module):
         span = self.sigma_max - self.sigma_min
         u = ((sigma - self.sigma_min) / span).clamp(_EDGE, 1 - _EDGE)
         self.raw_pd = nn.Parameter(inverse_softplus_b(pd).detach().clone())
-        self.raw_ps = nn.Parameter(inverse_softplus_b(ps).detach().clone())
+        if self.ps_max == float("inf"):
+            self.raw_ps = nn.Parameter(inverse_softplus_b(ps).detach().clone())
+        else:
+            self.raw_ps = nn.Parameter(torch.logit((ps / self.ps_max).clamp(_EDGE, 1 - _EDGE)).detach().clone())
         self.raw_sigma = nn.Parameter(torch.logit(u).detach().clone())
 
     def pd(self) -> torch.Tensor:
         return softplus_b(self.raw_pd)
 
     def ps(self) -> torch.Tensor:
-        return softplus_b(self.raw_ps)
+        ps = softplus_b(self.raw_ps) if self.ps_max == float("inf") else self.ps_max * torch.sigmoid(self.raw_ps)
+        return ps.expand(self.num_texels, -1) if self.shared_specular else ps
 
     def sigma(self) -> torch.Tensor:
-        return self.sigma_min + (self.sigma_max - self.sigma_min) * torch.sigmoid(self.raw_sigma)
+        sigma = self.sigma_min + (self.sigma_max - self.sigma_min) * torch.sigmoid(self.raw_sigma)
+        return sigma.expand(self.num_texels) if self.shared_specular else sigma
 
     def values(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return self.pd(), self.ps(), self.sigma()

@@ -2,15 +2,17 @@
 
 Objective (per fitted observation, residuals in 8-bit digital numbers of the sensor range):
     mean over (p, t, c) of rho(255 * (i_hat - i))
-  + prior_weight * mean over texels without specular evidence of
-        (ln(Ps + eps) - ln(Ps0 + eps))^2 + ((sigma - sigma0) / 0.05)^2
+  + sum over priors (mask, Ps0, sigma0, weight) of weight * mean over the masked texels of
+        |ln(Ps + eps) - ln(Ps0 + eps)|^2 + ln(sigma / sigma0)^2
   + smoothness * mean over grid-neighbour pairs of the same two differences,
-with rho the robust loss (l2, huber, cauchy) at scale `loss_scale_8bit`.
+with rho the robust loss (l2, huber, cauchy) at scale `loss_scale_8bit`. Priors pull texels
+without specular evidence towards their interpolated lobe, and (fit.pooling) every texel
+towards the object's shared lobe.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 import torch
@@ -19,7 +21,6 @@ from torchrefl.errors import FitError
 from torchrefl.fit.params import TexelParams
 
 _LOG_EPS = 1e-3
-_SIGMA_SCALE = 0.05
 
 
 def robust_loss(r: torch.Tensor, kind: str, scale: float) -> torch.Tensor:
@@ -35,12 +36,22 @@ def robust_loss(r: torch.Tensor, kind: str, scale: float) -> torch.Tensor:
 
 
 @dataclass
+class Prior:
+    """Pull the texels in mask (T,) towards ps (T, C) and sigma (T,) with this weight."""
+
+    mask: torch.Tensor
+    ps: torch.Tensor
+    sigma: torch.Tensor
+    weight: float
+
+
+@dataclass
 class Objective:
     """Everything the objective needs besides the parameters.
 
     predict: callable (pd, ps, sigma) -> (P, T, 3) predicted intensities.
     intensity: (P, T, 3) measured; weight: (P, T) bool observations that are fitted.
-    prior_mask: (T,) bool texels pulled to (ps0, sigma0); neighbours: (E, 2) texel index pairs or None.
+    priors: list of Prior; neighbours: (E, 2) texel index pairs or None.
     """
 
     predict: Callable
@@ -48,10 +59,7 @@ class Objective:
     weight: torch.Tensor
     loss: str = "huber"
     loss_scale_8bit: float = 3.0
-    prior_weight: float = 0.0
-    prior_mask: Optional[torch.Tensor] = None
-    ps0: Optional[torch.Tensor] = None
-    sigma0: Optional[torch.Tensor] = None
+    priors: list = field(default_factory=list)
     smoothness: float = 0.0
     neighbours: Optional[torch.Tensor] = None
 
@@ -66,17 +74,18 @@ class Objective:
         pred = self.predict(pd, ps, sigma)
         r = (pred - self.intensity) * 255.0
         total = (robust_loss(r, self.loss, self.loss_scale_8bit) * self._w).sum() / self._count
-        if self.prior_weight > 0 and self.prior_mask is not None and self.prior_mask.any():
-            m = self.prior_mask
-            d_ps = torch.log(ps[m] + _LOG_EPS) - torch.log(self.ps0[m] + _LOG_EPS)
-            d_sg = (sigma[m] - self.sigma0[m]) / _SIGMA_SCALE
-            total = total + self.prior_weight * ((d_ps ** 2).sum(-1) + d_sg ** 2).mean()
+        for prior in self.priors:
+            if prior.weight <= 0 or not prior.mask.any():
+                continue
+            m = prior.mask
+            d_ps = torch.log(ps[m] + _LOG_EPS) - torch.log(prior.ps[m] + _LOG_EPS)
+            d_sg = torch.log(sigma[m] / prior.sigma[m])
+            total = total + prior.weight * ((d_ps ** 2).sum(-1) + d_sg ** 2).mean()
         if self.smoothness > 0 and self.neighbours is not None and len(self.neighbours):
             i, j = self.neighbours[:, 0], self.neighbours[:, 1]
             lp = torch.log(ps + _LOG_EPS)
-            d_ps = lp[i] - lp[j]
-            d_sg = (sigma[i] - sigma[j]) / _SIGMA_SCALE
-            total = total + self.smoothness * ((d_ps ** 2).sum(-1) + d_sg ** 2).mean()
+            ls = torch.log(sigma)
+            total = total + self.smoothness * (((lp[i] - lp[j]) ** 2).sum(-1) + (ls[i] - ls[j]) ** 2).mean()
         return total
 
 
