@@ -334,7 +334,7 @@ def fit_quadratic_yokoya_levine(r: torch.Tensor, valid: torch.Tensor, ds: float,
         accept = cand <= (best_res + noise_tolerance * (k * k - 6) * sigma2)[None]
         best = accept.to(torch.uint8).argmax(dim=0)
         best_res = torch.where(torch.isfinite(best_res), cand.gather(0, best[None])[0], best_res)
-    off = torch.tensor(offsets, dtype=torch.long, device=device)       # (K, 2) (dv, dv)
+    off = torch.tensor(offsets, dtype=torch.long, device=device)       # (K, 2) (dv, du)
     dv_b, du_b = off[best, 0], off[best, 1]                            # (H, W)
     rows = torch.arange(H, device=device)[:, None]
     cols = torch.arange(W, device=device)[None, :]
