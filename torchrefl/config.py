@@ -90,6 +90,7 @@ class GeometryConfig:
 
     median_size: int = opt(5, "median filter window (odd)", low=1)
     fit_window: int = opt(5, "Yokoya-Levine quadratic fit window (odd)", low=3)
+    noise_tolerance: float = opt(2.0, "Yokoya-Levine window choice: most centred window within this factor of the median residual of the best (0 = the seed's strict smallest residual, poor on quantised ranges)", low=0.0)
     shadow_offset_mm: float = opt(0.05, "origin offset along the normal for shadow rays, mm", low=0.0)
 
 

@@ -93,6 +93,7 @@ def load_capture(cfg: Config, out: Path, stages: Stages, log) -> dict:
         folder = resolve_path(cfg, cfg.capture.path)
     with stages.stage("geometry"):
         geom = load_scan_geometry(folder, median_size=cfg.geometry.median_size, fit_window=cfg.geometry.fit_window,
+                                  noise_tolerance=cfg.geometry.noise_tolerance,
                                   threads=cfg.threads, dtype=dtype)
     log(f"surface: {geom.surface.num_texels} texels on a {geom.surface.grid_shape} grid, "
         f"{len(geom.surface.mesh_faces)} triangles")

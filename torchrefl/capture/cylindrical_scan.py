@@ -175,7 +175,7 @@ def rig_from_yaml(doc: dict, shape) -> CylindricalRig:
     )
 
 
-def load_scan_geometry(folder, *, median_size: int = 5, fit_window: int = 5, threads: int = 2,
+def load_scan_geometry(folder, *, median_size: int = 5, fit_window: int = 5, noise_tolerance: float = 2.0, threads: int = 2,
                        dtype=torch.float32) -> ScanGeometry:
     """Range image -> Surface (points, normals, areas, mesh) and the rig geometry."""
     folder = Path(folder)
@@ -186,9 +186,11 @@ def load_scan_geometry(folder, *, median_size: int = 5, fit_window: int = 5, thr
     r_t = torch.from_numpy(np.where(valid, r, 0.0))
     geo = preprocess_range_image(
         r_t, torch.from_numpy(valid), s0=rig.angle0, ds=rig.angle_step, t0=rig.height0, dt=rig.height_step,
-        median_size=median_size, window=fit_window, wrap=rig.covers_full_turn(),
+        median_size=median_size, window=fit_window, wrap=rig.covers_full_turn(), noise_tolerance=noise_tolerance,
     )
     ok = geo.valid.numpy() & valid
+    points_ok = np.isfinite(geo.points.numpy()).all(-1) & np.isfinite(geo.normals.numpy()).all(-1)
+    ok &= points_ok
     if not ok.any():
         raise GeometryError(f"{folder / 'range.npy'}: no texel survives preprocessing (mask selects nothing)")
     points = geo.points.numpy()
