@@ -1,0 +1,288 @@
+"""Loader for photometric stereo captures in the DiLiGenT layout.
+
+A folder holds, for one object seen by a fixed orthographic camera:
+
+- NNN.png: one linear 8- or 16-bit RGB image per directional light (filenames.txt, when present,
+  lists them in light order; otherwise the NNN.png files sorted by name).
+- light_directions.txt: P x 3 unit vectors towards each light, camera frame (x right, y up,
+  z towards the camera; image row 0 is the top).
+- light_intensities.txt: P x 3 RGB intensity of each light (> 0).
+- mask.png: object mask, a pixel belongs to the object when any channel is non-zero.
+- Normal_gt.mat: MATLAB file with key `Normal_gt`, (H, W, 3) unit normals in the camera frame.
+
+The texel grid is the image: one texel per mask pixel. There is no depth, so positions are pixel
+coordinates on the z = 0 plane, there is no mesh, and cast shadows are unknown (`shadowed` is all
+False: only attached shadows, n.l <= 0, are excluded). Only local transport applies.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from torchrefl.capture.images import read_image, read_images
+from torchrefl.capture.observations import Observations
+from torchrefl.errors import CaptureError, GeometryError
+from torchrefl.geometry.surface import UNIT_TOLERANCE, Surface
+
+FILENAMES = "filenames.txt"
+LIGHT_DIRECTIONS = "light_directions.txt"
+LIGHT_INTENSITIES = "light_intensities.txt"
+MASK = "mask.png"
+NORMALS = "Normal_gt.mat"
+NORMALS_KEY = "Normal_gt"
+# light directions are stored with 4 decimals: accept rounding, reject vectors that are not unit
+DIRECTION_TOLERANCE = 1e-2
+_IMAGE_NAME = re.compile(r"^\d+\.png$", re.IGNORECASE)
+
+
+def _require_file(path: Path) -> Path:
+    if not path.is_file():
+        raise CaptureError(f"{path}: file missing (a photometric stereo folder needs it, DiLiGenT layout)")
+    return path
+
+
+def read_table(path: Path, columns: int = 3) -> np.ndarray:
+    """(R, columns) float64 rows of a whitespace- or comma-separated text table; blank lines and
+    '#' comments are skipped. CaptureError naming the file and line for non-numeric values or a
+    wrong number of columns."""
+    rows = []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CaptureError(f"{path}: cannot read text table ({exc})") from None
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        fields = line.replace(",", " ").split()
+        if len(fields) != columns:
+            raise CaptureError(
+                f"{path}, line {number}: {len(fields)} values {line!r}, expected {columns} numbers per line")
+        try:
+            rows.append([float(f) for f in fields])
+        except ValueError:
+            raise CaptureError(f"{path}, line {number}: non-numeric value in {line!r}, expected {columns} numbers") from None
+    return np.array(rows, dtype=np.float64).reshape(-1, columns)
+
+
+def _line_numbers(path: Path) -> list[int]:
+    """1-based file line of each data row of a table read by read_table."""
+    out = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if line.split("#", 1)[0].strip():
+            out.append(number)
+    return out
+
+
+def image_names(folder: Path) -> list[str]:
+    """Image file names in light order: filenames.txt when present, else the NNN.png files sorted."""
+    listing = folder / FILENAMES
+    if listing.is_file():
+        names = [ln.strip() for ln in listing.read_text().splitlines() if ln.strip()]
+        if not names:
+            raise CaptureError(f"{listing}: lists no image (expected one image file name per line)")
+        return names
+    names = sorted(p.name for p in folder.iterdir() if p.is_file() and _IMAGE_NAME.match(p.name))
+    if not names:
+        raise CaptureError(f"{folder}: no {FILENAMES} and no NNN.png images (expected the DiLiGenT layout)")
+    return names
+
+
+def _check_rows(path: Path, table: np.ndarray, num_images: int) -> None:
+    if table.shape[0] != num_images:
+        raise CaptureError(
+            f"{path}: {table.shape[0]} rows, expected {num_images} (one row per image; the folder lists {num_images} images)")
+
+
+def read_light_directions(path: Path, num_images: int) -> np.ndarray:
+    """(P, 3) float64 unit light directions (rounding to 4 decimals is renormalised away)."""
+    d = read_table(path)
+    _check_rows(path, d, num_images)
+    norm = np.linalg.norm(d, axis=1)
+    bad = ~np.isfinite(norm) | (np.abs(norm - 1.0) > DIRECTION_TOLERANCE)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise CaptureError(
+            f"{path}, line {_line_numbers(path)[row]}: direction {d[row].tolist()} has length {norm[row]:.4g}, "
+            f"expected a finite unit vector (+- {DIRECTION_TOLERANCE}); {int(bad.sum())} bad rows")
+    return d / norm[:, None]
+
+
+def read_light_intensities(path: Path, num_images: int) -> np.ndarray:
+    """(P, 3) float64 RGB light intensities, finite and > 0."""
+    y = read_table(path)
+    _check_rows(path, y, num_images)
+    bad = ~(np.isfinite(y) & (y > 0)).all(axis=1)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise CaptureError(
+            f"{path}, line {_line_numbers(path)[row]}: intensity {y[row].tolist()}, expected 3 finite values > 0; "
+            f"{int(bad.sum())} bad rows")
+    return y
+
+
+def read_normal_map(path: Path) -> np.ndarray:
+    """(H, W, 3) float64 normal map from a MATLAB file (key Normal_gt)."""
+    import scipy.io
+
+    try:
+        data = scipy.io.loadmat(str(path))
+    except NotImplementedError:
+        raise CaptureError(
+            f"{path}: MATLAB v7.3 (HDF5) files are not supported; re-save it with save(..., '-v7')") from None
+    except Exception as exc:  # scipy raises ValueError/TypeError/OSError for corrupt files
+        raise CaptureError(f"{path}: not a readable MATLAB file ({exc})") from None
+    if NORMALS_KEY not in data:
+        keys = sorted(k for k in data if not k.startswith("__"))
+        raise CaptureError(f"{path}: key '{NORMALS_KEY}' missing (found {keys})")
+    n = np.asarray(data[NORMALS_KEY])
+    if n.ndim != 3 or n.shape[2] != 3 or not np.issubdtype(n.dtype, np.number):
+        raise CaptureError(f"{path}: '{NORMALS_KEY}' has shape {n.shape} ({n.dtype}), expected (H, W, 3) numbers")
+    return n.astype(np.float64)
+
+
+def _light_subset(light_subset, num_images: int, folder: Path) -> list[int]:
+    if light_subset is None:
+        return list(range(num_images))
+    subset = list(light_subset)
+    bad = [i for i in subset if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < num_images]
+    if bad or not subset:
+        raise CaptureError(
+            f"light_subset: {bad if bad else 'empty list'} for {folder}; expected indices in 0..{num_images - 1}")
+    if len(set(subset)) != len(subset):
+        raise CaptureError(f"light_subset: repeated indices in {subset} for {folder}")
+    return [int(i) for i in subset]
+
+
+def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(math.pi, math.pi, math.pi),
+                            light_subset=None, dtype=torch.float32,
+                            threads: int = 2) -> tuple[Surface, Observations, dict]:
+    """Load a DiLiGenT-layout folder into Surface + Observations.
+
+    Surface (T = mask pixels, in row-major order): grid_shape (H, W) of the images;
+    positions (T, 3) pixel coordinates x = col - W/2, y = H/2 - row, z = 0, units "px" (orthographic
+    camera, no depth); normals (T, 3) from Normal_gt.mat; areas (T,) ones; no mesh.
+
+    Observations (P = images loaded, all or `light_subset` (indices into the image list)):
+    intensity (P, T, 3) raw image values as fractions of full range (not divided by the light
+    intensities: the model multiplies by light_intensity, so metrics stay on the sensor scale);
+    light_intensity (P, 3) from light_intensities.txt; light_dir (P, T, 3) the light's direction at
+    every texel (an expanded view: read-only, index it or .clone() it before writing);
+    falloff (P, T) ones (directional lights); view_dir (T, 3) = (0, 0, 1) (expanded view);
+    saturated (P, T) any channel >= saturation_level; shadowed (P, T) all False, because without
+    depth cast shadows cannot be computed (only attached shadows are excluded, through n.l);
+    valid (P, T) = n.v > 0 and n.l > 0 and not saturated and finite.
+
+    Stats: texels, lights, bit_depth, saturated_observations (all saturated observations at mask
+    pixels), valid_observations, per_light {saturated, valid} lists, load_time_s.
+
+    Raises CaptureError (GeometryError for bad normals) naming the file and what was expected when
+    the folder or a file is missing or unreadable, sizes disagree, light tables have the wrong
+    number of rows or columns or bad values, or the mask selects nothing.
+    """
+    t0 = time.perf_counter()
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise CaptureError(f"{folder}: photometric stereo folder missing (expected the DiLiGenT layout)")
+    if not 0.0 < float(saturation_level) <= 1.0:
+        raise CaptureError(f"saturation_level={saturation_level!r} for {folder}, expected a value in (0, 1]")
+    kappa_arr = np.asarray(kappa, dtype=np.float64).reshape(-1)
+    if kappa_arr.shape != (3,) or not (np.isfinite(kappa_arr) & (kappa_arr > 0)).all():
+        raise CaptureError(f"kappa={kappa!r} for {folder}, expected 3 finite values > 0")
+
+    names = image_names(folder)
+    paths = [folder / name for name in names]
+    for p in paths:
+        if not p.is_file():
+            raise CaptureError(f"{p}: image file missing (listed in {folder / FILENAMES})" if (folder / FILENAMES).is_file()
+                               else f"{p}: image file missing")
+    dirs_path = _require_file(folder / LIGHT_DIRECTIONS)
+    ints_path = _require_file(folder / LIGHT_INTENSITIES)
+    mask_path = _require_file(folder / MASK)
+    normals_path = _require_file(folder / NORMALS)
+    directions = read_light_directions(dirs_path, len(names))
+    intensities = read_light_intensities(ints_path, len(names))
+    keep = _light_subset(light_subset, len(names), folder)
+
+    mask_img, _ = read_image(mask_path)
+    first, _ = read_image(paths[keep[0]])
+    H, W = first.shape[:2]
+    if mask_img.shape[:2] != (H, W):
+        raise CaptureError(
+            f"{mask_path} is {mask_img.shape[1]}x{mask_img.shape[0]}, expected {W}x{H} like {paths[keep[0]]}")
+    mask = (mask_img > 0).any(axis=-1)
+    del first, mask_img
+    if not mask.any():
+        raise CaptureError(f"{mask_path}: the mask selects no pixel (expected non-zero pixels on the object)")
+
+    normal_map = read_normal_map(normals_path)
+    if normal_map.shape[:2] != (H, W):
+        raise CaptureError(
+            f"{normals_path}: '{NORMALS_KEY}' is {normal_map.shape[1]}x{normal_map.shape[0]}, expected {W}x{H} "
+            f"like {paths[keep[0]]}")
+    normals = normal_map[mask]
+    length = np.linalg.norm(normals, axis=1)
+    bad = ~np.isfinite(length) | (np.abs(length - 1.0) > UNIT_TOLERANCE)
+    if bad.any():
+        raise GeometryError(
+            f"{normals_path}: {int(bad.sum())} of {normals.shape[0]} normals inside {MASK} are NaN or not unit "
+            f"length (expected |n| = 1 +- {UNIT_TOLERANCE} on the object)")
+    normals = normals / length[:, None]
+
+    intensity, bits = read_images([paths[i] for i in keep], threads=threads, pixels=mask)
+    if dtype == torch.float64:  # recover the exact v / (2**bits - 1) from the float32 fractions
+        full = float(2 ** bits - 1)
+        intensity = np.rint(intensity.astype(np.float64) * full) / full
+
+    rows, cols = np.nonzero(mask)
+    texel_index = np.flatnonzero(mask.ravel())
+    positions = np.column_stack([cols - W / 2.0, H / 2.0 - rows, np.zeros(rows.size)])
+    surface = Surface(
+        grid_shape=(H, W),
+        texel_index=torch.from_numpy(texel_index.astype(np.int64)),
+        positions=torch.from_numpy(positions).to(dtype),
+        normals=torch.from_numpy(normals).to(dtype),
+        areas=torch.ones(rows.size, dtype=dtype),
+        units="px",
+        source=str(folder),
+    )
+
+    P, T = len(keep), rows.size
+    dirs = directions[keep]
+    cos_l = dirs @ normals.T  # (P, T)
+    cos_v = normals[:, 2]  # view (0, 0, 1)
+    saturated = (intensity >= saturation_level).any(axis=-1)
+    finite = np.isfinite(intensity).all(axis=-1)
+    valid = (cos_v > 0)[None] & (cos_l > 0) & ~saturated & finite
+
+    light_dir = torch.from_numpy(dirs).to(dtype)[:, None, :].expand(P, T, 3)
+    obs = Observations(
+        intensity=torch.from_numpy(intensity).to(dtype),
+        valid=torch.from_numpy(valid),
+        saturated=torch.from_numpy(saturated),
+        shadowed=torch.zeros(P, T, dtype=torch.bool),
+        light_dir=light_dir,
+        falloff=torch.ones(1, 1, dtype=dtype).expand(P, T),
+        light_intensity=torch.from_numpy(intensities[keep]).to(dtype),
+        view_dir=torch.tensor([0.0, 0.0, 1.0], dtype=dtype).expand(T, 3),
+        kappa=torch.from_numpy(kappa_arr).to(dtype),
+        light_positions=None,
+        light_names=[names[i] for i in keep],
+        source=str(folder),
+    )
+    stats = {
+        "texels": int(T),
+        "lights": int(P),
+        "bit_depth": int(bits),
+        "saturated_observations": int(saturated.sum()),
+        "valid_observations": int(valid.sum()),
+        "per_light": {"saturated": saturated.sum(axis=1).tolist(), "valid": valid.sum(axis=1).tolist()},
+        "load_time_s": time.perf_counter() - t0,
+    }
+    return surface, obs, stats
