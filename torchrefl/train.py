@@ -319,8 +319,6 @@ def run(cfg: Config, quiet: bool = False) -> dict:
         res = fit_local(cfg, cap["surface"], cap["obs"], stages, log, device)
         metrics = write_outputs(cfg, out, cap, res, stages, log)
         log(summary_table(metrics))
-        if quiet is False:
-            pass
         return metrics
     finally:
         log.close()
@@ -346,7 +344,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("torchrefl: interrupted", file=sys.stderr)
         return 130
-    print(summary_table(metrics))
+    if args.quiet:
+        print(summary_table(metrics))
     return 0
 
 
