@@ -136,7 +136,7 @@ class FitConfig:
     specular: str = opt("texel", "Ps, sigma per texel (texel), one lobe for the whole object (shared), or per texel pulled towards the shared lobe (pooled)", choices=("texel", "shared", "pooled"))
     pooling: float = opt(0.01, "weight of the pull towards the shared lobe when fit.specular is pooled", low=0.0)
     smoothness: float = opt(0.0, "weight of a neighbour-difference prior on log Ps and sigma (0 = independent texels)", low=0.0)
-    prior_weight: float = opt(1e-3, "weight pulling texels without specular evidence towards their interpolated Ps, sigma", low=0.0)
+    prior_weight: float = opt(0.1, "weight pulling texels without specular evidence towards their interpolated Ps, sigma", low=0.0)
 
 
 @dataclass

@@ -20,17 +20,13 @@ from torchrefl import __version__
 from torchrefl.config import Config, describe, dump_config, load_config, resolve_path
 from torchrefl.errors import ConfigError, TorchReflError
 from torchrefl.fit.classify import T_DIFF, T_SPEC, class_counts, classify
-from torchrefl.fit.closed_form import closed_form
-from torchrefl.fit.interpolate import fill_undetermined
+from torchrefl.fit.initialise import initialise_local
 from torchrefl.fit.params import TexelParams
-from torchrefl.fit.profile_search import profile_search, sigma_grid
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference
 from torchrefl.report.stages import Stages, bar
 from torchrefl.transport.local import local_terms, predict
-
-COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND = 0, 1, 2, 3
 
 
 class RunLog:
@@ -151,52 +147,14 @@ def fit_local(cfg: Config, surface, obs, stages: Stages, log, device) -> dict:
         cls = classify(terms.theta_h, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
         counts = class_counts(cls)
     with stages.stage("initialise"):
-        cf = closed_form(terms, obs.intensity, cls, fit_mask, rc.ps_channels, rc.sigma_min, rc.sigma_max)
-        defined = cf.pd_defined
-        grid_known = surface.to_grid(cf.spec_determined.numpy(), fill=False)
-        grid_inside = surface.to_grid(defined.numpy(), fill=False)
-        grid_vals = surface.to_grid(torch.cat([cf.ps, cf.sigma[:, None]], 1).double())
-        filled, how = fill_undetermined(torch.from_numpy(grid_vals), torch.from_numpy(grid_known),
-                                        torch.from_numpy(grid_inside), window=fc.interpolation_window)
-        flat = surface.from_grid(filled.numpy()).to(obs.intensity.dtype)
-        ps0 = flat[:, :-1].clamp(0, rc.ps_max)
-        sigma0 = flat[:, -1].clamp(rc.sigma_min, rc.sigma_max)
-        if not cf.spec_determined.any():
-            ps0 = torch.zeros_like(ps0) + 1e-3
-            sigma0 = torch.full_like(sigma0, 0.5 * (rc.sigma_min + rc.sigma_max))
-        search_note = "off"
-        pd_init = cf.pd
-        shared_lobe = None
-        if fc.sigma_search > 0 and rc.brdf != "lambertian":
-            grid_s = sigma_grid(rc.sigma_min, rc.sigma_max, fc.sigma_search)
-            if fc.specular in ("shared", "pooled"):
-                _, ps_g, sg_g, _ = profile_search(terms, obs.intensity, fit_mask, grid_s, rc.ps_channels, shared=True, ps_max=rc.ps_max)
-                shared_lobe = (ps_g.to(ps0.dtype), sg_g.to(sigma0.dtype))
-            if fc.specular == "shared":
-                pd_s, ps_s, sg_s, err_s = profile_search(terms, obs.intensity, fit_mask, grid_s, rc.ps_channels, shared=True, ps_max=rc.ps_max)
-            else:
-                pd_s, ps_s, sg_s, err_s = profile_search(terms, obs.intensity, fit_mask, grid_s, rc.ps_channels, ps_max=rc.ps_max)
-            with torch.no_grad():
-                r0 = (predict(terms, cf.pd, ps0, sigma0) - obs.intensity) * fit_mask[..., None]
-                err0 = (r0 * r0).sum((0, 2))
-            take = err_s < err0 if fc.specular != "shared" else torch.ones_like(err0, dtype=torch.bool)
-            pd_init = torch.where(take[:, None], pd_s.to(cf.pd.dtype), cf.pd)
-            ps0 = torch.where(take[:, None], ps_s.to(ps0.dtype), ps0)
-            sigma0 = torch.where(take, sg_s.to(sigma0.dtype), sigma0)
-            search_note = f"better than the closed form at {int(take.sum())} texels"
-            if shared_lobe is not None:
-                search_note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, sigma {float(shared_lobe[1][0]):.4f}"
-        coverage = torch.full((surface.num_texels,), COVER_NONE, dtype=torch.int8)
-        coverage[defined] = COVER_PD_ONLY
-        coverage[defined & ~cf.pd_from_diffuse] = COVER_PD_BOUND
-        coverage[cf.spec_determined] = COVER_FULL
-    log(f"closed form: Pd from eq. 3.3 at {int(cf.pd_from_diffuse.sum())} texels, bound at "
-        f"{int((defined & ~cf.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at {int(cf.spec_determined.sum())} "
-        f"of {surface.num_texels} texels; the rest interpolated (W = {fc.interpolation_window}); "
-        f"sigma search: {search_note}")
+        init = initialise_local(terms, obs.intensity, cls, counts["T_spec"], fit_mask, surface,
+                                ps_channels=rc.ps_channels, sigma_min=rc.sigma_min, sigma_max=rc.sigma_max,
+                                ps_max=rc.ps_max, window=fc.interpolation_window, sigma_search=fc.sigma_search,
+                                specular=fc.specular)
+    log(init.note)
     with stages.stage("fit"):
         dt = obs.intensity.dtype
-        params = TexelParams(pd_init.to(dt), ps0.to(dt), sigma0.to(dt), rc.sigma_min, rc.sigma_max,
+        params = TexelParams(init.pd.to(dt), init.ps.to(dt), init.sigma.to(dt), rc.sigma_min, rc.sigma_max,
                              shared_specular=fc.specular == "shared", ps_max=rc.ps_max).to(device)
         dev_terms = terms
         if device.type != "cpu":
@@ -205,11 +163,12 @@ def fit_local(cfg: Config, surface, obs, stages: Stages, log, device) -> dict:
                                 cos_v=terms.cos_v.to(device), diffuse=terms.diffuse.to(device),
                                 specular=terms.specular.to(device))
         n_spec = counts["T_spec"]
-        priors = [Prior((~cf.spec_determined).to(device), ps0.to(device), sigma0.to(device), fc.prior_weight)]
-        if fc.specular == "pooled" and shared_lobe is not None:
-            T = surface.num_texels
+        T = surface.num_texels
+        priors = [Prior((~init.known).to(device), init.ps.to(device), init.sigma.to(device), fc.prior_weight)]
+        if fc.specular == "pooled" and init.shared_lobe is not None:
             priors.append(Prior(torch.ones(T, dtype=torch.bool, device=device),
-                                shared_lobe[0].expand(T, -1).to(device), shared_lobe[1].expand(T).to(device), fc.pooling))
+                                init.shared_lobe[0].expand(T, -1).to(device), init.shared_lobe[1].expand(T).to(device),
+                                fc.pooling))
         objective = Objective(
             predict=lambda pd, ps, sg: predict(dev_terms, pd, ps, sg),
             intensity=obs.intensity.to(device), weight=fit_mask.to(device), loss=fc.loss,
@@ -225,8 +184,8 @@ def fit_local(cfg: Config, surface, obs, stages: Stages, log, device) -> dict:
         pred = predict(terms, pd, ps, sigma)
     return {
         "pd": pd, "ps": ps, "sigma": sigma, "pred": pred, "fit_mask": fit_mask, "eval_mask": eval_mask,
-        "classes": cls, "counts": counts, "coverage": coverage, "estimated": defined, "history": history,
-        "closed_form": cf, "n_spec": n_spec, "held": held,
+        "classes": cls, "counts": counts, "coverage": init.coverage, "estimated": init.defined, "history": history,
+        "init": init, "n_spec": n_spec, "held": held,
     }
 
 
@@ -254,8 +213,9 @@ def write_outputs(cfg: Config, out: Path, cap: dict, res: dict, stages: Stages, 
             "holdout_lights": list(cfg.fit.holdout),
             "rerender": image_difference(res["pred"], obs.intensity, res["fit_mask"]),
             "coverage": {
-                "pd_closed_form": int(res["closed_form"].pd_from_diffuse.sum()),
-                "spec_closed_form": int(res["closed_form"].spec_determined.sum()),
+                "pd_closed_form": int(res["init"].pd_from_diffuse.sum()),
+                "spec_closed_form": int(res["init"].spec_closed_form.sum()),
+                "spec_known": int(res["init"].known.sum()),
                 "estimated": int(mask_t.sum()),
             },
             "fit": {"optimizer": cfg.fit.optimizer, "loss_first": res["history"][0], "loss_last": res["history"][-1],

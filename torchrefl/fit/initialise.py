@@ -1,0 +1,103 @@
+"""Initial texel parameters for the local fit (Method I, dissertation 3.2).
+
+1. Closed forms: Pd by eq. 3.3, Ps and sigma by eq. 3.5 (torchrefl.fit.closed_form).
+2. Optional variable-projection search over sigma (torchrefl.fit.profile_search) at texels with
+   specular evidence (at least two T_spec observations): it replaces the closed form where its
+   squared error is lower (noise or a rough lobe can defeat the two-observation closed form).
+   With fit.specular = shared (or pooled) one lobe for the whole object is searched too.
+3. Texels whose Ps and sigma are still undetermined are filled from determined neighbours in a
+   W x W window (torchrefl.fit.interpolate); the fit keeps them near these values with a prior,
+   because their own observations carry (almost) no specular signal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import torch
+
+from torchrefl.fit.closed_form import closed_form
+from torchrefl.fit.interpolate import fill_undetermined
+from torchrefl.fit.profile_search import profile_search, sigma_grid
+from torchrefl.geometry.surface import Surface
+from torchrefl.transport.local import LocalTerms, predict
+
+COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND = 0, 1, 2, 3
+
+
+@dataclass
+class Initial:
+    """pd (T, 3), ps (T, C), sigma (T,) starting values; known (T,) Ps/sigma determined from the
+    texel's own data; defined (T,) any fitted observation; coverage (T,) int8 code; shared_lobe
+    (ps (1, C), sigma (1,)) or None; note: a line for the log."""
+
+    pd: torch.Tensor
+    ps: torch.Tensor
+    sigma: torch.Tensor
+    known: torch.Tensor
+    defined: torch.Tensor
+    coverage: torch.Tensor
+    pd_from_diffuse: torch.Tensor
+    spec_closed_form: torch.Tensor
+    shared_lobe: Optional[tuple]
+    note: str
+
+
+def initialise_local(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tensor, n_spec: torch.Tensor,
+                     fit_mask: torch.Tensor, surface: Surface, *, ps_channels: int, sigma_min: float,
+                     sigma_max: float, ps_max: float, window: int, sigma_search: int, specular: str) -> Initial:
+    """Closed forms, sigma search and interpolation; see the module docstring."""
+    cf = closed_form(terms, intensity, cls, fit_mask, ps_channels, sigma_min, sigma_max)
+    defined = cf.pd_defined
+    pd = cf.pd.clone()
+    ps = cf.ps.clamp(0, ps_max)
+    sigma = cf.sigma.clone()
+    known = cf.spec_determined.clone()
+    shared_lobe = None
+    note = "sigma search off"
+    if sigma_search > 0 and terms.brdf != "lambertian":
+        grid = sigma_grid(sigma_min, sigma_max, sigma_search)
+        if specular in ("shared", "pooled"):
+            pd_g, ps_g, sg_g, _ = profile_search(terms, intensity, fit_mask, grid, ps_channels, shared=True, ps_max=ps_max)
+            shared_lobe = (ps_g[:1].to(ps.dtype), sg_g[:1].to(sigma.dtype))
+        if specular == "shared":
+            pd, ps, sigma = pd_g.to(pd.dtype), ps_g.to(ps.dtype), sg_g.to(sigma.dtype)
+            known = defined.clone()
+            note = f"one shared lobe: Ps {[round(float(x), 4) for x in ps_g[0]]}, sigma {float(sg_g[0]):.4f}"
+        else:
+            pd_s, ps_s, sg_s, err_s = profile_search(terms, intensity, fit_mask, grid, ps_channels, ps_max=ps_max)
+            with torch.no_grad():
+                r0 = (predict(terms, cf.pd, ps, sigma) - intensity) * fit_mask[..., None]
+                err0 = (r0 * r0).sum((0, 2))
+            evidence = (n_spec >= 2) & defined
+            take = evidence & (~cf.spec_determined | (err_s < err0))
+            pd = torch.where(take[:, None], pd_s.to(pd.dtype), pd)
+            ps = torch.where(take[:, None], ps_s.to(ps.dtype), ps)
+            sigma = torch.where(take, sg_s.to(sigma.dtype), sigma)
+            known = cf.spec_determined | take
+            note = f"sigma search kept at {int(take.sum())} texels with specular evidence"
+            if shared_lobe is not None:
+                note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, sigma {float(shared_lobe[1][0]):.4f}"
+    if known.any():
+        grid_vals = surface.to_grid(torch.cat([ps, sigma[:, None]], 1).double())
+        filled, _ = fill_undetermined(torch.from_numpy(grid_vals), torch.from_numpy(surface.to_grid(known.numpy(), fill=False)),
+                                      torch.from_numpy(surface.to_grid(defined.numpy(), fill=False)), window=window)
+        flat = surface.from_grid(filled.numpy()).to(ps.dtype)
+        ps = torch.where(known[:, None], ps, flat[:, :-1])
+        sigma = torch.where(known, sigma, flat[:, -1])
+    else:
+        ps = torch.full_like(ps, 1e-3)
+        sigma = torch.full_like(sigma, 0.5 * (sigma_min + sigma_max))
+    ps = ps.clamp(0, ps_max)
+    sigma = sigma.clamp(sigma_min, sigma_max)
+    coverage = torch.full((surface.num_texels,), COVER_NONE, dtype=torch.int8)
+    coverage[defined] = COVER_PD_ONLY
+    coverage[defined & ~cf.pd_from_diffuse] = COVER_PD_BOUND
+    coverage[known & defined] = COVER_FULL
+    head = (f"closed form: Pd from eq. 3.3 at {int(cf.pd_from_diffuse.sum())} texels, bound at "
+            f"{int((defined & ~cf.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at {int(cf.spec_determined.sum())}; "
+            f"Ps/sigma known at {int((known & defined).sum())} of {surface.num_texels} texels, the rest interpolated "
+            f"(W = {window}); {note}")
+    return Initial(pd, ps, sigma, known & defined, defined, coverage, cf.pd_from_diffuse, cf.spec_determined,
+                   shared_lobe, head)
