@@ -41,7 +41,7 @@ def _rays(name: str, a, n: int | None = None) -> np.ndarray:
         raise GeometryError(f"{name} has {a.shape[0]} rows, expected {n} like origins")
     if not np.isfinite(a).all():
         raise GeometryError(f"{name} contains NaN or inf values ({int((~np.isfinite(a)).any(1).sum())} rays)")
-    return a.astype(np.float64, copy=False)
+    return a if a.dtype in (np.float32, np.float64) else a.astype(np.float64)
 
 
 class RayTracer:
@@ -142,27 +142,43 @@ class RayTracer:
 
         The origin moves by `offset` along the normal flipped to the target's side (or along the
         segment when normals is None), and the segment is shortened by `offset` at the target end.
+        Computed in float32, like Embree.
         """
-        p = _rays("points", points)
-        t = _rays("targets", targets, len(p))
+        p = _rays("points", points).astype(np.float32, copy=False)
+        t = _rays("targets", targets, len(p)).astype(np.float32, copy=False)
         seg = t - p
-        length = np.linalg.norm(seg, axis=1)
-        d = seg / np.maximum(length, 1e-30)[:, None]
         if normals is None:
-            origin = p + offset * d
+            length = np.sqrt(np.einsum("ni,ni->n", seg, seg))
+            origin = p + (offset / np.maximum(length, 1e-30))[:, None] * seg
         else:
-            nrm = _rays("normals", normals, len(p))
-            side = np.sign((nrm * seg).sum(1))
-            side[side == 0] = 1.0
-            origin = p + offset * side[:, None] * nrm
+            nrm = _rays("normals", normals, len(p)).astype(np.float32, copy=False)
+            side = np.where(np.einsum("ni,ni->n", nrm, seg) >= 0, offset, -offset).astype(np.float32)
+            origin = p + side[:, None] * nrm
         seg2 = t - origin
-        dist = np.linalg.norm(seg2, axis=1)
+        dist = np.sqrt(np.einsum("ni,ni->n", seg2, seg2))
         vis = np.ones(len(p), dtype=bool)
         ok = dist > offset
+        if ok.all():
+            return ~self._occluded32(origin, seg2 / dist[:, None], dist - offset)
         if ok.any():
             idx = np.flatnonzero(ok)
-            vis[idx] = ~self.occluded(origin[idx], seg2[idx], dist[idx] - offset)
+            vis[idx] = ~self._occluded32(origin[idx], seg2[idx] / dist[idx, None], dist[idx] - offset)
         return vis
+
+    def _occluded32(self, origins: np.ndarray, unit_dirs: np.ndarray, far: np.ndarray) -> np.ndarray:
+        """Occlusion for already checked float32 origins and unit directions."""
+        n = len(origins)
+        o = np.ascontiguousarray(origins, dtype=np.float32)
+        d = np.ascontiguousarray(unit_dirs, dtype=np.float32)
+        f = np.minimum(far, _FAR).astype(np.float32)
+        out = np.zeros(n, dtype=bool)
+
+        def work(a, b):
+            out[a:b] = np.asarray(self.scene.run(o[a:b], d[a:b], dists=f[a:b].copy(), query="OCCLUDED")) >= 0
+
+        if n:
+            self._map(work, n)
+        return out
 
 
 def raw_embree_rate(vertices, faces, n_rays: int, query: str, seed: int = 0) -> float:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -216,30 +217,57 @@ def observation_geometry(geom: ScanGeometry, head_positions: np.ndarray, *, shad
 
     Returns dict with light_dir (P, T, 3), dist (P, T), view_dir (T, 3), cos_l (P, T), cos_v (T,),
     seen (T,) (camera sees the texel), lit (P, T) (n.l above threshold), shadowed (P, T).
+    Computed in float32 (what Embree uses); lights are processed in parallel on the tracer's
+    threads, each building its shadow rays and tracing them (numpy and Embree both release the GIL).
     """
     surf = geom.surface
-    x = surf.positions.numpy().astype(np.float64)
-    n = surf.normals.numpy().astype(np.float64)
-    v = geom.view_dirs()
-    cos_v = (n * v).sum(-1)
-    cam = geom.rig.camera_positions(geom.texel_angles())
+    x = surf.positions.numpy().astype(np.float32)
+    n = surf.normals.numpy().astype(np.float32)
+    v = geom.view_dirs().astype(np.float32)
+    cos_v = np.einsum("ti,ti->t", n, v)
+    cam = geom.rig.camera_positions(geom.texel_angles()).astype(np.float32)
     seen = cos_v > min_cos_view
     idx = np.flatnonzero(seen)
     if idx.size:
         seen[idx] = geom.tracer.visible(x[idx], n[idx], cam[idx], offset=shadow_offset)
-    lights = geom.light_world_positions(head_positions)
-    to_l = lights - x[None]
-    dist = np.linalg.norm(to_l, axis=-1)
-    l = to_l / np.maximum(dist, 1e-12)[..., None]
-    cos_l = (n[None] * l).sum(-1)
-    lit = cos_l > min_cos_light
-    shadowed = np.zeros_like(lit)
-    for p in range(lit.shape[0]):
-        cand = np.flatnonzero(lit[p] & seen)
+    heads = np.asarray(head_positions, dtype=np.float64).reshape(-1, 3)
+    P, T = len(heads), len(x)
+    u, w = (a.astype(np.float32) for a in geom.rig.head_axes(geom.texel_angles()))
+    origins = x + np.float32(shadow_offset) * n            # lit texels only: the light is on the normal's side
+    l_all = np.empty((P, T, 3), dtype=np.float32)
+    dist_all = np.empty((P, T), dtype=np.float32)
+    cos_all = np.empty((P, T), dtype=np.float32)
+    shadowed = np.zeros((P, T), dtype=bool)
+
+    def one_light(p: int) -> None:
+        lat, vert, rad = (np.float32(c) for c in heads[p])
+        light = rad * u + lat * w
+        light[:, 1] += vert
+        to_l = light - x
+        dist = np.sqrt(np.einsum("ti,ti->t", to_l, to_l))
+        l = to_l / np.maximum(dist, 1e-12)[:, None]
+        cos_l = np.einsum("ti,ti->t", l, n)
+        l_all[p], dist_all[p], cos_all[p] = l, dist, cos_l
+        cand = np.flatnonzero((cos_l > min_cos_light) & seen)
         if cand.size:
-            shadowed[p, cand] = ~geom.tracer.visible(x[cand], n[cand], lights[p, cand], offset=shadow_offset)
-    return {"light_dir": l, "dist": dist, "view_dir": v, "cos_l": cos_l, "cos_v": cos_v,
-            "seen": seen, "lit": lit, "shadowed": shadowed, "light_world": lights}
+            seg = light[cand] - origins[cand]
+            d = np.sqrt(np.einsum("ti,ti->t", seg, seg))
+            far = d - np.float32(shadow_offset)
+            ok = far > 0
+            occ = np.zeros(cand.size, dtype=bool)
+            if ok.any():
+                occ[ok] = geom.tracer._occluded32(origins[cand][ok], seg[ok] / d[ok, None], far[ok])
+            shadowed[p, cand] = occ
+
+    threads = max(1, geom.tracer.threads)
+    if threads == 1 or P == 1:
+        for p in range(P):
+            one_light(p)
+    else:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(one_light, range(P)))
+    return {"light_dir": l_all, "dist": dist_all, "view_dir": v, "cos_l": cos_all, "cos_v": cos_v,
+            "seen": seen, "lit": cos_all > min_cos_light, "shadowed": shadowed}
 
 
 def load_scan_observations(geom: ScanGeometry, *, light_subset=None, saturation_level: float = 0.995,

@@ -108,8 +108,9 @@ class SyntheticScan:
             r = lo + np.round((r - lo) / step) * step
         return r
 
-    def _subsamples(self):
-        """Cached sub-sample points, normals, validity, angles: (H, W, S, 3), (H, W, S, 3), (H, W, S), (W, S)."""
+    def _subsamples(self) -> dict:
+        """Cached visible sub-samples (N of them): points, normals, unit view vectors (N, 3) float64,
+        head axes u, w (N, 3) float32, texel (N,) flat texel index, count (H*W,) sub-samples per texel."""
         if self._samples is not None:
             return self._samples
         k = self.cfg.supersample
@@ -129,7 +130,16 @@ class SyntheticScan:
         vis = np.zeros_like(seen)
         if idx.size:
             vis[idx] = self.tracer.visible(p[idx], n[idx], cam[idx], offset=0.01)
-        self._samples = (p.reshape(H, W, Sn, 3), n.reshape(H, W, Sn, 3), (seen & vis).reshape(H, W, Sn), s)
+        keep = np.flatnonzero(seen & vis)
+        texel = keep // Sn
+        v = cam[keep] - p[keep]
+        v /= np.linalg.norm(v, axis=-1, keepdims=True)
+        u, w = CylindricalRig.head_axes(S_full[keep])
+        self._samples = {
+            "points": p[keep], "normals": n[keep], "view": v, "texel": texel,
+            "u": u.astype(np.float32), "w": w.astype(np.float32),
+            "count": np.bincount(texel, minlength=H * W),
+        }
         return self._samples
 
     def candidate_positions(self) -> np.ndarray:
@@ -140,37 +150,37 @@ class SyntheticScan:
     # ------------------------------------------------------------------ rendering
 
     def radiance_image(self, head_position) -> np.ndarray:
-        """(H, W, 3) float64 noiseless sensor value (fraction of full range) for a light at head_position."""
+        """(H, W, 3) float64 noiseless sensor value (fraction of full range) for a light at head_position:
+        the mean over each texel's visible sub-samples of kappa * Y / C^2 * f * cos, with Embree shadows."""
         cfg = self.cfg
-        p, n, ok, s = self._subsamples()
-        H, W, Sn = ok.shape
-        head = np.asarray(head_position, dtype=np.float64)
-        light = self.rig.head_to_world(s, head)                                      # (W, S, 3)
-        light = np.broadcast_to(light[None], (H, W, Sn, 3))
-        cam = np.broadcast_to(self.rig.camera_positions(s)[None], (H, W, Sn, 3))
+        smp = self._subsamples()
+        H, W = self.rig.rows, self.rig.columns
+        lat, vert, rad = (float(c) for c in np.asarray(head_position, dtype=np.float64))
+        light = rad * smp["u"].astype(np.float64) + lat * smp["w"].astype(np.float64)
+        light[:, 1] += vert
+        p, n = smp["points"], smp["normals"]
         to_light = light - p
-        dist = np.linalg.norm(to_light, axis=-1)
-        l = to_light / np.maximum(dist, 1e-12)[..., None]
-        lit = ok & ((n * l).sum(-1) > 0)
+        dist = np.sqrt(np.einsum("ni,ni->n", to_light, to_light))
+        l = to_light / np.maximum(dist, 1e-12)[:, None]
+        lit = np.einsum("ni,ni->n", n, l) > 0
         idx = np.flatnonzero(lit)
-        unshadowed = np.zeros(lit.size, dtype=bool)
         if idx.size:
-            unshadowed[idx] = self.tracer.visible(p.reshape(-1, 3)[idx], n.reshape(-1, 3)[idx], light.reshape(-1, 3)[idx], offset=0.01)
-        unshadowed = unshadowed.reshape(lit.shape)
-        v = cam - p
-        v = v / np.linalg.norm(v, axis=-1, keepdims=True)
-        tt = lambda x: torch.from_numpy(np.ascontiguousarray(x))
-        pd = tt(self.truth["pd"])[:, :, None, :]
-        ps = tt(self.truth["ps"])[:, :, None, :]
-        sigma = tt(self.truth["sigma"])[:, :, None]
-        with torch.no_grad():
-            g = brdf_mod.cosine_weighted_brdf(cfg.brdf, tt(n), tt(l), tt(v), pd, ps, sigma).numpy()
-        value = self.kappa * cfg.light_intensity * (g / np.maximum(dist, 1e-9)[..., None] ** 2)
-        value = value * (lit & unshadowed)[..., None]
-        count = ok.sum(-1)
-        img = value.sum(axis=2) / np.maximum(count, 1)[..., None]
-        img[count == 0] = 0.0
-        return img
+            lit[idx] = self.tracer.visible(p[idx], n[idx], light[idx], offset=0.01)
+        idx = np.flatnonzero(lit)
+        img = np.zeros((H * W, 3))
+        if idx.size:
+            tex = smp["texel"][idx]
+            tt = lambda x: torch.from_numpy(np.ascontiguousarray(x))
+            flat = lambda key: self.truth[key].reshape((H * W,) + self.truth[key].shape[2:])[tex]
+            with torch.no_grad():
+                g = brdf_mod.cosine_weighted_brdf(cfg.brdf, tt(n[idx]), tt(l[idx]), tt(smp["view"][idx]),
+                                                  tt(flat("pd")), tt(flat("ps")), tt(flat("sigma"))).numpy()
+            value = self.kappa * cfg.light_intensity * g / (dist[idx, None] ** 2)
+            for c in range(3):
+                img[:, c] = np.bincount(tex, weights=value[:, c], minlength=H * W)
+        count = smp["count"]
+        img /= np.maximum(count, 1)[:, None]
+        return img.reshape(H, W, 3)
 
     def render_texture(self, head_position) -> np.ndarray:
         """(H, W, 3) uint8 (or uint16) texture image for a light at head_position, with noise."""
