@@ -159,3 +159,22 @@ def plot_coverage(result: SelectionResult, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def select_for_scan(geom, candidates: np.ndarray, selection_cfg, reflectance_cfg, shadow_offset: float) -> SelectionResult:
+    """Light selection for a cylindrical scan: candidate head-frame positions (P, 3) against the
+    scan's Surface, with cast shadows from Embree (torchrefl.capture.cylindrical_scan.observation_geometry)."""
+    import torch
+
+    from torchrefl.brdf import half_angle
+    from torchrefl.capture.cylindrical_scan import observation_geometry
+
+    og = observation_geometry(geom, candidates, shadow_offset=shadow_offset)
+    n = geom.surface.normals.float()[None]
+    th = half_angle(n, torch.from_numpy(og["light_dir"]), torch.from_numpy(og["view_dir"])[None]).numpy()
+    measurable = og["seen"][None] & (og["cos_l"] > 0) & ~og["shadowed"]
+    dmask, smask = measurability(th, measurable, reflectance_cfg.theta_diffuse_deg, reflectance_cfg.theta_specular_deg)
+    sel = greedy_select(dmask, smask, og["seen"], selection_cfg.stop_ratio, selection_cfg.max_lights,
+                        selection_cfg.num_lights)
+    sel.positions = np.asarray(candidates)
+    return sel

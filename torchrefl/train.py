@@ -74,7 +74,7 @@ def load_capture(cfg: Config, out: Path, stages: Stages, log) -> dict:
         result.update(surface=surface, obs=obs, stats=stats)
         return result
 
-    from torchrefl.capture.cylindrical_scan import load_scan_geometry, load_scan_observations, load_truth, observation_geometry
+    from torchrefl.capture.cylindrical_scan import load_scan_geometry, load_scan_observations, load_truth
 
     scan = None
     if kind == "synthetic_cylindrical":
@@ -97,19 +97,10 @@ def load_capture(cfg: Config, out: Path, stages: Stages, log) -> dict:
         candidates = scan.candidate_positions()
         positions = candidates
         if cfg.selection.enabled:
-            from torchrefl.brdf import half_angle
-            from torchrefl.planning import greedy_select, measurability, plot_coverage
+            from torchrefl.planning import plot_coverage, select_for_scan
 
             with stages.stage("light selection"):
-                og = observation_geometry(geom, candidates, shadow_offset=cfg.geometry.shadow_offset_mm)
-                n = geom.surface.normals.double()[None]
-                th = half_angle(n, torch.from_numpy(og["light_dir"]), torch.from_numpy(og["view_dir"])[None]).numpy()
-                measurable = og["seen"][None] & (og["cos_l"] > 0) & ~og["shadowed"]
-                dmask, smask = measurability(th, measurable, cfg.reflectance.theta_diffuse_deg,
-                                             cfg.reflectance.theta_specular_deg)
-                sel = greedy_select(dmask, smask, og["seen"], cfg.selection.stop_ratio, cfg.selection.max_lights,
-                                    cfg.selection.num_lights)
-                sel.positions = candidates
+                sel = select_for_scan(geom, candidates, cfg.selection, cfg.reflectance, cfg.geometry.shadow_offset_mm)
                 positions = candidates[sel.chosen]
                 (out / "selection").mkdir(parents=True, exist_ok=True)
                 plot_coverage(sel, out / "selection" / "coverage.png")
