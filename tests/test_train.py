@@ -1,0 +1,127 @@
+"""End to end: python -m torchrefl.train on small configs; the outputs contract; CLI errors."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from torchrefl.train import main
+
+ROOT = Path(__file__).resolve().parents[1]
+BALL = ROOT / ".." / "shared" / "data" / "diligent_ball"
+
+SMALL = {
+    "seed": 1,
+    "capture": {"kind": "synthetic_cylindrical"},
+    "synthetic": {"columns": 128, "rows": 100, "angle_step_deg": 2.8125, "height_step_mm": 2.0,
+                  "size_mm": [50.0, 70.0, 42.0], "supersample": 2, "mesh_subdivisions": 5},
+    "selection": {"max_lights": 10},
+    "fit": {"iterations": 40},
+    "output": {"progress": False, "map_lights": 2},
+}
+
+
+def write_config(tmp_path, data, name="run.yaml"):
+    p = tmp_path / name
+    p.write_text(yaml.safe_dump(data))
+    return p
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("train")
+    cfg = write_config(tmp, SMALL)
+    out = tmp / "out"
+    assert main([str(cfg), f"output.dir={out}", "--quiet"]) == 0
+    return out
+
+
+def test_outputs_contract(small_run):
+    out = small_run
+    p = np.load(out / "params.npz")
+    H, W = 100, 128
+    assert p["pd"].shape == (H, W, 3) and p["ps"].shape == (H, W, 3) and p["sigma"].shape == (H, W)
+    assert p["mask"].dtype == bool and p["mask"].any()
+    assert p["positions"].shape == (H, W, 3) and p["normals"].shape == (H, W, 3)
+    assert str(p["brdf"]) == "torrance_sparrow"
+    for key in ("coverage", "n_diffuse", "n_specular", "kappa"):
+        assert key in p
+    m = json.loads((out / "metrics.json").read_text())
+    for key in ("model", "model_reason", "brdf", "timing_s", "rerender", "ground_truth", "selection"):
+        assert key in m
+    for key in ("mean_abs_diff_8bit", "var_diff_8bit", "rmse_8bit"):
+        assert m["rerender"][key] is not None
+    for key in ("pd_rmse", "ps_rmse", "sigma_rmse", "ps_median_rel_err", "sigma_median_rel_err"):
+        assert key in m["ground_truth"]
+    assert m["timing_s"]["total"] > 0
+    for name in ("pd.png", "ps.png", "sigma.png", "coverage.png"):
+        assert (out / "maps" / name).stat().st_size > 0
+    assert len(list((out / "maps").glob("light_*_diff.png"))) == 2
+    assert (out / "config.yaml").is_file() and (out / "log.txt").is_file()
+    assert (out / "selection" / "coverage.png").is_file()
+    resolved = yaml.safe_load((out / "config.yaml").read_text())
+    assert resolved["synthetic"]["columns"] == 128
+
+
+def test_small_synthetic_accuracy(small_run):
+    m = json.loads((small_run / "metrics.json").read_text())
+    gt = m["ground_truth"]
+    assert gt["pd_rmse"] < 0.03
+    assert gt["ps_median_rel_err"] < 0.15 and gt["sigma_median_rel_err"] < 0.15
+    assert m["rerender"]["mean_abs_diff_8bit"] < 1.0
+
+
+def test_same_seed_same_result(small_run, tmp_path):
+    cfg = write_config(tmp_path, SMALL)
+    out = tmp_path / "again"
+    assert main([str(cfg), f"output.dir={out}", "--quiet"]) == 0
+    a, b = np.load(small_run / "params.npz"), np.load(out / "params.npz")
+    np.testing.assert_array_equal(a["pd"], b["pd"])
+
+
+def test_refit_of_the_written_capture_folder(small_run, tmp_path):
+    """The synthetic capture folder is a valid cylindrical_scan input."""
+    data = dict(SMALL, capture={"kind": "cylindrical_scan", "path": str(small_run / "capture")})
+    cfg = write_config(tmp_path, data)
+    out = tmp_path / "refit"
+    assert main([str(cfg), f"output.dir={out}", "--quiet"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["ground_truth"]["pd_rmse"] < 0.03
+
+
+def test_holdout_is_evaluated_and_out_of_range_is_an_error(small_run, tmp_path, capsys):
+    data = dict(SMALL, capture={"kind": "cylindrical_scan", "path": str(small_run / "capture")})
+    cfg = write_config(tmp_path, data)
+    out = tmp_path / "hold"
+    assert main([str(cfg), f"output.dir={out}", "fit.holdout=[1]", "--quiet"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["holdout"]["count"] > 0 and m["holdout"]["mean_abs_diff_8bit"] < 2.0
+    assert main([str(cfg), f"output.dir={out}", "fit.holdout=[99]", "--quiet"]) == 2
+    assert "fit.holdout" in capsys.readouterr().err
+
+
+def test_cli_errors_are_one_line_messages(tmp_path, capsys):
+    cfg = write_config(tmp_path, {"fit": {"optimiser": "adam"}})
+    assert main([str(cfg)]) == 2
+    err = capsys.readouterr().err
+    assert "fit.optimizer" in err and "Traceback" not in err
+    cfg = write_config(tmp_path, {"capture": {"kind": "cylindrical_scan", "path": "nowhere"}}, "b.yaml")
+    assert main([str(cfg), f"output.dir={tmp_path / 'x'}"]) == 2
+    assert "nowhere" in capsys.readouterr().err
+    cfg = write_config(tmp_path, {"capture": {"kind": "laser"}}, "c.yaml")
+    assert main([str(cfg)]) == 2
+    assert "capture.kind" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not BALL.is_dir(), reason="../shared/data/diligent_ball not present")
+def test_diligent_ball_subset(tmp_path):
+    out = tmp_path / "ball"
+    subset = list(range(0, 96, 3))
+    args = [str(ROOT / "configs" / "diligent_ball.yaml"), f"output.dir={out}", f"capture.light_subset={subset}",
+            "fit.holdout=[5,11,17,23,29]", "fit.iterations=30", "output.progress=false", "--quiet"]
+    assert main(args) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["holdout"]["mean_abs_diff_8bit"] < 1.0
+    assert m["capture"]["bit_depth"] == 16
