@@ -161,3 +161,14 @@ def test_range_without_any_surface(tmp_path, scan_folder):
     (bad / "scan.yaml").write_text((folder / "scan.yaml").read_text())
     with pytest.raises(CaptureError, match="selects nothing"):
         load_scan_geometry(bad, threads=1)
+
+
+def test_saturated_pixels_are_excluded_and_counted(tmp_path):
+    scan = SyntheticScan(small_cfg(light_intensity=400000.0), seed=2)
+    scan.write_geometry(tmp_path)
+    scan.write_textures(tmp_path, scan.candidate_positions()[[24]])
+    geom = load_scan_geometry(tmp_path, threads=1)
+    obs, stats = load_scan_observations(geom, threads=1, saturation_level=0.995)
+    assert stats["saturated_observations"] > 0
+    assert not (obs.valid & obs.saturated).any()
+    assert int(obs.saturated.sum()) >= stats["saturated_observations"]
