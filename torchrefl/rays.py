@@ -44,6 +44,16 @@ def _rays(name: str, a, n: int | None = None) -> np.ndarray:
     return a if a.dtype in (np.float32, np.float64) else a.astype(np.float64)
 
 
+def _unit_rays(origins, directions) -> tuple[np.ndarray, np.ndarray]:
+    """Checked float32 origins and unit directions (N, 3)."""
+    o = _rays("origins", origins)
+    d = _rays("directions", directions, len(o))
+    norm = np.linalg.norm(d, axis=1)
+    if (norm == 0).any():
+        raise GeometryError(f"directions has {int((norm == 0).sum())} zero-length rays")
+    return o.astype(np.float32), (d / norm[:, None]).astype(np.float32)
+
+
 class RayTracer:
     """Embree scene over one triangle mesh.
 
@@ -86,14 +96,8 @@ class RayTracer:
             list(pool.map(lambda b: fn(*b), bounds))
 
     def closest_hit(self, origins, directions, max_distance=None) -> Hits:
-        o = _rays("origins", origins)
-        d = _rays("directions", directions, len(o))
-        n = len(o)
-        norm = np.linalg.norm(d, axis=1)
-        if (norm == 0).any():
-            raise GeometryError(f"directions has {int((norm == 0).sum())} zero-length rays")
-        du = (d / norm[:, None]).astype(np.float32)
-        of = o.astype(np.float32)
+        of, du = _unit_rays(origins, directions)
+        n = len(of)
         far = np.full(n, _FAR, dtype=np.float32) if max_distance is None else np.broadcast_to(
             np.asarray(max_distance, dtype=np.float32), (n,)).copy()
         dist = np.full(n, np.inf)
@@ -115,27 +119,11 @@ class RayTracer:
 
     def occluded(self, origins, directions, max_distance) -> np.ndarray:
         """(N,) bool: some triangle is hit at 0 < t < max_distance along the (normalised) direction."""
-        o = _rays("origins", origins)
-        d = _rays("directions", directions, len(o))
-        n = len(o)
-        norm = np.linalg.norm(d, axis=1)
-        if (norm == 0).any():
-            raise GeometryError(f"directions has {int((norm == 0).sum())} zero-length rays")
-        du = (d / norm[:, None]).astype(np.float32)
-        of = o.astype(np.float32)
-        far = np.broadcast_to(np.asarray(max_distance, dtype=np.float64), (n,))
-        if not np.isfinite(far).all() and not (far == np.inf).all():
+        of, du = _unit_rays(origins, directions)
+        far = np.broadcast_to(np.asarray(max_distance, dtype=np.float64), (len(of),))
+        if np.isnan(far).any():
             raise GeometryError("max_distance contains NaN values")
-        far = np.minimum(far, _FAR).astype(np.float32)
-        out = np.zeros(n, dtype=bool)
-
-        def work(a, b):
-            res = self.scene.run(of[a:b], du[a:b], dists=far[a:b].copy(), query="OCCLUDED")
-            out[a:b] = np.asarray(res) >= 0
-
-        if n:
-            self._map(work, n)
-        return out
+        return self._occluded32(of, du, far)
 
     def visible(self, points, normals, targets, *, offset: float) -> np.ndarray:
         """(N,) bool: the segment from each surface point to its target is unblocked.
