@@ -111,6 +111,7 @@ class ReflectanceConfig:
 
     brdf: str = opt("torrance_sparrow", "specular lobe", choices=("torrance_sparrow", "ward", "ward_normalised", "lambertian"))
     ps_channels: int = opt(3, "specular reflectance channels: 3 = RGB, 1 = grey", choices=(1, 3))
+    class_angle: str = opt("half", "angle the classes threshold: half = n vs half vector (dissertation eq. 2.15), mirror = view vs mirror direction (conference papers)", choices=("half", "mirror"))
     theta_diffuse_deg: float = opt(60.0, "theta_th1: half-angle above which an observation is diffuse only (eq. 2.20)", low=0.0, high=90.0)
     theta_specular_deg: float = opt(20.0, "theta_th2: half-angle at or below which specular is strong (eq. 2.21)", low=0.0, high=90.0)
     sigma_min: float = opt(0.01, "lower bound of the roughness sigma (radians)", low=1e-4)

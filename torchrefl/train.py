@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from torchrefl import __version__
+from torchrefl.brdf import classification_angle
 from torchrefl.config import Config, describe, dump_config, load_config, resolve_path
 from torchrefl.errors import ConfigError, TorchReflError
 from torchrefl.fit.classify import T_DIFF, T_SPEC, class_counts, classify
@@ -135,7 +136,9 @@ def fit_local(cfg: Config, surface, obs, stages: Stages, log, device) -> dict:
         geometric_ok = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light)
         fit_mask = geometric_ok & ~held[:, None]
         eval_mask = geometric_ok & held[:, None]
-        cls = classify(terms.theta_h, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
+        angle = terms.theta_h if rc.class_angle == "half" else classification_angle(
+            rc.class_angle, surface.normals[None], obs.light_dir, obs.view_dirs_full())
+        cls = classify(angle, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
         counts = class_counts(cls)
     with stages.stage("initialise"):
         init = initialise_local(terms, obs.intensity, cls, counts["T_spec"], fit_mask, surface,
