@@ -1,0 +1,102 @@
+"""Prediction at the radiosity level (Method II): local direct light plus diffuse interreflection.
+
+For light p, texel t in patch u(t), channel c:
+    E_t      = Y_p falloff vis max(n.l, 0)                 direct irradiance (LocalTerms.diffuse * pi / kappa)
+    E_u      = area-weighted mean of E_t over u's texels
+    rho_u    = area-weighted mean of Pd_t over u's texels
+    B        = solve_radiosity(rho, E, F)                   (torchrefl.transport.radiosity)
+    H_t      = sum_v F_{u(t) v} B_v                         indirect irradiance at the texel
+    i_pt     = local(t) + kappa Pd_t / pi * H_t
+The specular reflection of direct light does not feed the interreflection and indirect light is
+reflected diffusely only: that is what the radiosity level models (the photon level adds both).
+
+Also the closed-form inverse radiosity (eq. 4.7 generalised to our direct term):
+    rho_u = B_u / (E_u + sum_v F_uv B_v)
+with the measured radiosity B_u = pi i / kappa of patches observed diffusely.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from torchrefl.transport.local import LocalTerms, predict
+from torchrefl.transport.radiosity import _matmul, solve_radiosity
+
+
+@dataclass
+class PatchMap:
+    """texel_patch (T,) int64 patch of each texel (every texel belongs to one patch);
+    areas (T,) texel areas; Q number of patches. Averages are area-weighted."""
+
+    texel_patch: torch.Tensor
+    areas: torch.Tensor
+    num_patches: int
+
+    def __post_init__(self):
+        Q = self.num_patches
+        w = self.areas.double()
+        self._patch_area = torch.zeros(Q, dtype=torch.float64).index_add_(0, self.texel_patch, w)
+
+    def mean(self, x: torch.Tensor) -> torch.Tensor:
+        """Area-weighted patch means of texel values x (..., T, C) -> (..., Q, C)."""
+        w = (self.areas.to(x.dtype) / self._patch_area.to(x.dtype)[self.texel_patch])[:, None]
+        shape = x.shape[:-2] + (self.num_patches, x.shape[-1])
+        out = torch.zeros(shape, dtype=x.dtype, device=x.device)
+        return out.index_add_(-2, self.texel_patch, x * w)
+
+    def scatter(self, y: torch.Tensor) -> torch.Tensor:
+        """Patch values (..., Q, C) -> texel values (..., T, C)."""
+        return y.index_select(-2, self.texel_patch)
+
+
+def direct_irradiance(terms: LocalTerms, kappa: torch.Tensor) -> torch.Tensor:
+    """(P, T, 3) Y falloff vis max(n.l, 0) from the local terms."""
+    return terms.diffuse * (math.pi / kappa)
+
+
+def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: PatchMap, F: torch.Tensor, **solver) -> torch.Tensor:
+    """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3)."""
+    E = patches.mean(direct_irradiance(terms, kappa))                  # (P, Q, 3)
+    rho = patches.mean(pd[None])[0]                                    # (Q, 3)
+    B = solve_radiosity(rho, E, F, **solver)                           # (P, Q, 3)
+    P, Q, C = B.shape
+    H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, P * C)).reshape(Q, P, C).permute(1, 0, 2)
+    return patches.scatter(H)
+
+
+def predict_radiosity(terms: LocalTerms, kappa, pd, ps, sigma, patches: PatchMap, F, **solver) -> torch.Tensor:
+    """(P, T, 3) local prediction plus the diffusely reflected interreflection."""
+    H = indirect_irradiance(terms, kappa, pd, patches, F, **solver)
+    return predict(terms, pd, ps, sigma) + (kappa / math.pi) * pd[None] * H
+
+
+def inverse_radiosity(terms: LocalTerms, kappa, intensity: torch.Tensor, diffuse_mask: torch.Tensor,
+                      patches: PatchMap, F) -> tuple[torch.Tensor, torch.Tensor]:
+    """Closed-form patch reflectance from eq. 4.7, per light, combined over lights.
+
+    intensity (P, T, 3); diffuse_mask (P, T) observations that carry diffuse light only (T_diff).
+    B_u is the measured radiosity (pi i / kappa, area mean over the patch's diffuse texels);
+    patches without a diffuse observation under a light take no part for that light, and their
+    radiosity in the gather is the measured one where seen, else 0. Returns rho (Q, 3) and
+    determined (Q,) bool.
+    """
+    dtype = intensity.dtype
+    w = diffuse_mask.to(dtype)[..., None]
+    B_meas = math.pi * intensity / kappa                               # (P, T, 3)
+    num = patches.mean(B_meas * w)
+    cov = patches.mean(w.expand_as(B_meas).contiguous())               # fraction of the patch observed
+    B_u = num / cov.clamp_min(1e-12)
+    seen = cov[..., 0] > 0.5                                           # (P, Q)
+    E = patches.mean(direct_irradiance(terms, kappa))
+    P, Q, C = B_u.shape
+    Bg = torch.where(seen[..., None], B_u, torch.zeros_like(B_u))
+    FB = _matmul(F.to(dtype), Bg.permute(1, 0, 2).reshape(Q, P * C)).reshape(Q, P, C).permute(1, 0, 2)
+    denom = E + FB
+    # least squares over lights: rho = sum B denom / sum denom^2 over the lights that saw the patch
+    m = seen[..., None].to(dtype)
+    rho = (m * B_u * denom).sum(0) / (m * denom * denom).sum(0).clamp_min(1e-30)
+    determined = seen.any(0)
+    return torch.where(determined[:, None], rho, torch.zeros_like(rho)), determined
