@@ -1,0 +1,343 @@
+"""Form factors between patches by Monte Carlo hemisphere rays through Embree (dissertation 4.2).
+
+Convention (eq. 4.6): B_u = E_u + rho_u sum_v F_uv B_v, with F_uv the fraction of the energy
+leaving patch u that arrives at patch v, so sum_v F_uv <= 1 and A_u F_uv = A_v F_vu (eq. 4.5).
+
+Estimator: eq. 4.2 is the area average over u of the point form factor (eq. 4.4), and the point
+form factor is the probability that a ray leaving dA_u with the cosine-weighted density
+cos(theta)/pi first reaches A_v (Nusselt's analogue). So, per patch u, `samples_per_patch` rays
+start at points drawn from u's candidate origins with probability proportional to their area
+weights, leave in cosine-weighted directions about the local normal, and
+
+    F_uv ~= (rays from u whose first hit is on the front of patch v) / (rays from u).
+
+Each ray is an independent Bernoulli trial for every v, so an entry has the binomial standard
+error sqrt(F (1 - F) / N) (`sampling_error`), on top of the (deterministic) discretisation of u
+into its candidate origins. Rays that escape, hit a face that belongs to no patch (a blocker), or
+reach the back side of a patch count nowhere: energy arriving at the back of a range-image surface
+does not feed the radiosity B of its observed front side (`count_back_hits=True` counts them).
+Embree's tnear is 0, so rays start `offset` along the normal.
+
+Patches are square blocks of texels on the texel grid (`texel_patches`); a mesh face belongs to the
+patch of the texel at its first vertex (`face_patches`, which relies on the vertex layout of
+torchrefl.geometry.range_mesh.grid_triangulation).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import numpy as np
+import torch
+
+from torchrefl.errors import ConfigError, GeometryError
+from torchrefl.geometry.surface import Surface
+from torchrefl.rays import RayTracer
+
+#: hemisphere_form_factors returns a dense (Q, Q) tensor when Q * Q <= DENSE_MAX_ENTRIES
+#: (Q <= 2048: at most 32 MiB in float64), a sparse COO tensor otherwise.
+DENSE_MAX_ENTRIES = 2048 * 2048
+
+
+@dataclass
+class Patches:
+    """Q patches made of texels.
+
+    texel_patch: (T,) int64, patch of each valid texel of the Surface (-1 = none).
+    centres: (Q, 3) float64, area-weighted mean texel position.
+    normals: (Q, 3) float64, unit, normalised area-weighted mean texel normal.
+    areas: (Q,) float64, sum of the member texel areas.
+    member_offsets: (Q + 1,) int64 and member_texels: (M,) int64, CSR lists of member texels
+        (indices into the Surface's texels, increasing within a patch): patch q owns
+        member_texels[member_offsets[q]:member_offsets[q + 1]].
+    block: (Q, 2) int64, (block row, block column) of each patch on the texel grid.
+    patch_size: texels per block side.
+    """
+
+    texel_patch: torch.Tensor
+    centres: torch.Tensor
+    normals: torch.Tensor
+    areas: torch.Tensor
+    member_offsets: torch.Tensor
+    member_texels: torch.Tensor
+    block: torch.Tensor
+    patch_size: int
+
+    @property
+    def num_patches(self) -> int:
+        return int(self.centres.shape[0])
+
+    def members(self, q: int) -> torch.Tensor:
+        """(n_q,) int64 texel indices of patch q."""
+        return self.member_texels[int(self.member_offsets[q]):int(self.member_offsets[q + 1])]
+
+    def padded(self, *values: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Per-texel values (T, ...) laid out per patch as (Q, K, ...) with K the largest patch,
+        zero-padded; also returns the (Q, K) bool mask of real entries as the last element."""
+        Q = self.num_patches
+        offsets = self.member_offsets
+        counts = offsets[1:] - offsets[:-1]
+        K = int(counts.max()) if Q else 0
+        patch = torch.repeat_interleave(torch.arange(Q), counts)
+        slot = torch.arange(len(self.member_texels)) - offsets[:-1][patch]
+        mask = torch.zeros(Q, K, dtype=torch.bool)
+        mask[patch, slot] = True
+        out = []
+        for v in values:
+            p = torch.zeros((Q, K) + tuple(v.shape[1:]), dtype=v.dtype)
+            p[patch, slot] = v[self.member_texels]
+            out.append(p)
+        return (*out, mask)
+
+
+def texel_patches(surface: Surface, patch_size: int) -> Patches:
+    """Square blocks of patch_size x patch_size texels on the (H, W) texel grid.
+
+    Block (i, j) holds the valid texels with row // patch_size == i and col // patch_size == j
+    (blocks at the bottom and right borders may be smaller); blocks with no valid texel are no
+    patch. Patches are numbered by increasing block index i * ceil(W / patch_size) + j;
+    patch_size=1 gives one texel per patch, numbered like the texels.
+    """
+    if isinstance(patch_size, bool) or not isinstance(patch_size, (int, np.integer)) or patch_size < 1:
+        raise ConfigError(f"patch_size must be an integer >= 1 (texels per block side), got {patch_size!r}")
+    s = int(patch_size)
+    H, W = surface.grid_shape
+    flat = surface.texel_index.cpu().long()
+    row, col = flat // W, flat % W
+    bw = -(-W // s)
+    block_id = (row // s) * bw + (col // s)
+    uniq, texel_patch = torch.unique(block_id, sorted=True, return_inverse=True)
+    Q = len(uniq)
+    order = torch.argsort(texel_patch, stable=True)
+    counts = torch.bincount(texel_patch, minlength=Q)
+    offsets = torch.zeros(Q + 1, dtype=torch.int64)
+    offsets[1:] = torch.cumsum(counts, 0)
+
+    a = surface.areas.detach().cpu().double()
+    x = surface.positions.detach().cpu().double()
+    n = surface.normals.detach().cpu().double()
+    areas = torch.zeros(Q, dtype=torch.float64).index_add_(0, texel_patch, a)
+    if (areas <= 0).any():
+        q = int(torch.nonzero(areas <= 0)[0])
+        raise GeometryError(f"surface from {surface.source}: field 'areas' sums to {float(areas[q]):.3g} <= 0 "
+                            f"over patch {q} (block {int(uniq[q]) // bw}, {int(uniq[q]) % bw}); expected positive texel areas")
+    centres = torch.zeros(Q, 3, dtype=torch.float64).index_add_(0, texel_patch, x * a[:, None]) / areas[:, None]
+    nsum = torch.zeros(Q, 3, dtype=torch.float64).index_add_(0, texel_patch, n * a[:, None])
+    nlen = nsum.norm(dim=1)
+    if (nlen <= 1e-9 * areas).any():
+        q = int(torch.nonzero(nlen <= 1e-9 * areas)[0])
+        raise GeometryError(f"surface from {surface.source}: field 'normals' cancel over patch {q} (block "
+                            f"{int(uniq[q]) // bw}, {int(uniq[q]) % bw}): no mean normal; use a smaller patch_size")
+    block = torch.stack([uniq // bw, uniq % bw], dim=1)
+    return Patches(texel_patch=texel_patch, centres=centres, normals=nsum / nlen[:, None], areas=areas,
+                   member_offsets=offsets, member_texels=order, block=block, patch_size=s)
+
+
+def face_patches(surface: Surface, patches: Patches) -> np.ndarray:
+    """(F,) int64 patch of each mesh face, -1 where the face's first vertex is not a valid texel.
+
+    Assumes the mesh of grid_triangulation: vertex k is grid point k (flat index row * W + col,
+    so V == H * W), and each face lists first the grid point it is attributed to (its quad's
+    top-left corner for one triangle, the top-right corner for the other). A face thus goes to
+    the texel at its first vertex, and a texel owns about one texel of area, shifted by half a
+    texel. Raises GeometryError when the surface has no mesh or its vertex count is not H * W.
+    """
+    where = f"surface from {surface.source}"
+    if not surface.has_mesh:
+        raise GeometryError(f"{where}: mesh_vertices/mesh_faces are None; form factors need the triangle mesh")
+    H, W = surface.grid_shape
+    V = len(surface.mesh_vertices)
+    if V != H * W:
+        raise GeometryError(f"{where}: mesh_vertices has {V} vertices, expected H*W = {H * W} (one per grid point, "
+                            "as grid_triangulation builds it) to map faces to texels")
+    faces = np.asarray(surface.mesh_faces)
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise GeometryError(f"{where}: mesh_faces has shape {faces.shape}, expected (F, 3)")
+    texel_patch = patches.texel_patch.cpu().numpy()
+    if len(texel_patch) != surface.num_texels:
+        raise GeometryError(f"patches.texel_patch has {len(texel_patch)} entries, expected {surface.num_texels} "
+                            "(one per texel of the surface)")
+    grid = np.full(H * W, -1, dtype=np.int64)
+    grid[surface.texel_index.cpu().numpy()] = texel_patch
+    first = faces[:, 0].astype(np.int64)
+    if len(first) and (first.min() < 0 or first.max() >= H * W):
+        raise GeometryError(f"{where}: mesh_faces index vertices outside 0..{H * W - 1}")
+    return grid[first]
+
+
+def _onb(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tangents t, b (N, 3) with (t, b, n) orthonormal for unit n (N, 3) (Duff et al. 2017)."""
+    sign = np.where(n[:, 2] >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
+    bt = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
+    return t, bt
+
+
+def _as_array(name: str, x, shape_text: str) -> np.ndarray:
+    a = x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
+    if not np.issubdtype(a.dtype, np.number):
+        raise GeometryError(f"{name} must be numeric {shape_text}, got dtype {a.dtype}")
+    return a
+
+
+def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, weights, *, samples_per_patch: int,
+                            seed: int, offset: float, count_back_hits: bool = False, layout: str = "auto",
+                            progress: Optional[Callable[[int, int], None]] = None) -> torch.Tensor:
+    """Form factors F (Q, Q) float64 between Q patches by cosine-weighted hemisphere rays.
+
+    tracer: RayTracer over the scene mesh (F faces). face_patch: (F,) int, patch of each face, -1 for
+    faces of no patch (blockers). origins, normals: (Q, K, 3) candidate ray start points on each
+    patch and their normals (unit where the weight is > 0); weights: (Q, K) >= 0 area weights,
+    0 = padding, positive row sums.
+    Per patch, samples_per_patch rays: an origin drawn with probability weight / row sum, a
+    direction with pdf cos(theta)/pi about that origin's normal, start moved `offset` along the
+    normal. F_uv = (rays from u whose first hit is on the front of a face of patch v) / N; the front
+    is the side the patch normal (weighted mean of its normals) points to, tested per face.
+    layout: 'dense', 'sparse' (coalesced COO) or 'auto': dense when Q * Q <= DENSE_MAX_ENTRIES,
+    else sparse. Both support .to_dense(). Deterministic in seed (independent of threads/chunks).
+    progress(done_rays, total_rays) is called after each batch of rays.
+    """
+    if isinstance(samples_per_patch, bool) or not isinstance(samples_per_patch, (int, np.integer)) \
+            or samples_per_patch < 1:
+        raise ConfigError(f"samples_per_patch must be an integer >= 1, got {samples_per_patch!r}")
+    if not (isinstance(offset, (int, float, np.floating)) and math.isfinite(offset) and offset >= 0):
+        raise ConfigError(f"offset must be a finite number >= 0 (ray start distance along the normal), got {offset!r}")
+    if layout not in ("auto", "dense", "sparse"):
+        raise ConfigError(f"layout must be 'auto', 'dense' or 'sparse', got {layout!r}")
+    o = _as_array("origins", origins, "(Q, K, 3)")
+    nm = _as_array("normals", normals, "(Q, K, 3)")
+    w = _as_array("weights", weights, "(Q, K)")
+    if o.ndim != 3 or o.shape[2] != 3 or o.shape[0] == 0 or o.shape[1] == 0:
+        raise GeometryError(f"origins has shape {o.shape}, expected (Q, K, 3) with Q, K >= 1")
+    Q, K = o.shape[:2]
+    if nm.shape != o.shape:
+        raise GeometryError(f"normals has shape {nm.shape}, expected {o.shape} like origins")
+    if w.shape != (Q, K):
+        raise GeometryError(f"weights has shape {w.shape}, expected {(Q, K)}")
+    w = w.astype(np.float64)
+    if not np.isfinite(w).all() or (w < 0).any():
+        raise GeometryError("weights must be finite and >= 0 (0 marks padding)")
+    row = w.sum(1)
+    if (row <= 0).any():
+        raise GeometryError(f"weights of patch {int(np.flatnonzero(row <= 0)[0])} sum to 0: every patch needs "
+                            "at least one origin with positive weight")
+    used = w > 0
+    if not (np.isfinite(o[used]).all() and np.isfinite(nm[used]).all()):
+        raise GeometryError("origins/normals contain NaN or inf values at entries with positive weight")
+    nlen = np.linalg.norm(nm, axis=2)
+    bad = used & (np.abs(nlen - 1) > 1e-3)
+    if bad.any():
+        q, k = np.argwhere(bad)[0]
+        raise GeometryError(f"normals must be unit where weights > 0; normals[{q}, {k}] has length {nlen[q, k]:.4g}")
+    fp = _as_array("face_patch", face_patch, "(F,)")
+    if fp.shape != (tracer.num_triangles,):
+        raise GeometryError(f"face_patch has shape {fp.shape}, expected ({tracer.num_triangles},): one patch per mesh face")
+    if not np.issubdtype(fp.dtype, np.integer):
+        raise GeometryError(f"face_patch must be integer patch indices, got dtype {fp.dtype}")
+    fp = fp.astype(np.int64)
+    if len(fp) and (fp.min() < -1 or fp.max() >= Q):
+        raise GeometryError(f"face_patch values must lie in -1..{Q - 1} (Q = {Q} patches from origins)")
+
+    N = int(samples_per_patch)
+    rng = np.random.default_rng(seed)
+    # origin choice by inverse CDF of the weights, per patch
+    cdf = np.cumsum(w, axis=1)
+    cdf /= cdf[:, -1:]
+    u = rng.random((Q, N))
+    k = torch.searchsorted(torch.from_numpy(cdf), torch.from_numpy(u), right=True).numpy()
+    k = np.minimum(k, K - 1)
+    # never land on padding (a zero-weight slot has the same cdf as the previous one)
+    src = np.repeat(np.arange(Q), N)
+    k = k.ravel()
+    p = o[src, k].astype(np.float64)
+    n = (nm[src, k] / nlen[src, k][:, None]).astype(np.float64)
+    u1, u2 = rng.random((2, Q * N))
+    r, phi = np.sqrt(u1), 2.0 * np.pi * u2
+    t, b = _onb(n)
+    d = (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b + np.sqrt(np.maximum(1.0 - u1, 0.0))[:, None] * n
+    start = p + offset * n
+
+    total = Q * N
+    step = max(1, tracer.chunk_size * tracer.threads)
+    tri = np.empty(total, dtype=np.int64)
+    for a in range(0, total, step):
+        e = min(a + step, total)
+        tri[a:e] = tracer.closest_hit(start[a:e], d[a:e]).triangle
+        if progress is not None:
+            progress(e, total)
+
+    dst = np.where(tri >= 0, fp[np.maximum(tri, 0)], -1)
+    if not count_back_hits:
+        front = _front_faces(tracer, fp, w, nm, Q)
+        hit = dst >= 0
+        facing = np.zeros(total, dtype=bool)
+        facing[hit] = np.einsum("ni,ni->n", d[hit], front[tri[hit]]) < 0
+        dst = np.where(facing, dst, -1)
+    ok = dst >= 0
+    keys = src[ok] * Q + dst[ok]
+    uniq, counts = np.unique(keys, return_counts=True)
+    values = torch.from_numpy(counts.astype(np.float64) / N)
+    idx = torch.from_numpy(np.stack([uniq // Q, uniq % Q]))
+    dense = layout == "dense" or (layout == "auto" and Q * Q <= DENSE_MAX_ENTRIES)
+    if dense:
+        F = torch.zeros(Q, Q, dtype=torch.float64)
+        F[idx[0], idx[1]] = values
+        return F
+    return torch.sparse_coo_tensor(idx, values, (Q, Q), dtype=torch.float64, check_invariants=False).coalesce()
+
+
+def _front_faces(tracer: RayTracer, fp: np.ndarray, w: np.ndarray, nm: np.ndarray, Q: int) -> np.ndarray:
+    """(F, 3) geometric face normals oriented to the front of their patch (the side its weighted
+    mean normal points to); zero for faces of no patch."""
+    v = tracer.vertices.astype(np.float64)
+    f = tracer.faces
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    mean = np.einsum("qk,qki->qi", w, np.nan_to_num(nm.astype(np.float64)))
+    sign = np.where(fp >= 0, np.sign(np.einsum("fi,fi->f", fn, mean[np.maximum(fp, 0)])), 0.0)
+    sign[(fp >= 0) & (sign == 0)] = 1.0
+    return fn * sign[:, None]
+
+
+def form_factors_for_surface(surface: Surface, tracer: Optional[RayTracer] = None, patch_size: int = 1,
+                             samples_per_patch: int = 256, seed: int = 0, offset: Optional[float] = None,
+                             **kwargs) -> tuple[Patches, torch.Tensor]:
+    """Patches of the surface (texel_patches) and their form factors (hemisphere_form_factors).
+
+    Candidate origins of a patch are its texel positions with their normals, weighted by texel
+    area. tracer: a RayTracer over the surface mesh (built from surface.mesh_* when None).
+    offset: ray start distance along the normal; None = 1e-3 x the median texel side
+    (sqrt of the median texel area). kwargs go to hemisphere_form_factors (layout, progress,
+    count_back_hits).
+    """
+    if not surface.has_mesh:
+        raise GeometryError(f"surface from {surface.source}: mesh_vertices/mesh_faces are None; form factors "
+                            "need the triangle mesh")
+    patches = texel_patches(surface, patch_size)
+    fpatch = face_patches(surface, patches)
+    if tracer is None:
+        tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces)
+    if offset is None:
+        offset = 1e-3 * math.sqrt(float(surface.areas.detach().double().median()))
+    pos, nrm, area, mask = patches.padded(surface.positions.detach().cpu().double(),
+                                          surface.normals.detach().cpu().double(),
+                                          surface.areas.detach().cpu().double())
+    F = hemisphere_form_factors(tracer, fpatch, pos, nrm, area * mask, samples_per_patch=samples_per_patch,
+                                seed=seed, offset=float(offset), **kwargs)
+    return patches, F
+
+
+def sampling_error(F: torch.Tensor, samples_per_patch: int) -> torch.Tensor:
+    """Binomial standard error sqrt(F (1 - F) / N) of each entry (same layout as F; 0 where F is 0)."""
+    if isinstance(samples_per_patch, bool) or not isinstance(samples_per_patch, (int, np.integer)) \
+            or samples_per_patch < 1:
+        raise ConfigError(f"samples_per_patch must be an integer >= 1, got {samples_per_patch!r}")
+    if F.is_sparse:
+        F = F.coalesce()
+        v = F.values()
+        return torch.sparse_coo_tensor(F.indices(), torch.sqrt(v * (1 - v) / samples_per_patch), F.shape,
+                                       check_invariants=False).coalesce()
+    return torch.sqrt(F * (1 - F) / samples_per_patch)
