@@ -244,22 +244,29 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
 
     N = int(samples_per_patch)
     rng = np.random.default_rng(seed)
-    # origin choice by inverse CDF of the weights, per patch
+    # origin choice by inverse CDF of the weights, per patch; a zero-weight slot has the same cdf as
+    # the slot before it, so right=True never picks padding
     cdf = np.cumsum(w, axis=1)
     cdf /= cdf[:, -1:]
     u = rng.random((Q, N))
     k = torch.searchsorted(torch.from_numpy(cdf), torch.from_numpy(u), right=True).numpy()
     k = np.minimum(k, K - 1)
-    # never land on padding (a zero-weight slot has the same cdf as the previous one)
     src = np.repeat(np.arange(Q), N)
-    k = k.ravel()
-    p = o[src, k].astype(np.float64)
-    n = (nm[src, k] / nlen[src, k][:, None]).astype(np.float64)
+    # frames and start points once per candidate origin (Q * K), then gathered per ray (float32, like Embree)
+    cand = np.flatnonzero(used.ravel())
+    slot = np.full(Q * K, -1, dtype=np.int64)
+    slot[cand] = np.arange(len(cand))
+    cn = nm.reshape(-1, 3)[cand].astype(np.float64)
+    cn /= np.linalg.norm(cn, axis=1, keepdims=True)
+    ct, cb = _onb(cn)
+    cstart = o.reshape(-1, 3)[cand].astype(np.float64) + offset * cn
+    j = slot[src * K + k.ravel()]
     u1, u2 = rng.random((2, Q * N))
-    r, phi = np.sqrt(u1), 2.0 * np.pi * u2
-    t, b = _onb(n)
-    d = (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b + np.sqrt(np.maximum(1.0 - u1, 0.0))[:, None] * n
-    start = p + offset * n
+    r = np.sqrt(u1).astype(np.float32)
+    phi = (2.0 * np.pi * u2).astype(np.float32)
+    d = ((r * np.cos(phi))[:, None] * ct.astype(np.float32)[j] + (r * np.sin(phi))[:, None] * cb.astype(np.float32)[j]
+         + np.sqrt(np.maximum(1.0 - u1, 0.0)).astype(np.float32)[:, None] * cn.astype(np.float32)[j])
+    start = cstart.astype(np.float32)[j]
 
     total = Q * N
     step = max(1, tracer.chunk_size * tracer.threads)
