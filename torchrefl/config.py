@@ -125,7 +125,7 @@ class ReflectanceConfig:
 class FitConfig:
     """Fitting of the texel parameter tensors."""
 
-    model: str = opt("local", "transport level (this release: local)", choices=("local",))
+    model: str = opt("local", "transport level: local (Method I) or radiosity (Method II, diffuse interreflection)", choices=("local", "radiosity"))
     optimizer: str = opt("lbfgs", "refinement optimiser", choices=("lbfgs", "adam", "none"))
     iterations: int = opt(60, "refinement iterations (LBFGS outer steps or Adam steps)", low=0)
     learning_rate: float = opt(0.05, "Adam learning rate (LBFGS uses a strong-Wolfe line search)", low=0.0)
@@ -138,6 +138,18 @@ class FitConfig:
     pooling: float = opt(0.01, "weight of the pull towards the shared lobe when fit.specular is pooled", low=0.0)
     smoothness: float = opt(0.0, "weight of a neighbour-difference prior on log Ps and sigma (0 = independent texels)", low=0.0)
     prior_weight: float = opt(0.1, "weight pulling texels without specular evidence towards their interpolated Ps, sigma", low=0.0)
+
+
+@dataclass
+class RadiosityConfig:
+    """The radiosity level (Method II): patches, form factors, the linear solve."""
+
+    patch_size: int = opt(2, "patch side in texels (patches are patch_size x patch_size texel blocks; 1 = one texel per patch)", low=1)
+    hemisphere_samples: int = opt(256, "cosine-weighted hemisphere rays per patch for the form factors", low=1)
+    solver: str = opt("auto", "linear solver: direct (dense LU), iterative (fixed point, sparse) or auto (by size)", choices=("auto", "direct", "iterative"))
+    direct_max: int = opt(3000, "auto uses the direct solver up to this many patches", low=1)
+    tolerance: float = opt(1e-7, "relative tolerance of the iterative solver", low=0.0)
+    max_iterations: int = opt(500, "iteration cap of the iterative solver", low=1)
 
 
 @dataclass
@@ -163,6 +175,7 @@ class Config:
     selection: SelectionConfig = field(default_factory=SelectionConfig, metadata={"doc": "light selection"})
     reflectance: ReflectanceConfig = field(default_factory=ReflectanceConfig, metadata={"doc": "reflectance model"})
     fit: FitConfig = field(default_factory=FitConfig, metadata={"doc": "fit"})
+    radiosity: RadiosityConfig = field(default_factory=RadiosityConfig, metadata={"doc": "radiosity level"})
     output: OutputConfig = field(default_factory=OutputConfig, metadata={"doc": "outputs"})
     config_dir: str = field(default=".", metadata={"doc": "(set by the loader) folder of the config file", "internal": True})
 

@@ -17,17 +17,12 @@ import numpy as np
 import torch
 
 from torchrefl import __version__
-from torchrefl.brdf import classification_angle
 from torchrefl.config import Config, describe, dump_config, load_config, resolve_path
 from torchrefl.errors import ConfigError, TorchReflError
-from torchrefl.fit.classify import T_DIFF, T_SPEC, class_counts, classify
-from torchrefl.fit.initialise import initialise_local
-from torchrefl.fit.params import TexelParams
-from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
+from torchrefl.fit.pipeline import fit_capture
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference
 from torchrefl.report.stages import Stages, bar
-from torchrefl.transport.local import local_terms, predict
 
 
 class RunLog:
@@ -122,67 +117,6 @@ def load_capture(cfg: Config, out: Path, stages: Stages, log) -> dict:
     return result
 
 
-def fit_local(cfg: Config, surface, obs, stages: Stages, log, device) -> dict:
-    """Method I: classify, closed forms, interpolation, autograd refinement. Returns a dict of results."""
-    rc, fc = cfg.reflectance, cfg.fit
-    P = obs.num_lights
-    bad = [i for i in fc.holdout if i >= P]
-    if bad:
-        raise ConfigError(f"fit.holdout: light indices {bad} out of range (the capture has {P} lights, indices 0..{P - 1})")
-    held = torch.zeros(P, dtype=torch.bool)
-    held[list(fc.holdout)] = True
-    with stages.stage("precompute"):
-        terms = local_terms(rc.brdf, surface.normals, obs)
-        geometric_ok = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light)
-        fit_mask = geometric_ok & ~held[:, None]
-        eval_mask = geometric_ok & held[:, None]
-        angle = terms.theta_h if rc.class_angle == "half" else classification_angle(
-            rc.class_angle, surface.normals[None], obs.light_dir, obs.view_dirs_full())
-        cls = classify(angle, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
-        counts = class_counts(cls)
-    with stages.stage("initialise"):
-        init = initialise_local(terms, obs.intensity, cls, counts["T_spec"], fit_mask, surface,
-                                ps_channels=rc.ps_channels, sigma_min=rc.sigma_min, sigma_max=rc.sigma_max,
-                                ps_max=rc.ps_max, window=fc.interpolation_window, sigma_search=fc.sigma_search,
-                                specular=fc.specular)
-    log(init.note)
-    with stages.stage("fit"):
-        dt = obs.intensity.dtype
-        params = TexelParams(init.pd.to(dt), init.ps.to(dt), init.sigma.to(dt), rc.sigma_min, rc.sigma_max,
-                             shared_specular=fc.specular == "shared", ps_max=rc.ps_max).to(device)
-        dev_terms = terms
-        if device.type != "cpu":
-            from dataclasses import replace
-            dev_terms = replace(terms, theta_h=terms.theta_h.to(device), cos_l=terms.cos_l.to(device),
-                                cos_v=terms.cos_v.to(device), diffuse=terms.diffuse.to(device),
-                                specular=terms.specular.to(device))
-        n_spec = counts["T_spec"]
-        T = surface.num_texels
-        priors = [Prior((~init.known).to(device), init.ps.to(device), init.sigma.to(device), fc.prior_weight)]
-        if fc.specular == "pooled" and init.shared_lobe is not None:
-            priors.append(Prior(torch.ones(T, dtype=torch.bool, device=device),
-                                init.shared_lobe[0].expand(T, -1).to(device), init.shared_lobe[1].expand(T).to(device),
-                                fc.pooling))
-        objective = Objective(
-            predict=lambda pd, ps, sg: predict(dev_terms, pd, ps, sg),
-            intensity=obs.intensity.to(device), weight=fit_mask.to(device), loss=fc.loss,
-            loss_scale_8bit=fc.loss_scale_8bit, priors=priors, smoothness=fc.smoothness,
-            neighbours=grid_neighbours(surface.texel_index, surface.grid_shape).to(device) if fc.smoothness > 0 else None,
-        )
-        with bar(fc.iterations, f"fit ({fc.optimizer})", cfg.output.progress) as pb:
-            history = refine(params, objective, fc.optimizer, fc.iterations, fc.learning_rate, progress=pb)
-        with torch.no_grad():
-            pd, ps, sigma = (x.detach().cpu() for x in params.values())
-    log(f"refinement ({fc.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
-    with torch.no_grad():
-        pred = predict(terms, pd, ps, sigma)
-    return {
-        "pd": pd, "ps": ps, "sigma": sigma, "pred": pred, "fit_mask": fit_mask, "eval_mask": eval_mask,
-        "classes": cls, "counts": counts, "coverage": init.coverage, "estimated": init.defined, "history": history,
-        "init": init, "n_spec": n_spec, "held": held,
-    }
-
-
 def write_outputs(cfg: Config, out: Path, cap: dict, res: dict, stages: Stages, log) -> dict:
     surface, obs = cap["surface"], cap["obs"]
     mask_t = res["estimated"]
@@ -200,7 +134,7 @@ def write_outputs(cfg: Config, out: Path, cap: dict, res: dict, stages: Stages, 
         metrics = {
             "version": __version__,
             "model": cfg.fit.model,
-            "model_reason": "fit.model is 'local' (direct light with cast shadows)",
+            "model_reason": res["model_reason"],
             "brdf": cfg.reflectance.brdf,
             "capture": {"kind": cfg.capture.kind, **{k: v for k, v in cap["stats"].items() if isinstance(v, (int, float, str))}},
             "texels": surface.num_texels, "lights": obs.num_lights,
@@ -270,7 +204,7 @@ def run(cfg: Config, quiet: bool = False) -> dict:
         log(f"torchrefl {__version__}: capture {cfg.capture.kind}, model {cfg.fit.model}, brdf {cfg.reflectance.brdf}, "
             f"{cfg.dtype} on {device}; outputs in {out}")
         cap = load_capture(cfg, out, stages, log)
-        res = fit_local(cfg, cap["surface"], cap["obs"], stages, log, device)
+        res = fit_capture(cfg, cap["surface"], cap["obs"], stages, log, device)
         metrics = write_outputs(cfg, out, cap, res, stages, log)
         log(summary_table(metrics))
         return metrics

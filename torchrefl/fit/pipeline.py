@@ -1,0 +1,130 @@
+"""The fit of one capture at a chosen transport level.
+
+local (Method I, Ch.3): classify observations, closed forms (eq. 3.3, 3.5), sigma search,
+    interpolation, then the autograd refinement of the texel tensors with the local model.
+radiosity (Method II, Ch.4): form factors between texel patches (Embree), the closed-form inverse
+    radiosity (eq. 4.7) for the patches' diffuse reflectance, the local closed forms on the
+    intensities with the predicted diffuse interreflection removed (eq. 4.9-4.11), then the
+    autograd refinement with the radiosity prediction (gradients through the linear solve).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import torch
+
+from torchrefl.brdf import classification_angle
+from torchrefl.config import Config
+from torchrefl.errors import ConfigError
+from torchrefl.fit.classify import T_DIFF, class_counts, classify
+from torchrefl.fit.initialise import initialise_local
+from torchrefl.fit.params import TexelParams
+from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
+from torchrefl.report.stages import bar
+from torchrefl.transport.local import local_terms, predict
+
+
+def _to_device(terms, device):
+    if device.type == "cpu":
+        return terms
+    return replace(terms, theta_h=terms.theta_h.to(device), cos_l=terms.cos_l.to(device), cos_v=terms.cos_v.to(device),
+                   diffuse=terms.diffuse.to(device), specular=terms.specular.to(device))
+
+
+def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
+    """Form factors, patch map and the Method II closed form; returns (patches, F, predict_indirect, note)."""
+    from torchrefl.rays import RayTracer
+    from torchrefl.transport.form_factors import form_factors_for_surface
+    from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance, inverse_radiosity
+
+    rc = cfg.radiosity
+    if not surface.has_mesh:
+        raise ConfigError(f"fit.model: 'radiosity' needs geometry with depth, but the capture {surface.source} has no "
+                          "mesh (photometric stereo): use fit.model=local")
+    tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
+    patches, F = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size,
+                                          samples_per_patch=rc.hemisphere_samples, seed=cfg.seed)
+    pmap = PatchMap(patches.texel_patch, surface.areas.double(), patches.num_patches)
+    F = F.to(obs.intensity.dtype)
+    solver = {"method": rc.solver, "tol": rc.tolerance, "max_iter": rc.max_iterations, "direct_max": rc.direct_max}
+    rho, det = inverse_radiosity(terms, obs.kappa, obs.intensity, (cls == T_DIFF) & fit_mask, pmap, F)
+    nnz = int(F._nnz()) if F.is_sparse else int((F != 0).sum())
+    note = (f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels, "
+            f"{rc.hemisphere_samples} hemisphere rays each, {nnz} non-zero form factors; inverse radiosity (eq. 4.7) "
+            f"determined {int(det.sum())} patches")
+    indirect = lambda pd: indirect_irradiance(terms, obs.kappa, pd, pmap, F, **solver)
+    return pmap, F, solver, rho, det, indirect, note
+
+
+def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
+    """Classify, initialise and refine at the transport level cfg.fit.model. Returns a dict of results."""
+    rc, fc = cfg.reflectance, cfg.fit
+    P = obs.num_lights
+    bad = [i for i in fc.holdout if i >= P]
+    if bad:
+        raise ConfigError(f"fit.holdout: light indices {bad} out of range (the capture has {P} lights, indices 0..{P - 1})")
+    held = torch.zeros(P, dtype=torch.bool)
+    held[list(fc.holdout)] = True
+    with stages.stage("precompute"):
+        terms = local_terms(rc.brdf, surface.normals, obs)
+        geometric_ok = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light)
+        fit_mask = geometric_ok & ~held[:, None]
+        eval_mask = geometric_ok & held[:, None]
+        angle = terms.theta_h if rc.class_angle == "half" else classification_angle(
+            rc.class_angle, surface.normals[None], obs.light_dir, obs.view_dirs_full())
+        cls = classify(angle, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
+        counts = class_counts(cls)
+        reason = "fit.model is 'local': direct light with cast shadows"
+        indirect = None
+        if fc.model == "radiosity":
+            pmap, F, solver, rho_patch, rho_det, indirect, note = _radiosity_setup(cfg, surface, obs, terms, cls, fit_mask, log)
+            log(note)
+            reason = "fit.model is 'radiosity': direct light plus diffuse interreflection (" + note + ")"
+    init_kw = dict(ps_channels=rc.ps_channels, sigma_min=rc.sigma_min, sigma_max=rc.sigma_max, ps_max=rc.ps_max,
+                   window=fc.interpolation_window, sigma_search=fc.sigma_search, specular=fc.specular)
+    with stages.stage("initialise"):
+        init = initialise_local(terms, obs.intensity, cls, counts["T_spec"], fit_mask, surface, **init_kw)
+        if indirect is not None:
+            # Method II: Pd of the patches from inverse radiosity where determined, the local closed
+            # forms on the intensities without the predicted diffuse interreflection (eq. 4.9-4.11)
+            pd0 = torch.where(rho_det[pmap.texel_patch][:, None], rho_patch[pmap.texel_patch].to(init.pd.dtype), init.pd)
+            with torch.no_grad():
+                H = indirect(pd0.to(obs.intensity.dtype))
+                direct_only = obs.intensity - (obs.kappa / math.pi) * pd0[None].to(H.dtype) * H
+            init = initialise_local(terms, direct_only, cls, counts["T_spec"], fit_mask, surface, **init_kw)
+    log(init.note)
+    with stages.stage("fit"):
+        dt = obs.intensity.dtype
+        params = TexelParams(init.pd.to(dt), init.ps.to(dt), init.sigma.to(dt), rc.sigma_min, rc.sigma_max,
+                             shared_specular=fc.specular == "shared", ps_max=rc.ps_max).to(device)
+        dev_terms = _to_device(terms, device)
+        if indirect is None:
+            model = lambda pd, ps, sg: predict(dev_terms, pd, ps, sg)
+        else:
+            kappa = obs.kappa.to(device)
+            model = lambda pd, ps, sg: predict(dev_terms, pd, ps, sg) + (kappa / math.pi) * pd[None] * indirect(pd)
+        T = surface.num_texels
+        priors = [Prior((~init.known).to(device), init.ps.to(device), init.sigma.to(device), fc.prior_weight)]
+        if fc.specular == "pooled" and init.shared_lobe is not None:
+            priors.append(Prior(torch.ones(T, dtype=torch.bool, device=device),
+                                init.shared_lobe[0].expand(T, -1).to(device), init.shared_lobe[1].expand(T).to(device),
+                                fc.pooling))
+        objective = Objective(
+            predict=model, intensity=obs.intensity.to(device), weight=fit_mask.to(device), loss=fc.loss,
+            loss_scale_8bit=fc.loss_scale_8bit, priors=priors, smoothness=fc.smoothness,
+            neighbours=grid_neighbours(surface.texel_index, surface.grid_shape).to(device) if fc.smoothness > 0 else None,
+        )
+        with bar(fc.iterations, f"fit ({fc.optimizer})", cfg.output.progress) as pb:
+            history = refine(params, objective, fc.optimizer, fc.iterations, fc.learning_rate, progress=pb)
+        with torch.no_grad():
+            pd, ps, sigma = (x.detach() for x in params.values())
+            pred = model(pd, ps, sigma).cpu()
+            pd, ps, sigma = pd.cpu(), ps.cpu(), sigma.cpu()
+    log(f"refinement ({fc.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
+    return {
+        "pd": pd, "ps": ps, "sigma": sigma, "pred": pred, "fit_mask": fit_mask, "eval_mask": eval_mask,
+        "classes": cls, "counts": counts, "coverage": init.coverage, "estimated": init.defined, "history": history,
+        "init": init, "n_spec": counts["T_spec"], "held": held, "model_reason": reason,
+    }
