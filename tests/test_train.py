@@ -125,3 +125,15 @@ def test_diligent_ball_subset(tmp_path):
     m = json.loads((out / "metrics.json").read_text())
     assert m["holdout"]["mean_abs_diff_8bit"] < 1.0
     assert m["capture"]["bit_depth"] == 16
+
+
+@pytest.mark.skipif(not BALL.is_dir(), reason="../shared/data/diligent_ball not present")
+def test_auto_on_photometric_stereo_is_local_and_radiosity_is_refused(tmp_path, capsys):
+    out = tmp_path / "ball_auto"
+    base = [str(ROOT / "configs" / "diligent_ball.yaml"), f"output.dir={out}", "capture.light_subset=[0,10,20,30,40]",
+            "fit.holdout=[]", "fit.iterations=5", "output.progress=false", "--quiet"]
+    assert main(base + ["fit.model=auto"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["model"] == "local" and "no depth" in m["model_reason"]
+    assert main(base + ["fit.model=radiosity"]) == 2
+    assert "needs geometry with depth" in capsys.readouterr().err

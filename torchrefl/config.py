@@ -50,7 +50,7 @@ class LightGridConfig:
 class SyntheticConfig:
     """A synthetic object scanned by the seed's cylindrical rig (capture.kind: synthetic_cylindrical)."""
 
-    object: str = opt("ellipsoid", "synthetic object shape", choices=("ellipsoid", "sphere", "blob"))
+    object: str = opt("ellipsoid", "synthetic object shape: analytic ellipsoid/sphere/blob, or a mesh object with interreflection: object_e (the seed's Object E, two plates at 90 deg, setup 1: white diffuse paper), object_e_glossy (Object E, setup 2: glossy paper), bowl (concave, non-uniform inside); see torchrefl/capture/synthetic_objects.py", choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl"))
     size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
     materials: str = opt("regions", "ground-truth material layout", choices=("regions", "uniform"))
     brdf: str = opt("torrance_sparrow", "BRDF used to render the synthetic images", choices=("torrance_sparrow", "ward", "ward_normalised"))
@@ -67,6 +67,9 @@ class SyntheticConfig:
     range_noise_mm: float = opt(0.0, "Gaussian range noise in mm", low=0.0)
     range_bits: Optional[int] = opt(None, "quantise the range image to this many bits (the seed's scanner: 8); null = no quantisation")
     texture_bits: int = opt(8, "bit depth of the texture images (the seed: 8)", choices=(8, 16))
+    indirect_samples: int = opt(0, "interreflection paths per visible sub-sample (Monte Carlo path tracing with Embree; 0 = direct light only)", low=0)
+    indirect_min_bounces: int = opt(2, "interreflection bounces always traced before Russian roulette", low=1)
+    indirect_max_bounces: int = opt(32, "hard cap on interreflection bounces (Russian roulette ends paths long before)", low=1)
 
 
 @dataclass
@@ -125,7 +128,8 @@ class ReflectanceConfig:
 class FitConfig:
     """Fitting of the texel parameter tensors."""
 
-    model: str = opt("local", "transport level: local (Method I) or radiosity (Method II, diffuse interreflection)", choices=("local", "radiosity"))
+    model: str = opt("local", "transport level: local (Method I), radiosity (Method II, diffuse interreflection) or auto (the cheapest that explains the data)", choices=("local", "radiosity", "auto"))
+    noise_floor_dn: float = opt(0.5, "auto: interreflection below this many 8-bit DN is not modelled", low=0.0)
     optimizer: str = opt("lbfgs", "refinement optimiser", choices=("lbfgs", "adam", "none"))
     iterations: int = opt(60, "refinement iterations (LBFGS outer steps or Adam steps)", low=0)
     learning_rate: float = opt(0.05, "Adam learning rate (LBFGS uses a strong-Wolfe line search)", low=0.0)

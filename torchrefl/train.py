@@ -133,8 +133,9 @@ def write_outputs(cfg: Config, out: Path, cap: dict, res: dict, stages: Stages, 
         )
         metrics = {
             "version": __version__,
-            "model": cfg.fit.model,
+            "model": res["model"],
             "model_reason": res["model_reason"],
+            "model_numbers": res["model_numbers"],
             "brdf": cfg.reflectance.brdf,
             "capture": {"kind": cfg.capture.kind, **{k: v for k, v in cap["stats"].items() if isinstance(v, (int, float, str))}},
             "texels": surface.num_texels, "lights": obs.num_lights,
@@ -222,7 +223,7 @@ def main(argv=None) -> int:
     parser.add_argument("config", help="YAML config file (e.g. configs/default.yaml)")
     parser.add_argument("overrides", nargs="*", help="dotted.key=value overrides, e.g. output.dir=/tmp/x fit.holdout=[5,11]")
     parser.add_argument("--quiet", action="store_true", help="no log lines on stderr (log.txt is still written)")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)
     try:
         cfg = load_config(args.config, args.overrides)
         metrics = run(cfg, quiet=args.quiet)

@@ -2,6 +2,7 @@
 
 local (Method I, Ch.3): classify observations, closed forms (eq. 3.3, 3.5), sigma search,
     interpolation, then the autograd refinement of the texel tensors with the local model.
+auto: the cheapest level that explains the data (torchrefl.transport.select).
 radiosity (Method II, Ch.4): form factors between texel patches (Embree), the closed-form inverse
     radiosity (eq. 4.7) for the patches' diffuse reflectance, the local closed forms on the
     intensities with the predicted diffuse interreflection removed (eq. 4.9-4.11), then the
@@ -24,6 +25,7 @@ from torchrefl.fit.params import TexelParams
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
 from torchrefl.report.stages import bar
 from torchrefl.transport.local import local_terms, predict
+from torchrefl.transport.select import choose_level, predicted_interreflection_dn
 
 
 def _to_device(terms, device):
@@ -76,9 +78,14 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             rc.class_angle, surface.normals[None], obs.light_dir, obs.view_dirs_full())
         cls = classify(angle, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
         counts = class_counts(cls)
+        level = fc.model
         reason = "fit.model is 'local': direct light with cast shadows"
         indirect = None
-        if fc.model == "radiosity":
+        choice = None
+        if fc.model == "auto" and not surface.has_mesh:
+            choice = choose_level(False, None, None, None, fc.noise_floor_dn)
+            level, reason = choice.level, choice.reason
+        if level in ("radiosity", "auto"):
             pmap, F, solver, rho_patch, rho_det, indirect, note = _radiosity_setup(cfg, surface, obs, terms, cls, fit_mask, log)
             log(note)
             reason = "fit.model is 'radiosity': direct light plus diffuse interreflection (" + note + ")"
@@ -86,6 +93,14 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
                    window=fc.interpolation_window, sigma_search=fc.sigma_search, specular=fc.specular)
     with stages.stage("initialise"):
         init = initialise_local(terms, obs.intensity, cls, counts["T_spec"], fit_mask, surface, **init_kw)
+        if level == "auto":
+            diff_dn, spec_dn = predicted_interreflection_dn(terms, obs.kappa, init.pd.to(obs.intensity.dtype),
+                                                            init.ps.to(obs.intensity.dtype), indirect, fit_mask)
+            choice = choose_level(True, F, diff_dn, spec_dn, fc.noise_floor_dn)
+            level = choice.level
+            reason = f"auto chose {level}: {choice.reason}"
+            if level == "local":
+                indirect = None
         if indirect is not None:
             # Method II: Pd of the patches from inverse radiosity where determined, the local closed
             # forms on the intensities without the predicted diffuse interreflection (eq. 4.9-4.11)
@@ -95,6 +110,7 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
                 direct_only = obs.intensity - (obs.kappa / math.pi) * pd0[None].to(H.dtype) * H
             init = initialise_local(terms, direct_only, cls, counts["T_spec"], fit_mask, surface, **init_kw)
     log(init.note)
+    log(f"transport level: {level} ({reason})")
     with stages.stage("fit"):
         dt = obs.intensity.dtype
         params = TexelParams(init.pd.to(dt), init.ps.to(dt), init.sigma.to(dt), rc.sigma_min, rc.sigma_max,
@@ -126,5 +142,6 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
     return {
         "pd": pd, "ps": ps, "sigma": sigma, "pred": pred, "fit_mask": fit_mask, "eval_mask": eval_mask,
         "classes": cls, "counts": counts, "coverage": init.coverage, "estimated": init.defined, "history": history,
-        "init": init, "n_spec": counts["T_spec"], "held": held, "model_reason": reason,
+        "init": init, "n_spec": counts["T_spec"], "held": held, "model_reason": reason, "model": level,
+        "model_numbers": choice.numbers if choice is not None else {},
     }
