@@ -52,3 +52,71 @@ def region_materials(rows: int, columns: int, seed: int = 0, uniform: bool = Fal
         ps = ps * (1 + 0.20 * np.sin(2 * np.pi * 3 * xx + phase[1]) * np.sin(np.pi * 1.5 * yy + phase[2]))[..., None]
         sigma = sigma * (1 + 0.15 * np.cos(2 * np.pi * xx + phase[2]) * np.cos(np.pi * 2 * yy))
     return {"pd": pd.astype(np.float64), "ps": ps.astype(np.float64), "sigma": sigma.astype(np.float64), "region": region}
+
+
+# ---------------------------------------------------------------------------- materials as functions of position
+# Mesh objects need the material at arbitrary points (path vertices), not only at texel centres:
+# these functions take per-point coordinates and return per-point parameters; truth.npz holds
+# them evaluated at the texel centres' scanner hits.
+
+PAPER_WHITE = ((0.8, 0.8, 0.8), (0.0, 0.0, 0.0), 0.1)      # Object E setup 1: white diffuse paper
+PAPER_GLOSSY = ((0.55, 0.55, 0.55), (0.35, 0.35, 0.35), 0.08)  # Object E setup 2: glossy paper
+
+
+def uniform_material(count: int, material=PAPER_WHITE, region=None) -> dict:
+    """{'pd': (N, 3), 'ps': (N, 3), 'sigma': (N,), 'region': (N,) int} of one material at `count` points."""
+    pd, ps, sigma = material
+    return {"pd": np.tile(np.asarray(pd, dtype=np.float64), (count, 1)),
+            "ps": np.tile(np.asarray(ps, dtype=np.float64), (count, 1)),
+            "sigma": np.full(count, float(sigma)),
+            "region": np.zeros(count, dtype=np.int64) if region is None else np.asarray(region, dtype=np.int64)}
+
+
+class BowlMaterials:
+    """Non-uniform inside of a bowl as a function of the bowl's spherical coordinates.
+
+    Inside (part 0): four azimuthal sectors (random borders) of palette materials, a band of a fifth
+    material over a range of polar angle and azimuth, and smooth multiplicative variation (+-15 % Pd,
+    +-20 % Ps, +-15 % sigma) in (azimuth, polar angle). Outside and rim (parts 1, 2): the matte paint,
+    uniform. Deterministic in `seed`; uniform=True gives the matte paint everywhere.
+    """
+
+    def __init__(self, seed: int = 0, uniform: bool = False):
+        rng = np.random.default_rng([seed, 0xB0])
+        self.uniform = uniform
+        self.cuts = np.sort(rng.uniform(0.0, 2 * np.pi, size=4))
+        self.band = np.sort(rng.uniform(0.45, 1.15, size=2))          # polar angle range (rad)
+        if self.band[1] - self.band[0] < 0.25:
+            self.band[1] = self.band[0] + 0.25
+        start = rng.uniform(0.0, 2 * np.pi)
+        self.band_phi = (start, start + rng.uniform(np.pi / 2, 1.5 * np.pi))
+        self.order = rng.permutation(len(_PALETTE))
+        self.phase = rng.uniform(0, 2 * np.pi, size=3)
+
+    def __call__(self, alpha: np.ndarray, phi: np.ndarray, part: np.ndarray) -> dict:
+        """alpha: (N,) polar angle from the bowl's bottom (0) to the rim (pi/2); phi: (N,) azimuth;
+        part: (N,) 0 inside, 1 outside, 2 rim. Returns pd, ps (N, 3), sigma, region (N,)."""
+        N = len(alpha)
+        phi = np.mod(phi, 2 * np.pi)
+        if self.uniform:
+            region = np.zeros(N, dtype=np.int64)
+        else:
+            sector = np.searchsorted(self.cuts, phi) % 4                # wraps: the last and first sector join
+            rel = np.mod(phi - self.band_phi[0], 2 * np.pi)
+            in_band = (alpha >= self.band[0]) & (alpha < self.band[1]) & (rel < self.band_phi[1] - self.band_phi[0])
+            region = np.where(in_band, 4, sector)
+            region = np.where(part == 0, region, 5)
+        tab = [_PALETTE[i] for i in self.order] + [_PALETTE[0]]
+        if self.uniform:
+            tab = [_PALETTE[0]]
+        pd = np.array([t[0] for t in tab])[region]
+        ps = np.array([t[1] for t in tab])[region]
+        sigma = np.array([t[2] for t in tab])[region]
+        if not self.uniform:
+            inside = (part == 0).astype(np.float64)
+            ph = self.phase
+            pd = pd * (1 + inside * 0.15 * np.sin(2 * phi + ph[0]) * np.cos(2 * alpha))[:, None]
+            ps = ps * (1 + inside * 0.20 * np.sin(3 * phi + ph[1]) * np.sin(3 * alpha + ph[2]))[:, None]
+            sigma = sigma * (1 + inside * 0.15 * np.cos(phi + ph[2]) * np.cos(4 * alpha))
+        return {"pd": pd.astype(np.float64), "ps": ps.astype(np.float64), "sigma": sigma.astype(np.float64),
+                "region": region.astype(np.int64)}

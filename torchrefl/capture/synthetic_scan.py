@@ -7,6 +7,17 @@ with exact (analytic) surface points and normals, cast shadows from Embree, then
 sensor noise, clipping at full scale and 8-bit quantisation. The fitter instead sees
 the (optionally quantised, noisy) range image, median-filtered and quadratic-fitted,
 so tests do not just invert their own forward model.
+
+Objects: the analytic ellipsoid / sphere (texel-aligned region materials), or a mesh object of
+synthetic_objects (Object E setups 1 and 2, a bowl), whose scanner hits come from Embree on the
+object's mesh, normals from its exact geometry, and materials from functions of the surface
+point (truth.npz holds them at the texel centres' scanner hits; sub-samples are rendered with
+their texel's truth so every texel has one true value). A texel is scanned only where the
+scanner's ray hits the object in front of the rotation axis; elsewhere range.npy is NaN.
+
+With synthetic.indirect_samples > 0 the textures also carry interreflection, path traced with
+Embree (synthetic_gi.IndirectRenderer: BRDF/lobe sampling, next-event estimation with the true
+material at every path vertex, Russian roulette); 0 renders direct light only, exactly as before.
 """
 
 from __future__ import annotations
@@ -23,14 +34,17 @@ import yaml
 from torchrefl import brdf as brdf_mod
 from torchrefl.capture.cylindrical_rig import CylindricalRig, light_grid_positions
 from torchrefl.capture.images import write_png
+from torchrefl.capture.synthetic_gi import IndirectRenderer
 from torchrefl.capture.synthetic_materials import region_materials
+from torchrefl.capture.synthetic_objects import MESH_OBJECTS, make_object
 from torchrefl.config import LightGridConfig, SyntheticConfig
 from torchrefl.errors import GeometryError
 from torchrefl.rays import RayTracer
 
 
 class SyntheticScan:
-    """A synthetic ellipsoid (or sphere) on the cylindrical rig with ground-truth maps."""
+    """A synthetic ellipsoid, sphere or mesh object (synthetic_objects) on the cylindrical rig with
+    ground-truth maps."""
 
     def __init__(self, cfg: SyntheticConfig, grid: LightGridConfig | None = None, seed: int = 0,
                  kappa=(math.pi,) * 3, threads: int = 2):
@@ -39,7 +53,11 @@ class SyntheticScan:
         self.seed = seed
         self.kappa = np.asarray(kappa, dtype=np.float64)
         self.threads = threads
-        a, b, c = cfg.size_mm if cfg.object == "ellipsoid" else [cfg.size_mm[0]] * 3
+        self.object = make_object(cfg.object, seed, cfg.materials) if cfg.object in MESH_OBJECTS else None
+        if self.object is None:
+            a, b, c = cfg.size_mm if cfg.object == "ellipsoid" else [cfg.size_mm[0]] * 3
+        else:   # half extents of the mesh about the axis origin: they set the scanner's start distance
+            a, b, c = np.abs(self.object.vertices).max(0)
         self.axes = np.array([a, b, c], dtype=np.float64)
         height = cfg.rows * cfg.height_step_mm
         self.rig = CylindricalRig(
@@ -48,6 +66,18 @@ class SyntheticScan:
             height0=-height / 2.0 + cfg.height_step_mm / 2.0, height_step=cfg.height_step_mm,
             camera_distance=cfg.camera_distance_mm, camera_height=cfg.camera_height_mm,
         )
+        if self.object is not None:
+            lo, hi = self.object.extent_y
+            if max(-lo, hi) >= height / 2.0:
+                raise GeometryError(
+                    f"synthetic.object: {cfg.object} spans heights {lo:.1f}..{hi:.1f} mm, outside the scan height "
+                    f"+-{height / 2:.1f} mm (synthetic.rows x synthetic.height_step_mm)")
+            self.mesh = trimesh.Trimesh(self.object.vertices, self.object.faces, process=False)
+            self.tracer = RayTracer(self.object.vertices, self.object.faces, threads=threads)
+            self.truth = self._mesh_truth()
+            self._samples = None
+            self._gi = None
+            return
         if self.axes[1] >= height / 2.0:
             raise GeometryError(
                 f"synthetic.size_mm: object half-height {self.axes[1]} mm does not fit the scan height "
@@ -58,6 +88,7 @@ class SyntheticScan:
         self.tracer = RayTracer(mesh.vertices, mesh.faces, threads=threads)
         self.truth = region_materials(cfg.rows, cfg.columns, seed=seed, uniform=cfg.materials == "uniform")
         self._samples = None
+        self._gi = None
 
     # ------------------------------------------------------------------ geometry
 
@@ -85,6 +116,39 @@ class SyntheticScan:
         origins[:, 1] = -t
         return origins, -u
 
+    def _mesh_scan(self, origins: np.ndarray, dirs: np.ndarray):
+        """Scanner rays against the mesh object: points (N,3), normals (N,3) (exact geometry), signed range
+        rho (N,) from the axis along the ray, triangles (N,), hit (N,) (hit in front of the axis only: a
+        point beyond the axis belongs to the opposite scan angle and is seen there, or not at all)."""
+        hits = self.tracer.closest_hit(origins, dirs)
+        far = np.linalg.norm(origins[:, [0, 2]], axis=-1)
+        rho = np.where(hits.hit, far - hits.distance, -np.inf)
+        hit = hits.hit & (rho > 1e-6)
+        p = origins + np.where(hit, hits.distance, 0.0)[:, None] * dirs
+        n = np.zeros_like(p)
+        idx = np.flatnonzero(hit)
+        if idx.size:
+            n[idx] = self.object.normal(p[idx], hits.triangle[idx])
+        return p, n, rho, hits.triangle, hit
+
+    def _mesh_truth(self) -> dict:
+        """Texel maps of the mesh object's materials at the texel centres' scanner hits (zeros, region -1,
+        sigma 0.1 where the centre ray misses)."""
+        H, W = self.rig.rows, self.rig.columns
+        S, T = np.meshgrid(self.rig.angles(), self.rig.heights())
+        o, d = self._scan_rays(S.ravel(), T.ravel())
+        p, _, _, tri, hit = self._mesh_scan(o, d)
+        pd = np.zeros((H * W, 3))
+        ps = np.zeros((H * W, 3))
+        sigma = np.full(H * W, 0.1)
+        region = np.full(H * W, -1, dtype=np.int64)
+        idx = np.flatnonzero(hit)
+        if idx.size:
+            m = self.object.material(p[idx], tri[idx])
+            pd[idx], ps[idx], sigma[idx], region[idx] = m["pd"], m["ps"], m["sigma"], m["region"]
+        return {"pd": pd.reshape(H, W, 3), "ps": ps.reshape(H, W, 3), "sigma": sigma.reshape(H, W),
+                "region": region.reshape(H, W), "texel_hit": hit.reshape(H, W)}
+
     def range_image(self) -> np.ndarray:
         """(H, W) float64 range r(s, t) in mm, NaN where the scanner ray misses.
 
@@ -94,10 +158,14 @@ class SyntheticScan:
         cfg = self.cfg
         S, T = np.meshgrid(self.rig.angles(), self.rig.heights())
         o, d = self._scan_rays(S.ravel(), T.ravel())
-        hits = self.tracer.closest_hit(o, d)
-        p, _, exact_hit = self._ray_ellipsoid(o, d)
-        hit = hits.hit & exact_hit
-        r = np.where(hit, np.hypot(p[:, 0], p[:, 2]), np.nan).reshape(S.shape)
+        if self.object is not None:
+            _, _, rho, _, hit = self._mesh_scan(o, d)
+            r = np.where(hit, rho, np.nan).reshape(S.shape)
+        else:
+            hits = self.tracer.closest_hit(o, d)
+            p, _, exact_hit = self._ray_ellipsoid(o, d)
+            hit = hits.hit & exact_hit
+            r = np.where(hit, np.hypot(p[:, 0], p[:, 2]), np.nan).reshape(S.shape)
         rng = np.random.default_rng([self.seed, 1])
         if cfg.range_noise_mm > 0:
             r = r + rng.normal(0.0, cfg.range_noise_mm, size=r.shape)
@@ -123,7 +191,10 @@ class SyntheticScan:
         S_full = np.broadcast_to(s[None], (H, W, Sn)).ravel()
         T_full = np.broadcast_to(t[:, None, :], (H, W, Sn)).ravel()
         o, d = self._scan_rays(S_full, T_full)
-        p, n, hit = self._ray_ellipsoid(o, d)
+        if self.object is not None:
+            p, n, _, tri, hit = self._mesh_scan(o, d)
+        else:
+            p, n, hit = self._ray_ellipsoid(o, d)
         cam = self.rig.camera_positions(S_full)
         seen = hit & ((n * (cam - p)).sum(-1) > 0)
         idx = np.flatnonzero(seen)
@@ -140,6 +211,15 @@ class SyntheticScan:
             "u": u.astype(np.float32), "w": w.astype(np.float32),
             "count": np.bincount(texel, minlength=H * W),
         }
+        if self.object is not None:
+            # the texel's truth where its centre is scanned, else the material at the sub-sample itself
+            flat = {k: self.truth[k].reshape((H * W,) + self.truth[k].shape[2:])[texel] for k in ("pd", "ps", "sigma")}
+            own = np.flatnonzero(~self.truth["texel_hit"].ravel()[texel])
+            if own.size:
+                m = self.object.material(p[keep][own], tri[keep][own])
+                for k in flat:
+                    flat[k][own] = m[k]
+            self._samples.update(flat)
         return self._samples
 
     def candidate_positions(self) -> np.ndarray:
@@ -151,7 +231,76 @@ class SyntheticScan:
 
     def radiance_image(self, head_position) -> np.ndarray:
         """(H, W, 3) float64 noiseless sensor value (fraction of full range) for a light at head_position:
-        the mean over each texel's visible sub-samples of kappa * Y / C^2 * f * cos, with Embree shadows."""
+        the mean over each texel's visible sub-samples of kappa * Y / C^2 * f * cos, with Embree shadows,
+        plus path-traced interreflection when synthetic.indirect_samples > 0."""
+        return self.radiance_images(np.asarray(head_position, dtype=np.float64)[None])[0]
+
+    def radiance_images(self, head_positions, progress=None) -> np.ndarray:
+        """(P, H, W, 3) float64 noiseless sensor values for head positions (P, 3); the interreflection
+        paths are traced once and shaded for every light (progress(done, total) per chunk of origins)."""
+        positions = np.asarray(head_positions, dtype=np.float64).reshape(-1, 3)
+        H, W = self.rig.rows, self.rig.columns
+        sums = np.stack([self._direct_sum(pos) for pos in positions]) if len(positions) else np.zeros((0, H * W, 3))
+        if self.cfg.indirect_samples > 0 and len(positions):
+            smp = self._subsamples()
+            ind = self.indirect_subsamples(positions, progress=progress)
+            for i in range(len(positions)):
+                for c in range(3):
+                    sums[i, :, c] += np.bincount(smp["texel"], weights=ind[i, :, c], minlength=H * W)
+        count = self._subsamples()["count"]
+        sums /= np.maximum(count, 1)[None, :, None]
+        return sums.reshape(len(positions), H, W, 3)
+
+    def _light_world(self, head_position) -> np.ndarray:
+        """(N, 3) world position of the light for every visible sub-sample (its column's head frame)."""
+        smp = self._subsamples()
+        lat, vert, rad = (float(c) for c in np.asarray(head_position, dtype=np.float64))
+        light = rad * smp["u"].astype(np.float64) + lat * smp["w"].astype(np.float64)
+        light[:, 1] += vert
+        return light
+
+    def _normal_at(self, points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+        if self.object is not None:
+            return self.object.normal(points, tri)
+        n = points / (self.axes ** 2)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+    def _material_at(self, points: np.ndarray, tri: np.ndarray) -> dict:
+        """Material at arbitrary surface points: the mesh object's function, or for the analytic objects
+        the texel map of the column and row the point is scanned at."""
+        if self.object is not None:
+            return self.object.material(points, tri)
+        rig = self.rig
+        s = np.arctan2(-points[:, 0], -points[:, 2])
+        col = np.mod(np.round((s - rig.angle0) / rig.angle_step), round(2 * math.pi / rig.angle_step)).astype(np.int64)
+        col = np.clip(col, 0, rig.columns - 1)
+        row = np.clip(np.round((-points[:, 1] - rig.height0) / rig.height_step).astype(np.int64), 0, rig.rows - 1)
+        return {k: self.truth[k][row, col] for k in ("pd", "ps", "sigma")}
+
+    def indirect_renderer(self) -> IndirectRenderer:
+        if self._gi is None:
+            cfg = self.cfg
+            self._gi = IndirectRenderer(self.tracer, self._normal_at, self._material_at, cfg.brdf, offset=0.01,
+                                        min_bounces=cfg.indirect_min_bounces, max_bounces=cfg.indirect_max_bounces,
+                                        seed=self.seed)
+        return self._gi
+
+    def indirect_subsamples(self, head_positions, progress=None) -> np.ndarray:
+        """(P, N, 3) interreflected sensor value kappa * Y * L_ind / full range of every visible sub-sample."""
+        cfg = self.cfg
+        smp = self._subsamples()
+        positions = np.asarray(head_positions, dtype=np.float64).reshape(-1, 3)
+        lights = np.stack([self._light_world(pos) for pos in positions])
+        H, W = self.rig.rows, self.rig.columns
+        mat = {}
+        for k in ("pd", "ps", "sigma"):
+            mat[k] = smp[k] if k in smp else self.truth[k].reshape((H * W,) + self.truth[k].shape[2:])[smp["texel"]]
+        g = self.indirect_renderer().render(smp["points"], smp["normals"], smp["view"], mat["pd"], mat["ps"],
+                                            mat["sigma"], lights, cfg.indirect_samples, progress=progress)
+        return self.kappa * cfg.light_intensity * g
+
+    def _direct_sum(self, head_position) -> np.ndarray:
+        """(H*W, 3) sum over each texel's visible sub-samples of the direct sensor value."""
         cfg = self.cfg
         smp = self._subsamples()
         H, W = self.rig.rows, self.rig.columns
@@ -171,21 +320,25 @@ class SyntheticScan:
         if idx.size:
             tex = smp["texel"][idx]
             tt = lambda x: torch.from_numpy(np.ascontiguousarray(x))
-            flat = lambda key: self.truth[key].reshape((H * W,) + self.truth[key].shape[2:])[tex]
+            if "pd" in smp:
+                flat = lambda key: smp[key][idx]
+            else:
+                flat = lambda key: self.truth[key].reshape((H * W,) + self.truth[key].shape[2:])[tex]
             with torch.no_grad():
                 g = brdf_mod.cosine_weighted_brdf(cfg.brdf, tt(n[idx]), tt(l[idx]), tt(smp["view"][idx]),
                                                   tt(flat("pd")), tt(flat("ps")), tt(flat("sigma"))).numpy()
             value = self.kappa * cfg.light_intensity * g / (dist[idx, None] ** 2)
             for c in range(3):
                 img[:, c] = np.bincount(tex, weights=value[:, c], minlength=H * W)
-        count = smp["count"]
-        img /= np.maximum(count, 1)[:, None]
-        return img.reshape(H, W, 3)
+        return img
 
     def render_texture(self, head_position) -> np.ndarray:
         """(H, W, 3) uint8 (or uint16) texture image for a light at head_position, with noise."""
+        return self._sensor(self.radiance_image(head_position), head_position)
+
+    def _sensor(self, img: np.ndarray, head_position) -> np.ndarray:
+        """Noise (seeded by the head position), clipping and quantisation of a radiance image."""
         cfg = self.cfg
-        img = self.radiance_image(head_position)
         head = np.asarray(head_position, dtype=np.float64)
         key = int.from_bytes(hashlib.sha256(np.round(head, 6).tobytes()).digest()[:8], "little")
         rng = np.random.default_rng([self.seed, key])
@@ -222,9 +375,12 @@ class SyntheticScan:
         (folder / "textures").mkdir(parents=True, exist_ok=True)
         lights = []
         positions = np.asarray(head_positions, dtype=np.float64).reshape(-1, 3)
+        # with interreflection all lights share one set of paths: render them together
+        images = self.radiance_images(positions) if self.cfg.indirect_samples > 0 else None
         for i, pos in enumerate(positions):
             name = f"textures/{i:03d}.png"
-            write_png(folder / name, self.render_texture(pos), bits=self.cfg.texture_bits)
+            tex = self._sensor(images[i], pos) if images is not None else self.render_texture(pos)
+            write_png(folder / name, tex, bits=self.cfg.texture_bits)
             lights.append({"image": name, "position_mm": [float(x) for x in pos]})
             if progress is not None:
                 progress.update(1)

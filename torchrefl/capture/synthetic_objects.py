@@ -1,0 +1,185 @@
+"""Mesh objects for synthetic cylindrical scans, with exact normals and materials defined on the object.
+
+Each object is a MeshObject: the triangle mesh Embree traces (fine where the object is curved,
+exact where it is flat), `normal(points, triangles)` giving the exact surface normal and
+`material(points, triangles)` giving the true reflectance at any surface point (path vertices of
+the interreflection renderer need it away from texel centres).
+
+The cylindrical scanner looks horizontally at the rotation axis (world y up); a point is scanned
+from the side of the axis it lies on, so the faces that must be seen (the inside of the fold, the
+inside of the bowl) are placed in front of the axis, facing outwards, towards scan angle s = pi
+(world +z) turned by the object's yaw.
+
+- object_e: the seed's Object E (Fig. 3.12-3.13): two plates 120 mm (along the fold) x 80 mm x 3 mm
+  joined at a 90 degree fold. The fold is horizontal (the seed plots the Pd profile along the
+  object's vertical direction), 15 mm in front of the axis; the opening's bisector is tilted 15
+  degrees upwards and the whole object turned 20 degrees about the vertical axis, so the upper
+  plate (region 0, Region I) faces 30 degrees downwards and the lower plate (region 1, Region II)
+  60 degrees upwards: both insides are seen over a wide range of scan angles. Setup 1: white
+  diffuse paper everywhere; setup 2 (object_e_glossy): glossy paper everywhere.
+- bowl: a hemispherical shell (inner radius 45 mm, 4 mm wall) lying on its side with its opening
+  towards the scanner (tilted 10 degrees upwards, turned 20 degrees about the vertical), its centre
+  62 mm in front of the axis, so the scanner looks into it; the inside carries non-uniform
+  materials (synthetic_materials.BowlMaterials), the outside and the rim a uniform matte paint.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import trimesh
+
+from torchrefl.capture.synthetic_materials import PAPER_GLOSSY, PAPER_WHITE, BowlMaterials, uniform_material
+from torchrefl.errors import GeometryError
+
+MESH_OBJECTS = ("object_e", "object_e_glossy", "bowl")
+
+
+@dataclass
+class MeshObject:
+    """vertices (V, 3) float64 mm, faces (F, 3) int; normal(points (N,3), triangles (N,)) -> (N, 3) unit
+    outward normals; material(points, triangles) -> {'pd': (N,3), 'ps': (N,3), 'sigma': (N,), 'region': (N,)};
+    extent_y: (min, max) world height; info: the object's defining geometry in world coordinates (Object E:
+    fold_start (3,), fold_dir (3,) unit along the fold, plate_dirs (2, 3) unit directions of the plates from
+    the fold (upper, lower), inside_normals (2, 3), length, width; bowl: centre, axis, radius, wall)."""
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    normal: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    material: Callable[[np.ndarray, np.ndarray], dict]
+    extent_y: tuple
+    info: dict
+
+
+def _rot_x(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+
+
+def _rot_y(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+
+
+def _box(origin, e1, e2, e3, lengths) -> trimesh.Trimesh:
+    """Box spanned from `origin` by lengths along orthonormal axes e1, e2, e3 (outward faces)."""
+    R = np.stack([e1, e2, e3], 1)
+    m = trimesh.creation.box(extents=lengths)
+    m.apply_translation(np.asarray(lengths) / 2.0)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = origin
+    m.apply_transform(T)
+    if np.linalg.det(R) < 0:
+        m.invert()
+    return m
+
+
+def object_e(glossy: bool = False, *, length: float = 120.0, width: float = 80.0, thickness: float = 3.0,
+             fold_front: float = 15.0, tilt_deg: float = 15.0, yaw_deg: float = 20.0) -> MeshObject:
+    """Object E: two plates at 90 degrees (see the module doc); regions 0 (upper plate) and 1 (lower)."""
+    bis_elev = np.radians(tilt_deg)
+    dA = np.array([0.0, np.sin(bis_elev + np.pi / 4), np.cos(bis_elev + np.pi / 4)])   # upper plate, from the fold
+    dB = np.array([0.0, np.sin(bis_elev - np.pi / 4), np.cos(bis_elev - np.pi / 4)])   # lower plate
+    ex = np.array([1.0, 0.0, 0.0])
+    y_top = width * dA[1]
+    y_bot = width * dB[1]
+    fold = np.array([-length / 2.0, -(y_top + y_bot) / 2.0, fold_front])
+    # plate A: a in [-T, W] along dA, b in [-T, 0] along dB (its inside face b = 0 has normal +dB);
+    # plate B: a in [-T, 0], b in [0, W] (inside face a = 0, normal +dA). Frames (dA, dB, ex) are
+    # right-handed or not depending on the tilt; _box fixes the winding.
+    A = _box(fold - thickness * dA - thickness * dB, dA, dB, ex, (width + thickness, thickness, length))
+    B = _box(fold - thickness * dA, dA, dB, ex, (thickness, width, length))
+    R = _rot_y(yaw_deg)
+    verts = np.concatenate([A.vertices, B.vertices]) @ R.T
+    faces = np.concatenate([A.faces, B.faces + len(A.vertices)])
+    mesh = trimesh.Trimesh(verts, faces, process=False)
+    fn = np.asarray(mesh.face_normals, dtype=np.float64)
+    nA = len(A.faces)
+    mat = PAPER_GLOSSY if glossy else PAPER_WHITE
+
+    def normal(points, tri):
+        return fn[tri]
+
+    def material(points, tri):
+        return uniform_material(len(tri), mat, region=(np.asarray(tri) >= nA).astype(np.int64))
+
+    info = {"fold_start": R @ fold, "fold_dir": R @ ex, "plate_dirs": np.stack([R @ dA, R @ dB]),
+            "inside_normals": np.stack([R @ dB, R @ dA]), "length": length, "width": width, "thickness": thickness}
+    return MeshObject("object_e_glossy" if glossy else "object_e", verts, faces, normal, material,
+                      (float(verts[:, 1].min()), float(verts[:, 1].max())), info)
+
+
+def _grid_faces(rows: int, cols: int, start: int, flip: bool) -> np.ndarray:
+    """Two triangles per cell of a (rows+1) x cols vertex grid, periodic in columns."""
+    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    a = start + i * cols + j
+    b = start + i * cols + (j + 1) % cols
+    c = a + cols
+    d = b + cols
+    f = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
+    return f[:, ::-1] if flip else f
+
+
+def bowl(seed: int = 0, uniform: bool = False, *, radius: float = 45.0, wall: float = 4.0, centre_front: float = 62.0,
+         tilt_deg: float = 10.0, yaw_deg: float = 20.0, rings: int = 96, segments: int = 384) -> MeshObject:
+    """A hemispherical bowl on its side, looked into by the scanner (see the module doc)."""
+    R = _rot_y(yaw_deg) @ _rot_x(-tilt_deg)
+    centre = R @ np.array([0.0, 0.0, centre_front])
+    axis = R @ np.array([0.0, 0.0, 1.0])                     # opening direction
+    e1 = R @ np.array([1.0, 0.0, 0.0])
+    e2 = R @ np.array([0.0, 1.0, 0.0])
+    alpha = np.linspace(0.0, np.pi / 2, rings + 1)
+    phi = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    A, P = np.meshgrid(alpha, phi, indexing="ij")
+    unit = (np.sin(A)[..., None] * (np.cos(P)[..., None] * e1 + np.sin(P)[..., None] * e2)
+            - np.cos(A)[..., None] * axis).reshape(-1, 3)
+    inner = centre + radius * unit
+    outer = centre + (radius + wall) * unit
+    nv = len(inner)
+    f_in = _grid_faces(rings, segments, 0, flip=False)
+    f_out = _grid_faces(rings, segments, nv, flip=True)
+    rim_inner = rings * segments + np.arange(segments)
+    rim_outer = nv + rim_inner
+    nxt = np.roll(np.arange(segments), -1)
+    f_rim = np.concatenate([np.stack([rim_inner, rim_outer, rim_outer[nxt]], -1),
+                            np.stack([rim_inner, rim_outer[nxt], rim_inner[nxt]], -1)])
+    verts = np.concatenate([inner, outer])
+    faces = np.concatenate([f_in, f_out, f_rim])
+    n_in, n_out = len(f_in), len(f_out)
+    mats = BowlMaterials(seed, uniform)
+
+    def part_of(tri):
+        tri = np.asarray(tri)
+        return np.where(tri < n_in, 0, np.where(tri < n_in + n_out, 1, 2))
+
+    def normal(points, tri):
+        part = part_of(tri)
+        d = points - centre
+        d = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+        n = np.where((part == 0)[:, None], -d, d)
+        return np.where((part == 2)[:, None], axis[None, :], n)
+
+    def material(points, tri):
+        d = points - centre
+        h = -d @ axis
+        a = np.arctan2(np.linalg.norm(d - np.outer(d @ axis, axis), axis=-1), h)
+        ph = np.arctan2(d @ e2, d @ e1)
+        return mats(np.clip(a, 0.0, np.pi / 2), ph, part_of(tri))
+
+    info = {"centre": centre, "axis": axis, "radius": radius, "wall": wall}
+    return MeshObject("bowl", verts, faces, normal, material, (float(verts[:, 1].min()), float(verts[:, 1].max())), info)
+
+
+def make_object(name: str, seed: int = 0, materials: str = "regions") -> MeshObject:
+    """The mesh object `name` (one of MESH_OBJECTS); materials 'uniform' makes the bowl one matte paint."""
+    if name == "object_e":
+        return object_e(glossy=False)
+    if name == "object_e_glossy":
+        return object_e(glossy=True)
+    if name == "bowl":
+        return bowl(seed, uniform=materials == "uniform")
+    raise GeometryError(f"synthetic.object: unknown mesh object '{name}', expected one of {', '.join(MESH_OBJECTS)}")
