@@ -1,0 +1,175 @@
+"""python -m torchrefl.rig {probe,home,move,capture} [--config configs/rig.yaml] [--set key=value ...]
+
+probe   connect, print the banner, the state and GRBL's settings
+home    run the homing cycle ($H)
+move    move the light to a grid node (--grid I J) or a head-frame position (--mm LATERAL VERTICAL)
+capture run a capture plan into a folder (resumable: run it again after any interruption)
+--dry-run (every subcommand) talks to a simulated GRBL 1.1 device on a pseudo-terminal; capture
+then renders the synthetic object of a fitting config (--scene) with a simulated camera.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+
+import numpy as np
+
+from torchrefl.errors import TorchReflError
+from torchrefl.rig.camera import ExternalCommandCamera
+from torchrefl.rig.folder import CaptureFolder
+from torchrefl.rig.grbl import GrblClient
+from torchrefl.rig.link import SerialLink
+from torchrefl.rig.model import RigModel
+from torchrefl.rig.plan import load_plan, targets_from_grid, targets_from_positions
+from torchrefl.rig.runner import CaptureRunner
+from torchrefl.rig.settings import RigSettings, load_rig_settings
+
+
+def _pair(text: str, what: str, n=(2, 3)) -> list[float]:
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) not in n:
+        raise TorchReflError(f"{what} {text!r}: expected {' or '.join(str(k) for k in n)} comma-separated numbers")
+    return vals
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--config", default=None, help="rig settings YAML (e.g. configs/rig.yaml); defaults otherwise")
+    common.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a rig setting, e.g. --set feed_mm_min=2000 --set light.output=spindle")
+    common.add_argument("--port", default=None, help="serial port URL (overrides the settings' port)")
+    common.add_argument("--dry-run", action="store_true",
+                        help="use a simulated GRBL 1.1 device on a pseudo-terminal (and a simulated camera)")
+    common.add_argument("--time-scale", type=float, default=0.01,
+                        help="dry run: simulated motion time / real motion time (default 0.01)")
+    p = argparse.ArgumentParser(prog="python -m torchrefl.rig", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("probe", parents=[common], help="connect and report banner, state and settings")
+    sub.add_parser("home", parents=[common], help="run the homing cycle ($H)")
+    mv = sub.add_parser("move", parents=[common], help="move the light to a grid node or position")
+    where = mv.add_mutually_exclusive_group(required=True)
+    where.add_argument("--grid", nargs=2, type=int, metavar=("I", "J"), help="grid column I, row J")
+    where.add_argument("--mm", nargs=2, type=float, metavar=("LATERAL", "VERTICAL"), help="head-frame position, mm")
+    mv.add_argument("--no-home", action="store_true", help="do not home first (the controller must be unlocked)")
+    cap = sub.add_parser("capture", parents=[common], help="run a capture plan into a folder")
+    what = cap.add_mutually_exclusive_group(required=True)
+    what.add_argument("--plan", help="plan file: YAML/JSON with positions_mm or grid (selection.json works)")
+    what.add_argument("--positions", nargs="+", metavar="LAT,VERT[,RAD]", help="head-frame positions, mm")
+    what.add_argument("--grid-positions", nargs="+", metavar="I,J", help="grid nodes (column,row)")
+    what.add_argument("--all-grid", action="store_true", help="every node of the light grid")
+    cap.add_argument("--out", required=True, help="capture folder (cylindrical_scan layout)")
+    cap.add_argument("--scene", default=None,
+                     help="dry run: fitting config whose synthetic object is rendered (default: built-in defaults)")
+    cap.add_argument("--scene-set", action="append", default=[], metavar="KEY=VALUE",
+                     help="dry run: override a key of the scene config, e.g. synthetic.rows=64")
+    return p
+
+
+def _client(settings: RigSettings) -> GrblClient:
+    t = settings.timeouts
+    link = SerialLink(settings.port, settings.baudrate)
+    return GrblClient(link, reply_s=t.reply_s, home_s=t.home_s, move_s=t.move_s, poll_s=t.poll_s,
+                      banner_s=t.banner_s, log=lambda m: print(f"  {m}"))
+
+
+def _targets(args, model: RigModel):
+    if args.plan:
+        return load_plan(args.plan, model)
+    if args.positions:
+        return targets_from_positions(model, [_pair(p, "position") for p in args.positions])
+    if args.grid_positions:
+        return targets_from_grid(model, [[int(v) for v in _pair(g, "grid node", (2,))] for g in args.grid_positions])
+    g = model.grid
+    return targets_from_grid(model, [(i, j) for j in range(g.rows) for i in range(g.columns)])
+
+
+def run(args, settings: RigSettings) -> int:
+    scan = None
+    if args.cmd == "capture" and args.dry_run:
+        from torchrefl.rig.dry_run import match_grid, synthetic_scene
+
+        print("dry run: building the synthetic scene")
+        scan = synthetic_scene(args.scene, args.scene_set)
+        settings = match_grid(settings, scan)
+    model = RigModel(settings)
+    with contextlib.ExitStack() as stack:
+        if args.dry_run:
+            from torchrefl.rig.dry_run import fake_device_for
+
+            fake = stack.enter_context(fake_device_for(settings, args.time_scale))
+            settings.port = fake.path
+            settings.timeouts.banner_s = min(settings.timeouts.banner_s, 0.3)
+            print(f"dry run: simulated GRBL 1.1 on {fake.path}")
+        client = _client(settings)
+        if args.cmd == "capture":
+            return _capture(args, settings, model, client, scan)
+        axes = None
+        if args.cmd == "move":     # checked against the soft limits before the port is opened
+            pos = model.grid_position(*args.grid) if args.grid else np.array([args.mm[0], args.mm[1], settings.radial_mm])
+            axes = model.target(pos, what="move")
+        stack.enter_context(client.link.open())
+        banner = client.connect()
+        st = client.last_status
+        print(f"{settings.port}: {banner or '(no banner)'}; state {st.state}, MPos {list(st.mpos)}")
+        if args.cmd == "probe":
+            for k, v in sorted(client.read_settings().items()):
+                print(f"  ${k}={v:g}")
+            if st.state == "Alarm":
+                print("  locked in Alarm: run `python -m torchrefl.rig home` (or unlock with $X)")
+            return 0
+        if args.cmd == "home" or not args.no_home:
+            client.home()
+            print(f"homed: MPos {list(client.last_status.mpos)}")
+        if axes is not None:
+            client.move_to(axes, settings.feed_mm_min)
+            st = client.wait_idle()
+            print(f"reached head-frame {model.axes_to_head(st.mpos).round(3).tolist()} (MPos {list(st.mpos)})")
+        return 0
+
+
+def _capture(args, settings, model, client, scan) -> int:
+    targets = _targets(args, model)
+    folder = CaptureFolder(args.out)
+    if scan is not None:
+        from torchrefl.rig.dry_run import prepare_folder, simulated_camera
+
+        prepare_folder(scan, args.out)
+        camera = simulated_camera(scan)
+    else:
+        if not settings.camera.command:
+            raise TorchReflError("capture: camera.command is empty in the rig settings (set the trigger command "
+                                 "with {path}, or use --dry-run)")
+        camera = ExternalCommandCamera(settings.camera.command, settings.camera.timeout_s)
+    runner = CaptureRunner(client, model, camera, folder, settings, progress=print)
+    try:
+        summary = runner.run(targets)
+    finally:
+        client.link.close()
+    print(f"capture complete: {summary['captured']} new, {summary['skipped']} already recorded, "
+          f"{len(folder.entries)} images in {folder.manifest}; travel {summary.get('path_mm', 0):.0f} mm")
+    return 0
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        settings = load_rig_settings(args.config, list(args.set))
+        if args.port:
+            settings.port = args.port
+        return run(args, settings)
+    except TorchReflError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted: the capture folder is consistent; run the same command again to resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,123 @@
+"""Capture plans: the light positions to visit, read from a light-selection result, a plan file or
+an explicit list, and ordered to keep the gantry's travel short (nearest neighbour, then 2-opt)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from torchrefl.errors import ConfigError, RigError
+from torchrefl.rig.model import RigModel
+
+
+@dataclass
+class Target:
+    """One light position to capture: requested_mm (3,) head frame; grid (i, j) or None."""
+
+    requested_mm: np.ndarray
+    grid: tuple | None = None
+
+    @property
+    def key(self) -> tuple:
+        return tuple(round(float(v), 3) for v in self.requested_mm)
+
+
+def targets_from_positions(model: RigModel, positions) -> list[Target]:
+    """Targets for head-frame positions (P, 3) or (P, 2) (radial taken from the rig settings)."""
+    arr = np.asarray(positions, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] not in (2, 3) or not np.isfinite(arr).all():
+        raise RigError(f"light positions of shape {arr.shape}: expected (P, 3) [lateral, vertical, radial] "
+                       f"or (P, 2) [lateral, vertical] finite numbers in mm")
+    if arr.shape[1] == 2:
+        arr = np.concatenate([arr, np.full((len(arr), 1), model.s.radial_mm)], axis=1)
+    return [Target(p.copy(), model.grid_index(p)) for p in arr]
+
+
+def targets_from_grid(model: RigModel, indices) -> list[Target]:
+    """Targets for grid indices [(i, j), ...] (column, row)."""
+    out = []
+    for ij in indices:
+        ij = list(ij)
+        if len(ij) != 2:
+            raise RigError(f"grid index {ij!r}: expected [column, row]")
+        i, j = int(ij[0]), int(ij[1])
+        out.append(Target(model.grid_position(i, j), (i, j)))
+    return out
+
+
+def load_plan(path, model: RigModel) -> list[Target]:
+    """Read a plan: YAML or JSON with `positions_mm: [[lat, vert, rad], ...]` (a light-selection
+    result such as outputs/.../selection/selection.json has this key), or `grid: [[i, j], ...]`,
+    or a bare list of positions."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: plan file not found")
+    try:
+        doc = yaml.safe_load(path.read_text())    # YAML is a superset of JSON
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML/JSON: {exc}") from None
+    try:
+        if isinstance(doc, list):
+            return targets_from_positions(model, doc)
+        if isinstance(doc, dict):
+            if doc.get("positions_mm") is not None:
+                return targets_from_positions(model, doc["positions_mm"])
+            if doc.get("grid") is not None:
+                return targets_from_grid(model, doc["grid"])
+    except RigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    raise ConfigError(f"{path}: expected a list of positions or a mapping with 'positions_mm' or 'grid'")
+
+
+def unique_targets(targets: list[Target]) -> list[Target]:
+    """Drop repeated positions (first occurrence kept)."""
+    seen, out = set(), []
+    for t in targets:
+        if t.key not in seen:
+            seen.add(t.key)
+            out.append(t)
+    return out
+
+
+def path_length(points: np.ndarray, order, start=None) -> float:
+    """Length of the open path visiting points (N, D) in `order`, from `start` (D,) if given."""
+    pts = np.asarray(points, dtype=np.float64)[list(order)]
+    if start is not None:
+        pts = np.concatenate([np.asarray(start, dtype=np.float64)[None], pts])
+    return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
+
+def order_points(points: np.ndarray, start=None) -> list[int]:
+    """A short open path through points (N, D) from start (D,) (default: the first point):
+    nearest neighbour, then 2-opt segment reversals until none shortens the path."""
+    pts = np.asarray(points, dtype=np.float64)
+    n = len(pts)
+    if n <= 1:
+        return list(range(n))
+    s = pts[0] if start is None else np.asarray(start, dtype=np.float64)
+    nodes = np.concatenate([s[None], pts])              # node 0 = fixed start
+    d = np.linalg.norm(nodes[:, None] - nodes[None], axis=-1)
+    left = set(range(1, n + 1))
+    route = [0]
+    while left:
+        cur = route[-1]
+        nxt = min(left, key=lambda k: (d[cur, k], k))
+        route.append(nxt)
+        left.remove(nxt)
+    improved = True
+    while improved:
+        improved = False
+        for i in range(1, n):
+            for k in range(i + 1, n + 1):
+                a, b = route[i - 1], route[i]
+                c = route[k]
+                after = d[b, route[k + 1]] - d[c, route[k + 1]] if k < n else 0.0
+                delta = d[a, c] - d[a, b] + after
+                if delta < -1e-9:
+                    route[i:k + 1] = route[i:k + 1][::-1]
+                    improved = True
+    return [r - 1 for r in route[1:]]

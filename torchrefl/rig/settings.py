@@ -1,0 +1,140 @@
+"""Rig settings: typed sections with defaults and docs, strict YAML loading (configs/rig.yaml),
+dotted `key=value` overrides. Unknown keys and wrong types raise ConfigError naming the key."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from torchrefl.config import _apply, _nest, opt, parse_override
+from torchrefl.errors import ConfigError
+
+
+def section(cls, doc: str, **values):
+    return field(default_factory=lambda: cls(**values), metadata={"doc": doc})
+
+
+@dataclass
+class AxisSettings:
+    """One gantry axis: the GRBL axis letter, where head-frame 0 lies in machine coordinates, the
+    direction, and the travel allowed (soft limits, machine coordinates as in GRBL's MPos)."""
+
+    axis: str = opt("X", "GRBL axis letter driving this direction", choices=("X", "Y", "Z", "A"))
+    origin_mm: float = opt(-250.0, "machine coordinate (MPos) at head-frame 0 on this axis, mm")
+    sign: float = opt(1.0, "+1 when the machine coordinate grows with the head-frame coordinate, -1 otherwise",
+                      choices=(1.0, -1.0))
+    min_mm: float = opt(-495.0, "lowest machine coordinate a move may target, mm (soft limit)")
+    max_mm: float = opt(-5.0, "highest machine coordinate a move may target, mm (soft limit)")
+
+
+@dataclass
+class TurntableSettings(AxisSettings):
+    """An optional rotary axis turning the object (GRBL treats it as linear: set its steps/mm to steps/degree)."""
+
+    enabled: bool = opt(False, "true when a turntable axis is wired and may be moved")
+
+
+@dataclass
+class GridSettings:
+    """The light grid in the head frame (same layout as selection.grid of the fitting config)."""
+
+    columns: int = opt(10, "grid positions along the lateral axis")
+    rows: int = opt(6, "grid positions along the vertical axis")
+    spacing_mm: float = opt(50.0, "grid spacing, mm")
+    center_lateral_mm: float = opt(0.0, "lateral head-frame coordinate of the grid centre, mm")
+    center_vertical_mm: float = opt(0.0, "vertical head-frame coordinate of the grid centre, mm")
+
+
+@dataclass
+class LightSettings:
+    """Which GRBL output switches the light relay."""
+
+    output: str = opt("coolant", "coolant: M8 on / M9 off (flood pin); mist: M7 / M9; spindle: M3 S<power> / M5",
+                      choices=("coolant", "mist", "spindle"))
+    spindle_power: float = opt(1000.0, "S word sent with M3 when output is spindle (PWM duty = S / $30)")
+    settle_s: float = opt(0.2, "wait after switching the light on before triggering, s")
+
+
+@dataclass
+class TimeoutSettings:
+    reply_s: float = opt(2.0, "longest wait for GRBL's reply to a command or a '?' query, s")
+    banner_s: float = opt(2.5, "wait for the start-up banner after opening the port before sending Ctrl-X, s")
+    home_s: float = opt(90.0, "longest homing cycle, s")
+    move_s: float = opt(120.0, "longest wait for Idle after a move, s")
+    poll_s: float = opt(0.05, "pause between '?' status polls, s")
+    reconnect_s: float = opt(0.0, "after the port vanishes mid-capture, keep trying to reopen it this long "
+                                  "(then re-home and continue); 0 = stop with a RigError")
+
+
+@dataclass
+class CameraSettings:
+    command: str = opt("", "external trigger command; {path} is replaced by the image file to write "
+                           "(e.g. a scanner's texture export); empty = no external camera")
+    timeout_s: float = opt(120.0, "longest time the camera command may run, s")
+
+
+@dataclass
+class RigSettings:
+    """Everything the rig needs; configs/rig.yaml documents each key."""
+
+    port: str = opt("/dev/ttyUSB0", "serial port: device path, pty, or any pyserial URL (loop://, rfc2217://...)")
+    baudrate: int = opt(115200, "serial speed (GRBL 1.1: 115200)")
+    feed_mm_min: float = opt(3000.0, "feed rate of the G1 moves between light positions, mm/min")
+    radial_mm: float = opt(300.0, "radial distance of the light plane from the rotation axis, mm "
+                                  "(fixed: the gantry moves laterally and vertically only)")
+    position_tolerance_mm: float = opt(0.05, "largest allowed distance between requested and reached position, mm")
+    home_on_start: bool = opt(True, "run the homing cycle ($H) before a capture (needed after power-up)")
+    rehome_on_reset: bool = opt(False, "when the controller resets mid-capture, home again and continue "
+                                       "instead of stopping with a RigError")
+    lateral: AxisSettings = section(AxisSettings, "axis carrying the light laterally")
+    vertical: AxisSettings = section(AxisSettings, "axis carrying the light vertically",
+                                     axis="Y", origin_mm=-150.0, min_mm=-295.0, max_mm=-5.0)
+    turntable: TurntableSettings = section(TurntableSettings, "optional turntable axis (units: degrees)",
+                                           axis="Z", origin_mm=0.0, min_mm=-360.0, max_mm=360.0)
+    grid: GridSettings = section(GridSettings, "light grid")
+    light: LightSettings = section(LightSettings, "light switch")
+    timeouts: TimeoutSettings = section(TimeoutSettings, "timeouts")
+    camera: CameraSettings = section(CameraSettings, "camera trigger")
+
+
+def _check(cfg: RigSettings, where: str) -> None:
+    for name in ("lateral", "vertical", "turntable"):
+        ax = getattr(cfg, name)
+        if ax.min_mm >= ax.max_mm:
+            raise ConfigError(f"{where}: {name}.min_mm ({ax.min_mm}) must be below {name}.max_mm ({ax.max_mm})")
+    axes = [cfg.lateral.axis, cfg.vertical.axis] + ([cfg.turntable.axis] if cfg.turntable.enabled else [])
+    if len(set(axes)) != len(axes):
+        raise ConfigError(f"{where}: lateral, vertical and turntable must use different GRBL axes (got {axes})")
+    for key in ("feed_mm_min", "radial_mm", "position_tolerance_mm"):
+        if getattr(cfg, key) <= 0:
+            raise ConfigError(f"{where}: key '{key}' must be positive, got {getattr(cfg, key)}")
+    if cfg.grid.columns < 1 or cfg.grid.rows < 1 or cfg.grid.spacing_mm <= 0:
+        raise ConfigError(f"{where}: grid.columns and grid.rows must be >= 1 and grid.spacing_mm > 0")
+    for key in ("reply_s", "banner_s", "home_s", "move_s", "poll_s"):
+        if getattr(cfg.timeouts, key) <= 0:
+            raise ConfigError(f"{where}: key 'timeouts.{key}' must be positive")
+
+
+def load_rig_settings(path=None, overrides=(), data: dict | None = None) -> RigSettings:
+    """RigSettings from a YAML file (or a dict), then `dotted.key=value` overrides, checked."""
+    cfg = RigSettings()
+    where = "rig settings"
+    if path is not None:
+        path = Path(path)
+        where = str(path)
+        if not path.is_file():
+            raise ConfigError(f"{where}: rig settings file not found")
+        try:
+            doc = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{where}: not valid YAML: {exc}") from None
+        _apply(cfg, doc or {}, "", where)
+    if data is not None:
+        _apply(cfg, data, "", where)
+    for text in overrides:
+        key, value = parse_override(text)
+        _apply(cfg, _nest(key, value), "", f"override '{text}'")
+    _check(cfg, where)
+    return cfg
