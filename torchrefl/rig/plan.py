@@ -1,5 +1,5 @@
 """Capture plans: the light positions to visit, read from a light-selection result, a plan file or
-an explicit list, and ordered to keep the gantry's travel short (nearest neighbour, then 2-opt)."""
+an explicit list, and ordered to keep the gantry's travel short (nearest neighbour, 2-opt, or-opt)."""
 
 from __future__ import annotations
 
@@ -93,7 +93,8 @@ def path_length(points: np.ndarray, order, start=None) -> float:
 
 def order_points(points: np.ndarray, start=None) -> list[int]:
     """A short open path through points (N, D) from start (D,) (default: the first point):
-    nearest neighbour, then 2-opt segment reversals until none shortens the path."""
+    nearest neighbour, then 2-opt segment reversals and or-opt moves (a run of 1-3 points moved
+    elsewhere, either way round) until none shortens the path."""
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)
     if n <= 1:
@@ -111,13 +112,31 @@ def order_points(points: np.ndarray, start=None) -> list[int]:
     improved = True
     while improved:
         improved = False
-        for i in range(1, n):
+        for i in range(1, n):                                   # 2-opt: reverse route[i..k]
             for k in range(i + 1, n + 1):
                 a, b = route[i - 1], route[i]
                 c = route[k]
                 after = d[b, route[k + 1]] - d[c, route[k + 1]] if k < n else 0.0
-                delta = d[a, c] - d[a, b] + after
-                if delta < -1e-9:
+                if d[a, c] - d[a, b] + after < -1e-9:
                     route[i:k + 1] = route[i:k + 1][::-1]
                     improved = True
+        for seg in (1, 2, 3):                                   # or-opt: move a run of 1-3 nodes elsewhere
+            i = 1
+            while i + seg - 1 <= n:
+                run = route[i:i + seg]
+                p, q = route[i - 1], (route[i + seg] if i + seg <= n else None)
+                gain = d[p, run[0]] + (d[run[-1], q] - d[p, q] if q is not None else 0.0)
+                rest = route[:i] + route[i + seg:]
+                done = False
+                for j in range(1, len(rest) + 1):
+                    x, y = rest[j - 1], (rest[j] if j < len(rest) else None)
+                    for piece in (run, run[::-1]):
+                        cost = d[x, piece[0]] + (d[piece[-1], y] - d[x, y] if y is not None else 0.0)
+                        if cost < gain - 1e-9:
+                            route = rest[:j] + piece + rest[j:]
+                            improved = done = True
+                            break
+                    if done:
+                        break
+                i += 1
     return [r - 1 for r in route[1:]]
