@@ -111,3 +111,16 @@ def test_help_lists_every_option():
     text = "\n".join(describe())
     for key in ("fit.holdout", "output.dir", "selection.grid.spacing_mm", "reflectance.brdf", "synthetic.range_bits"):
         assert key in text
+
+
+def test_relative_capture_path_from_the_command_line_is_relative_to_cwd(tmp_path, monkeypatch):
+    from torchrefl.config import resolve_path
+
+    sub = tmp_path / "configs"
+    sub.mkdir()
+    cfg_file = write(sub, "capture:\n  kind: photometric_stereo\n  path: data/x\n")
+    cfg = load_config(cfg_file)
+    assert resolve_path(cfg, cfg.capture.path) == sub / "data" / "x"
+    monkeypatch.chdir(tmp_path)
+    cfg = load_config(cfg_file, ["capture.path=elsewhere/y"])
+    assert resolve_path(cfg, cfg.capture.path) == tmp_path / "elsewhere" / "y"

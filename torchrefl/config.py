@@ -81,7 +81,7 @@ class CaptureConfig:
         "capture kind",
         choices=("synthetic_cylindrical", "cylindrical_scan", "photometric_stereo"),
     )
-    path: str = opt("", "capture folder (relative paths are relative to the config file); unused for synthetic")
+    path: str = opt("", "capture folder (relative to the config file; on the command line, to the current folder); unused for synthetic")
     saturation_level: float = opt(0.995, "fraction of full range at or above which a channel is saturated", low=0.0, high=1.0)
     kappa: list = opt([PI, PI, PI], "camera calibration gain per channel (i = kappa * L_o); pi reduces to eq. 2.9")
     light_subset: Optional[list] = opt(None, "indices of the lights to load (null = all)")
@@ -284,6 +284,10 @@ def _validate(cfg: Config, where: str) -> None:
             raise ConfigError(f"{where}: key '{key}' must be an odd number")
 
 
+#: keys holding paths: relative in a file = relative to the file; on the command line = to the current folder
+PATH_KEYS = ("capture.path",)
+
+
 def parse_override(text: str) -> tuple[str, Any]:
     """'a.b=value' -> ('a.b', yaml value)."""
     if "=" not in text:
@@ -325,6 +329,8 @@ def load_config(path: Optional[str | Path] = None, overrides: list[str] = ()) ->
         cfg.config_dir = str(path.resolve().parent)
     for text in overrides:
         key, value = parse_override(text)
+        if key in PATH_KEYS and isinstance(value, str) and value and not Path(value).is_absolute():
+            value = str(Path.cwd() / value)          # command-line paths are relative to the current folder
         _apply(cfg, _nest(key, value), "", f"command-line override '{text}'")
     _validate(cfg, str(path) if path is not None else "config")
     return cfg
