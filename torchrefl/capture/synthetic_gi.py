@@ -26,6 +26,7 @@ Deterministic in `seed` (random numbers are keyed by seed and chunk index, never
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
 
@@ -217,8 +218,8 @@ class IndirectRenderer:
         mpd, mps, msg = rep(pd), rep(ps), rep(sigma)
         T = np.ones((len(x), 3))
         # first bounce: randomised QMC (scrambled Sobol + a toroidal shift per origin)
-        if n_paths & (n_paths - 1) == 0 and n_paths > 1:
-            base = qmc.Sobol(3, scramble=True, seed=rng).random_base2(int(math.log2(n_paths)))
+        if n_paths > 1:   # the first n_paths points of a scrambled Sobol set: each uniform on [0,1)^3
+            base = qmc.Sobol(3, scramble=True, seed=rng).random_base2(int(math.ceil(math.log2(n_paths))))[:n_paths]
         else:
             base = rng.random((n_paths, 3))
         u = np.mod(np.tile(base, (M, 1)) + rep(rng.random((M, 3))), 1.0)
@@ -305,11 +306,25 @@ class IndirectRenderer:
         if n_paths <= 0 or M == 0:
             return out
         per = max(1, self.chunk_paths // n_paths)
-        for ci, a in enumerate(range(0, M, per)):
+        starts = list(range(0, M, per))
+        done = [0]
+
+        def work(ci):
+            a = starts[ci]
             b = min(a + per, M)
             rng = np.random.default_rng([self.seed, 0x61, ci])
             verts = self.trace(points[a:b], normals[a:b], view[a:b], pd[a:b], ps[a:b], sigma[a:b], n_paths, rng)
             out[:, a:b] = self.shade(verts, lights[:, a:b], b - a) / n_paths
+            done[0] += b - a
             if progress is not None:
-                progress(b, M)
+                progress(done[0], M)
+
+        # chunks run on the tracer's threads (Embree and most numpy release the GIL); each chunk's random
+        # numbers are keyed by its index, so the result does not depend on the number of threads
+        if self.tracer.threads > 1 and len(starts) > 1:
+            with ThreadPoolExecutor(self.tracer.threads) as pool:
+                list(pool.map(work, range(len(starts))))
+        else:
+            for ci in range(len(starts)):
+                work(ci)
         return out
