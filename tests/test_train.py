@@ -137,3 +137,16 @@ def test_auto_on_photometric_stereo_is_local_and_radiosity_is_refused(tmp_path, 
     assert m["model"] == "local" and "no depth" in m["model_reason"]
     assert main(base + ["fit.model=radiosity"]) == 2
     assert "needs geometry with depth" in capsys.readouterr().err
+
+
+def test_relative_errors_skip_texels_without_a_true_lobe():
+    import torch
+
+    from torchrefl.report.metrics import ground_truth_errors
+
+    T = 4
+    truth = {"pd": torch.full((T, 3), 0.5), "ps": torch.zeros(T, 3), "sigma": torch.full((T,), 0.1)}
+    m = ground_truth_errors(torch.full((T, 3), 0.5), torch.full((T, 3), 0.01), torch.full((T,), 0.2), truth,
+                            torch.ones(T, dtype=torch.bool), torch.ones(T, dtype=torch.bool))
+    assert m["ps_median_rel_err"] is None and m["sigma_median_rel_err"] is None
+    assert abs(m["ps_rmse"] - 0.01) < 1e-6
