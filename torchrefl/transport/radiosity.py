@@ -56,7 +56,7 @@ def check_conditioning(rho: torch.Tensor, F: torch.Tensor, warn_margin: float = 
     if bound >= 1.0:
         raise FitError(
             f"radiosity: I - rho F is singular (max rho * sum_v F_uv = {bound:.6f} >= 1): reflectance 1 in closed "
-            "geometry keeps light forever; bound Pd below 1 (reflectance.pd_max) or open the geometry")
+            "geometry keeps light forever (reflectances must stay below 1)")
     if bound > 1.0 - warn_margin:
         warnings.warn(f"radiosity: I - rho F is near singular (max rho * sum_v F_uv = {bound:.6f}); the solution "
                       "amplifies errors by up to 1 / (1 - bound)", NearSingularWarning, stacklevel=3)

@@ -3,10 +3,12 @@
 For light p, texel t in patch u(t), channel c:
     E_t      = Y_p falloff vis max(n.l, 0)                 direct irradiance (LocalTerms.diffuse * pi / kappa)
     E_u      = area-weighted mean of E_t over u's texels
-    rho_u    = area-weighted mean of Pd_t over u's texels
+    rho_u    = min(area-weighted mean of Pd_t over u's texels, RHO_MAX)
     B        = solve_radiosity(rho, E, F)                   (torchrefl.transport.radiosity)
     H_t      = sum_v F_{u(t) v} B_v                         indirect irradiance at the texel
     i_pt     = local(t) + kappa Pd_t / pi * H_t
+RHO_MAX = 0.99 is the one clamp here: an uncalibrated or not yet converged Pd above 1 would make
+I - rho F singular in closed geometry; Pd itself is not clamped (the direct term still sees it).
 The specular reflection of direct light does not feed the interreflection and indirect light is
 reflected diffusely only: that is what the radiosity level models (the photon level adds both).
 
@@ -24,6 +26,9 @@ import torch
 
 from torchrefl.transport.local import LocalTerms, predict
 from torchrefl.transport.radiosity import _matmul, solve_radiosity
+
+
+RHO_MAX = 0.99
 
 
 @dataclass
@@ -60,7 +65,7 @@ def direct_irradiance(terms: LocalTerms, kappa: torch.Tensor) -> torch.Tensor:
 def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: PatchMap, F: torch.Tensor, **solver) -> torch.Tensor:
     """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3)."""
     E = patches.mean(direct_irradiance(terms, kappa))                  # (P, Q, 3)
-    rho = patches.mean(pd[None])[0]                                    # (Q, 3)
+    rho = patches.mean(pd[None])[0].clamp(max=RHO_MAX)                 # (Q, 3)
     B = solve_radiosity(rho, E, F, **solver)                           # (P, Q, 3)
     P, Q, C = B.shape
     H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, P * C)).reshape(Q, P, C).permute(1, 0, 2)
