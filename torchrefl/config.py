@@ -151,7 +151,7 @@ class RadiosityConfig:
     patch_size: int = opt(2, "patch side in texels (patches are patch_size x patch_size texel blocks; 1 = one texel per patch)", low=1)
     hemisphere_samples: int = opt(256, "cosine-weighted hemisphere rays per patch for the form factors", low=1)
     solver: str = opt("auto", "linear solver: direct (dense LU), iterative (fixed point, sparse) or auto (by size)", choices=("auto", "direct", "iterative"))
-    direct_max: int = opt(3000, "auto uses the direct solver up to this many patches", low=1)
+    direct_max: int = opt(800, "auto uses the direct solver up to this many patches (the iterative one above)", low=1)
     tolerance: float = opt(1e-7, "relative tolerance of the iterative solver", low=0.0)
     max_iterations: int = opt(500, "iteration cap of the iterative solver", low=1)
 

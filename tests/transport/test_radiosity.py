@@ -115,3 +115,14 @@ def test_rho_near_one_stays_finite_with_finite_gradients():
 def test_shape_errors():
     with pytest.raises(FitError, match="shapes"):
         solve_radiosity(torch.ones(3, 3), torch.ones(1, 4, 3), torch.eye(3))
+
+
+def test_strided_right_hand_sides_are_solved():
+    """A regression: a (P, Q, C) irradiance sliced from a larger tensor reaches the LU solve strided."""
+    A, F = random_reciprocal(Q=40)
+    rho = torch.full((40, 3), 0.5, dtype=torch.float32)
+    big = torch.rand(40, 3, 24, dtype=torch.float32)
+    E = big[:, :, ::2].permute(2, 0, 1)                        # (12, 40, 3), non-contiguous
+    B = solve_radiosity(rho, E, F.float(), method="direct")
+    ref = solve_radiosity(rho, E.contiguous(), F.float(), method="iterative", tol=1e-7)
+    torch.testing.assert_close(B, ref, rtol=1e-4, atol=1e-5)

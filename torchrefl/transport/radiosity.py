@@ -64,15 +64,21 @@ def check_conditioning(rho: torch.Tensor, F: torch.Tensor, warn_margin: float = 
 
 
 def _direct(rho, E, F, transpose=False):
-    """Solve (I - rho F) X = E (or its transpose) per channel. rho (Q, C), E (Q, C, K) -> (Q, C, K)."""
+    """Solve (I - rho F) X = E (or its transpose) per channel. rho (Q, C), E (Q, C, K) -> (Q, C, K).
+
+    One 2-D LU solve per channel in float64 with contiguous operands: MKL's batched float32 solve
+    was seen to fail ("SLASWP parameter 6") and hang on these systems.
+    """
     Q, C = rho.shape
-    Fd = F.to_dense() if F.is_sparse else F
-    eye = torch.eye(Q, dtype=rho.dtype, device=rho.device)
-    A = eye[None] - rho.t()[:, :, None] * Fd[None].to(rho.dtype)           # (C, Q, Q)
-    if transpose:
-        A = A.transpose(1, 2)
-    X = torch.linalg.solve(A, E.permute(1, 0, 2))                           # (C, Q, K)
-    return X.permute(1, 0, 2)
+    Fd = (F.to_dense() if F.is_sparse else F).to(torch.float64)
+    eye = torch.eye(Q, dtype=torch.float64, device=rho.device)
+    out = []
+    for c in range(C):
+        A = eye - rho[:, c:c + 1].to(torch.float64) * Fd
+        if transpose:
+            A = A.t()
+        out.append(torch.linalg.solve(A.contiguous(), E[:, c, :].to(torch.float64).contiguous()))
+    return torch.stack(out, 1).to(E.dtype)
 
 
 def _iterate(rho, E, F, tol, max_iter, transpose=False):
