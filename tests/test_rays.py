@@ -245,3 +245,16 @@ def test_bad_row_is_reported_by_its_index_in_the_whole_batch():
     o[7, 1] = np.inf
     with pytest.raises(GeometryError, match="origins contains NaN or inf .*first at row 7"):
         tr.closest_hit(o, np.ones((10, 3)))
+
+
+def test_occluded_unit_fast_path_matches_occluded():
+    import trimesh as _tm
+
+    m = _tm.creation.icosphere(subdivisions=3)
+    rng = np.random.default_rng(5)
+    o = rng.uniform(-2, 2, (500, 3)).astype(np.float32)
+    d = rng.normal(size=(500, 3)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    far = rng.uniform(0.1, 4.0, 500).astype(np.float32)
+    tr = RayTracer(m.vertices, m.faces)
+    np.testing.assert_array_equal(tr.occluded_unit(o, d, far), tr.occluded(o, d, far))

@@ -311,21 +311,33 @@ def _nest(key: str, value: Any) -> dict:
     return out
 
 
+def read_yaml_mapping(path: Path, error: type = ConfigError, what: str = "file") -> dict:
+    """The mapping in a YAML file ({} when empty); `error` naming the file for a missing file,
+    invalid YAML (with its line) or a top level that is not a mapping."""
+    path = Path(path)
+    if not path.is_file():
+        raise error(f"{path}: {what} not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        loc = f" at line {mark.line + 1}" if mark else ""
+        raise error(f"{path}: not valid YAML{loc}: {getattr(exc, 'problem', exc)}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise error(f"{path}: expected a mapping of keys at the top level, got {type(data).__name__}")
+    return data
+
+
 def load_config(path: Optional[str | Path] = None, overrides: list[str] = ()) -> Config:
     """Load a YAML config strictly, apply dotted overrides, validate; returns Config."""
     cfg = Config()
     if path is not None:
         path = Path(path)
         where = str(path)
-        if not path.is_file():
-            raise ConfigError(f"{where}: config file not found")
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            loc = f" at line {mark.line + 1}" if mark else ""
-            raise ConfigError(f"{where}: not valid YAML{loc}: {getattr(exc, 'problem', exc)}") from None
-        _apply(cfg, data or {}, "", where)
+        data = read_yaml_mapping(path, ConfigError, "config file")
+        _apply(cfg, data, "", where)
         cfg.config_dir = str(path.resolve().parent)
     for text in overrides:
         key, value = parse_override(text)

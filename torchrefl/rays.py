@@ -240,13 +240,14 @@ class RayTracer:
         vis = np.ones(len(p), dtype=bool)
         idx = np.flatnonzero(far > 0)
         if idx.size == len(p):
-            return ~self._occluded32(origin, seg2 / dist[:, None], far)
+            return ~self.occluded_unit(origin, seg2 / dist[:, None], far)
         if idx.size:
-            vis[idx] = ~self._occluded32(origin[idx], seg2[idx] / dist[idx, None], far[idx])
+            vis[idx] = ~self.occluded_unit(origin[idx], seg2[idx] / dist[idx, None], far[idx])
         return vis
 
-    def _occluded32(self, origins: np.ndarray, unit_dirs: np.ndarray, far: np.ndarray) -> np.ndarray:
-        """Occlusion for already checked finite origins and unit directions (N, 3); far (N,) > 0."""
+    def occluded_unit(self, origins: np.ndarray, unit_dirs: np.ndarray, far: np.ndarray) -> np.ndarray:
+        """(N,) bool occlusion for callers that already hold checked, finite float32 origins and unit
+        directions (N, 3) and distances far (N,) > 0 (the hot path of light selection: no re-validation)."""
         return self._occluded(origins, unit_dirs, np.minimum(far, _FAR).astype(np.float32), unit=True)  # a copy
 
     def _occluded(self, o: np.ndarray, d: np.ndarray, far: np.ndarray, *, unit: bool) -> np.ndarray:

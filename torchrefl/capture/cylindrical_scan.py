@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import yaml
 
 from torchrefl.capture.cylindrical_rig import CylindricalRig
 from torchrefl.capture.images import read_images
 from torchrefl.capture.observations import Observations
+from torchrefl.config import read_yaml_mapping
 from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.geometry.range_image import preprocess_range_image
 from torchrefl.geometry.range_mesh import grid_triangulation, texel_areas
@@ -96,14 +96,7 @@ def read_scan_yaml(folder) -> dict:
         raise CaptureError(f"{folder}: capture folder not found")
     path = folder / "scan.yaml"
     where = str(path)
-    if not path.is_file():
-        raise CaptureError(f"{where}: file not found (a cylindrical_scan capture needs scan.yaml)")
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise CaptureError(f"{where}: not valid YAML: {exc}") from None
-    if not isinstance(doc, dict):
-        raise CaptureError(f"{where}: expected a mapping at the top level")
+    doc = read_yaml_mapping(path, CaptureError, "file (a cylindrical_scan capture needs scan.yaml)")
     kind = doc.get("kind", "cylindrical_scan")
     if kind != "cylindrical_scan":
         raise CaptureError(f"{where}: key 'kind' is '{kind}', expected 'cylindrical_scan'")
@@ -256,7 +249,7 @@ def observation_geometry(geom: ScanGeometry, head_positions: np.ndarray, *, shad
             ok = far > 0
             occ = np.zeros(cand.size, dtype=bool)
             if ok.any():
-                occ[ok] = geom.tracer._occluded32(origins[cand][ok], seg[ok] / d[ok, None], far[ok])
+                occ[ok] = geom.tracer.occluded_unit(origins[cand][ok], seg[ok] / d[ok, None], far[ok])
             shadowed[p, cand] = occ
 
     threads = max(1, geom.tracer.threads)

@@ -6,9 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
 
-from torchrefl.config import _apply, _nest, opt, parse_override
+from torchrefl.config import _apply, _nest, opt, parse_override, read_yaml_mapping
 from torchrefl.errors import ConfigError
 
 
@@ -124,13 +123,7 @@ def load_rig_settings(path=None, overrides=(), data: dict | None = None) -> RigS
     if path is not None:
         path = Path(path)
         where = str(path)
-        if not path.is_file():
-            raise ConfigError(f"{where}: rig settings file not found")
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{where}: not valid YAML: {exc}") from None
-        _apply(cfg, doc or {}, "", where)
+        _apply(cfg, read_yaml_mapping(path, ConfigError, "rig settings file"), "", where)
     if data is not None:
         _apply(cfg, data, "", where)
     for text in overrides:
