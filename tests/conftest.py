@@ -54,3 +54,23 @@ def dome_scene(T=400, seed=0, dtype=torch.float64):
 @pytest.fixture
 def dome():
     return dome_scene()
+
+
+def fold_surface(H=24, W=48, L=60.0, dtype=torch.float64):
+    """A concave 90 degree fold as a texel grid: columns run across the floor (z = 0, x < 0, normal +z)
+    and up the wall (x = 0, z > 0, normal -x), rows along the fold (y). Texel centres sit half a texel
+    off the fold line. The mesh is the grid's triangulation. Columns W/2 - 1 and W/2 touch the fold."""
+    from torchrefl.geometry.range_mesh import grid_triangulation, texel_areas
+    from torchrefl.geometry.surface import Surface
+
+    u = (np.arange(W) + 0.5) / W * 2 * L - L
+    y = (np.arange(H) + 0.5) / H * L - L / 2
+    U, Y = np.meshgrid(u, y)
+    pts = np.stack([np.where(U < 0, U, 0.0), Y, np.where(U < 0, 0.0, U)], -1)
+    nrm = np.where((U < 0)[..., None], np.array([0, 0, 1.0]), np.array([-1.0, 0, 0]))
+    valid = np.ones((H, W), bool)
+    verts, faces = grid_triangulation(pts, valid)
+    areas = texel_areas(pts, valid)
+    return Surface((H, W), torch.arange(H * W), torch.tensor(pts.reshape(-1, 3), dtype=dtype),
+                   torch.tensor(nrm.reshape(-1, 3), dtype=dtype), torch.tensor(areas.reshape(-1), dtype=dtype),
+                   verts, faces, source="fold_surface")

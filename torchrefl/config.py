@@ -128,7 +128,7 @@ class ReflectanceConfig:
 class FitConfig:
     """Fitting of the texel parameter tensors."""
 
-    model: str = opt("local", "transport level: local (Method I), radiosity (Method II, diffuse interreflection) or auto (the cheapest that explains the data)", choices=("local", "radiosity", "auto"))
+    model: str = opt("local", "transport level: local (Method I), radiosity (Method II, diffuse interreflection), photon (Method III, diffuse and specular interreflection) or auto (the cheapest that explains the data)", choices=("local", "radiosity", "photon", "auto"))
     noise_floor_dn: float = opt(0.5, "auto: interreflection below this many 8-bit DN is not modelled", low=0.0)
     optimizer: str = opt("lbfgs", "refinement optimiser", choices=("lbfgs", "adam", "none"))
     iterations: int = opt(60, "refinement iterations (LBFGS outer steps or Adam steps)", low=0)
@@ -157,6 +157,19 @@ class RadiosityConfig:
 
 
 @dataclass
+class PhotonConfig:
+    """The photon level (Method III): photon tracing, the indirect-light cache, the outer loop."""
+
+    photons_per_light: int = opt(400_000, "photons traced per light and cache refresh (shared by its light maps)", low=1)
+    light_maps: int = opt(8, "photon maps per light when the lights move with the scan (co-rotating rig); texels interpolate between the two nearest", low=1)
+    outer_iterations: int = opt(3, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0)
+    schedule: str = opt("joint", "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation", choices=("joint", "seed"))
+    iterations: Optional[int] = opt(None, "refinement iterations per outer iteration and process (None = fit.iterations)")
+    min_bounces: int = opt(1, "scatterings before Russian roulette starts", low=0)
+    max_bounces: int = opt(16, "cap on scatterings per photon", low=1)
+
+
+@dataclass
 class OutputConfig:
     """What is written and where."""
 
@@ -180,6 +193,7 @@ class Config:
     reflectance: ReflectanceConfig = field(default_factory=ReflectanceConfig, metadata={"doc": "reflectance model"})
     fit: FitConfig = field(default_factory=FitConfig, metadata={"doc": "fit"})
     radiosity: RadiosityConfig = field(default_factory=RadiosityConfig, metadata={"doc": "radiosity level"})
+    photon: PhotonConfig = field(default_factory=PhotonConfig, metadata={"doc": "photon level"})
     output: OutputConfig = field(default_factory=OutputConfig, metadata={"doc": "outputs"})
     config_dir: str = field(default=".", metadata={"doc": "(set by the loader) folder of the config file", "internal": True})
 

@@ -8,7 +8,8 @@ import trimesh
 from scipy import stats
 
 from torchrefl.capture.cylindrical_rig import CylindricalRig
-from torchrefl.capture.synthetic_gi import IndirectRenderer, lobe_pdf, sample_lobe
+from torchrefl.capture.synthetic_gi import IndirectRenderer
+from torchrefl.transport.lobe_sampling import lobe_pdf, sample_lobe
 from torchrefl.capture.synthetic_scan import SyntheticScan
 from torchrefl.config import SyntheticConfig
 from torchrefl.rays import RayTracer

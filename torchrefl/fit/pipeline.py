@@ -7,6 +7,9 @@ radiosity (Method II, Ch.4): form factors between texel patches (Embree), the cl
     radiosity (eq. 4.7) for the patches' diffuse reflectance, the local closed forms on the
     intensities with the predicted diffuse interreflection removed (eq. 4.9-4.11), then the
     autograd refinement with the radiosity prediction (gradients through the linear solve).
+photon (Method III, Ch.5): the local start (or Method II's when auto chose photon), then the outer
+    loop of torchrefl.fit.photon_schedule: photons traced with the current parameters into a cache
+    of indirect light per (light, texel), refit against local + cached indirect light, repeat.
 """
 
 from __future__ import annotations
@@ -60,6 +63,28 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     return pmap, F, solver, rho, det, indirect, note
 
 
+def _photon_setup(cfg: Config, surface, obs, keep, device, dtype):
+    """The PhotonLevel of this capture (tracer over the texel mesh, light sources)."""
+    from torchrefl.fit.photon_schedule import PhotonLevel
+    from torchrefl.rays import RayTracer
+    from torchrefl.transport.photon_level import light_sources
+    from torchrefl.transport.photon_trace import PhotonTracer
+
+    if not surface.has_mesh:
+        raise ConfigError(f"fit.model: 'photon' needs geometry with depth, but the capture {surface.source} has no "
+                          "mesh (photometric stereo): use fit.model=local")
+    pc, rc = cfg.photon, cfg.reflectance
+    tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
+    offset = 1e-3 * math.sqrt(float(surface.areas.double().median()))
+    ptracer = PhotonTracer(tracer, surface.texel_index.numpy(), surface.positions.double().numpy(),
+                           surface.normals.double().numpy(), rc.brdf, offset=offset,
+                           min_bounces=pc.min_bounces, max_bounces=pc.max_bounces)
+    sources = light_sources(surface, obs, pc.light_maps)
+    view = obs.view_dirs_full() if obs.view_dir.dim() == 3 else obs.view_dir
+    return PhotonLevel(ptracer, sources, view.double(), keep, pc.photons_per_light, rc.sigma_max, rc.min_cos_light,
+                       cfg.seed, dtype, device)
+
+
 def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
     """Classify, initialise and refine at the transport level cfg.fit.model. Returns a dict of results."""
     rc, fc = cfg.reflectance, cfg.fit
@@ -82,6 +107,8 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
         reason = "fit.model is 'local': direct light with cast shadows"
         indirect = None
         choice = None
+        if fc.model == "photon":
+            reason = "fit.model is 'photon': direct light plus diffuse and specular interreflection by photon tracing"
         if fc.model == "auto" and not surface.has_mesh:
             choice = choose_level(False, None, None, None, fc.noise_floor_dn)
             level, reason = choice.level, choice.reason
@@ -96,7 +123,7 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
         if level == "auto":
             diff_dn, spec_dn = predicted_interreflection_dn(terms, obs.kappa, init.pd.to(obs.intensity.dtype),
                                                             init.ps.to(obs.intensity.dtype), indirect, fit_mask)
-            choice = choose_level(True, F, diff_dn, spec_dn, fc.noise_floor_dn)
+            choice = choose_level(True, F, diff_dn, spec_dn, fc.noise_floor_dn, photon_available=True)
             level = choice.level
             reason = f"auto chose {level}: {choice.reason}"
             if level == "local":
@@ -116,24 +143,39 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
         params = TexelParams(init.pd.to(dt), init.ps.to(dt), init.sigma.to(dt), rc.sigma_min, rc.sigma_max,
                              shared_specular=fc.specular == "shared", ps_max=rc.ps_max).to(device)
         dev_terms = _to_device(terms, device)
-        if indirect is None:
-            model = lambda pd, ps, sg: predict(dev_terms, pd, ps, sg)
+        local_model = lambda pd, ps, sg: predict(dev_terms, pd, ps, sg)
+        if indirect is None or level == "photon":
+            model = local_model
         else:
             kappa = obs.kappa.to(device)
-            model = lambda pd, ps, sg: predict(dev_terms, pd, ps, sg) + (kappa / math.pi) * pd[None] * indirect(pd)
+            model = lambda pd, ps, sg: local_model(pd, ps, sg) + (kappa / math.pi) * pd[None] * indirect(pd)
         T = surface.num_texels
         priors = [Prior((~init.known).to(device), init.ps.to(device), init.sigma.to(device), fc.prior_weight)]
         if fc.specular == "pooled" and init.shared_lobe is not None:
             priors.append(Prior(torch.ones(T, dtype=torch.bool, device=device),
                                 init.shared_lobe[0].expand(T, -1).to(device), init.shared_lobe[1].expand(T).to(device),
                                 fc.pooling))
-        objective = Objective(
-            predict=model, intensity=obs.intensity.to(device), weight=fit_mask.to(device), loss=fc.loss,
-            loss_scale_8bit=fc.loss_scale_8bit, priors=priors, smoothness=fc.smoothness,
-            neighbours=grid_neighbours(surface.texel_index, surface.grid_shape).to(device) if fc.smoothness > 0 else None,
-        )
-        with bar(fc.iterations, f"fit ({fc.optimizer})", cfg.output.progress) as pb:
-            history = refine(params, objective, fc.optimizer, fc.iterations, fc.learning_rate, progress=pb)
+        neighbours = grid_neighbours(surface.texel_index, surface.grid_shape).to(device) if fc.smoothness > 0 else None
+        intensity = obs.intensity.to(device)
+        make_objective = lambda predict_fn, weight: Objective(
+            predict=predict_fn, intensity=intensity, weight=weight.to(device), loss=fc.loss,
+            loss_scale_8bit=fc.loss_scale_8bit, priors=priors, smoothness=fc.smoothness, neighbours=neighbours)
+        photon = None
+        if level == "photon":
+            from torchrefl.fit.photon_schedule import run_schedule
+            pc = cfg.photon
+            plevel = _photon_setup(cfg, surface, obs, fit_mask | eval_mask, device, dt)
+            log(f"photon level: {plevel.sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
+                f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}")
+            photon = run_schedule(params, plevel, local_model, obs.kappa.to(device), make_objective, intensity,
+                                  fit_mask, cls, schedule=pc.schedule, outer=pc.outer_iterations,
+                                  optimizer=fc.optimizer, iterations=pc.iterations if pc.iterations is not None else fc.iterations,
+                                  learning_rate=fc.learning_rate, progress=cfg.output.progress, log=log)
+            model, history = photon["predict"], photon["history"] or [photon["scores"][0]]
+        else:
+            objective = make_objective(model, fit_mask)
+            with bar(fc.iterations, f"fit ({fc.optimizer})", cfg.output.progress) as pb:
+                history = refine(params, objective, fc.optimizer, fc.iterations, fc.learning_rate, progress=pb)
         with torch.no_grad():
             pd, ps, sigma = (x.detach() for x in params.values())
             pred = model(pd, ps, sigma).cpu()
@@ -144,4 +186,6 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
         "classes": cls, "counts": counts, "coverage": init.coverage, "estimated": init.defined, "history": history,
         "init": init, "n_spec": counts["T_spec"], "held": held, "model_reason": reason, "model": level,
         "model_numbers": choice.numbers if choice is not None else {},
+        "photon": None if photon is None else {"image_difference_per_refresh": photon["scores"],
+                                               "kept_refresh": photon["best"], "cache": photon["cache"].stats},
     }

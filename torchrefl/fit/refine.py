@@ -90,15 +90,30 @@ class Objective:
 
 
 def refine(params: TexelParams, objective: Objective, optimizer: str = "lbfgs", iterations: int = 60,
-           learning_rate: float = 0.05, progress=None) -> list[float]:
-    """Minimise the objective in place; returns the loss history (one value per iteration)."""
+           learning_rate: float = 0.05, progress=None, train=None) -> list[float]:
+    """Minimise the objective in place; returns the loss history (one value per iteration).
+
+    train: the raw tensors to optimise (default all of params); the others stay fixed.
+    """
     history: list[float] = []
+    train = list(params.parameters()) if train is None else list(train)
+    frozen = [q for q in params.parameters() if all(q is not t for t in train) and q.requires_grad]
+    for q in frozen:
+        q.requires_grad_(False)
+    try:
+        return _minimise(params, objective, optimizer, iterations, learning_rate, progress, train, history)
+    finally:
+        for q in frozen:
+            q.requires_grad_(True)
+
+
+def _minimise(params, objective, optimizer, iterations, learning_rate, progress, train, history) -> list[float]:
     if optimizer == "none" or iterations == 0:
         with torch.no_grad():
             history.append(float(objective(params)))
         return history
     if optimizer == "lbfgs":
-        opt = torch.optim.LBFGS(params.parameters(), lr=1.0, max_iter=iterations, max_eval=int(iterations * 1.5),
+        opt = torch.optim.LBFGS(train, lr=1.0, max_iter=iterations, max_eval=int(iterations * 1.5),
                                 history_size=20, tolerance_grad=1e-10, tolerance_change=1e-12,
                                 line_search_fn="strong_wolfe")
 
@@ -114,7 +129,7 @@ def refine(params: TexelParams, objective: Objective, optimizer: str = "lbfgs", 
 
         opt.step(closure)
     elif optimizer == "adam":
-        opt = torch.optim.Adam(params.parameters(), lr=learning_rate)
+        opt = torch.optim.Adam(train, lr=learning_rate)
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=iterations, eta_min=learning_rate * 0.02)
         for _ in range(iterations):
             opt.zero_grad()

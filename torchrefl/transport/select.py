@@ -7,8 +7,8 @@ Rules, in order, each with the numbers behind it:
    noise floor (its 99.9th percentile over fitted observations, in 8-bit DN) -> local;
 3. the predicted specular interreflection (the same gather of the light the patches reflect
    specularly, estimated from their Ps with a directional albedo of Ps) stays below the noise
-   floor -> radiosity; otherwise photon. The photon level is not in this release: `auto` then
-   falls back to radiosity and says so in the reason.
+   floor -> radiosity; otherwise photon (with photon_available=False, for callers that cannot run
+   the photon level, radiosity with the reason saying so).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ class LevelChoice:
 
 
 def choose_level(has_mesh: bool, F, indirect_dn: torch.Tensor | None, specular_dn: torch.Tensor | None,
-                 noise_floor_dn: float, photon_available: bool = False) -> LevelChoice:
+                 noise_floor_dn: float, photon_available: bool = True) -> LevelChoice:
     """Apply the rules to precomputed quantities.
 
     F: form factors (Q, Q) or None; indirect_dn / specular_dn: predicted diffuse / specular
@@ -55,8 +55,8 @@ def choose_level(has_mesh: bool, F, indirect_dn: torch.Tensor | None, specular_d
     if photon_available:
         return LevelChoice("photon", f"specular interreflection up to {spec:.3g} DN exceeds the noise floor", numbers)
     return LevelChoice("radiosity", f"specular interreflection up to {spec:.3g} DN exceeds the noise floor "
-                                    f"{noise_floor_dn} DN and calls for the photon level, which this release does not "
-                                    "have: falling back to radiosity", numbers)
+                                    f"{noise_floor_dn} DN and calls for the photon level, which is not "
+                                    "available here: falling back to radiosity", numbers)
 
 
 def specular_albedo_estimate(ps: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,152 @@
+"""Photon tracing: energy balance in a closed sphere, convergence to the radiosity solution like
+1/sqrt(N) on a diffuse fold, agreement with the path tracer on a glossy fold, determinism."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from conftest import fold_surface, point_light_observations
+from torchrefl.capture.synthetic_gi import IndirectRenderer
+from torchrefl.geometry.surface import Surface
+from torchrefl.rays import RayTracer
+from torchrefl.transport.form_factors import form_factors_for_surface
+from torchrefl.transport.local import local_terms
+from torchrefl.transport.photon_level import build_cache, indirect_radiance, light_sources
+from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
+from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance
+
+LIGHT = np.array([[-40.0, 5.0, 50.0]])
+CAMERA = np.array([-150.0, 0.0, 150.0])
+
+
+def fold_setup(brdf="lambertian", threads=2, H=24, W=48):
+    s = fold_surface(H, W)
+    obs = point_light_observations(s.normals, s.positions, LIGHT, CAMERA, intensity=1e4)
+    tracer = RayTracer(s.mesh_vertices, s.mesh_faces, threads=threads)
+    pt = PhotonTracer(tracer, s.texel_index.numpy(), s.positions.numpy(), s.normals.numpy(), brdf, offset=1e-3)
+    return s, obs, pt
+
+
+def material(T, pd=0.6, ps=0.0, sigma=0.1):
+    full = lambda v, shape: torch.full(shape, float(v), dtype=torch.float64)
+    return full(pd, (T, 3)), full(ps, (T, 3)), full(sigma, (T,))
+
+
+def photon_irradiance(s, obs, pt, n, seed=0, brdf="lambertian", pd=0.6, ps=0.0, sigma=0.1):
+    T = s.num_texels
+    src = light_sources(s, obs, 8)
+    mat = TexelMaterial.from_tensors(*material(T, pd, ps, sigma))
+    hits = pt.trace(src.positions.reshape(-1, 3), np.repeat(src.intensity, src.num_maps, 0), n, mat, seed=seed)
+    return build_cache(hits, src, pt.areas, s.normals, obs.view_dir, obs.valid, brdf,
+                       np.full(T, sigma), 0.6, 0.02), hits
+
+
+def blocks(x, H, W, b=4):
+    """(H*W,) -> block means (H/b, W/b) over the grid."""
+    return x.reshape(H // b, b, W // b, b).mean((1, 3))
+
+
+def away_from_fold(H, W, b=4):
+    keep = np.ones((H // b, W // b), bool)
+    keep[:, (W // 2 - 1) // b: W // 2 // b + 1] = False
+    return torch.as_tensor(keep)
+
+
+def test_closed_sphere_energy_balance():
+    """Inside a closed diffuse sphere every photon is eventually absorbed: the stored indirect flux is
+    rho / (1 - rho) times the direct flux, with Russian roulette and for rho near 1."""
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=50.0)
+    V = len(mesh.vertices)
+    normals = -mesh.vertex_normals                   # the inside
+    s = Surface((1, V), torch.arange(V), torch.tensor(mesh.vertices), torch.tensor(normals),
+                torch.ones(V, dtype=torch.float64), mesh.vertices, mesh.faces[:, ::-1].copy())
+    pt = PhotonTracer(RayTracer(s.mesh_vertices, s.mesh_faces), s.texel_index.numpy(), s.positions.numpy(),
+                      s.normals.numpy(), "lambertian", offset=1e-3, max_bounces=400)
+    source = np.array([[10.0, -5.0, 3.0]])
+    direct = pt.landing(source[0]).sum()
+    for rho in (0.5, 0.95):
+        mat = TexelMaterial.from_tensors(*material(V, rho))
+        hits = pt.trace(source, np.ones((1, 3)), 200_000, mat, seed=1)
+        stored = hits.power[:, 0].sum()
+        expected = direct * rho / (1 - rho)
+        # standard error: roughly sqrt(mean bounces) / sqrt(N) of the total
+        assert stored == pytest.approx(expected, rel=0.02 if rho == 0.5 else 0.05)
+        assert np.isfinite(hits.power).all()
+
+
+def test_converges_to_the_radiosity_solution_like_one_over_sqrt_n():
+    s, obs, pt = fold_setup()
+    H, W = s.grid_shape
+    T = s.num_texels
+    pd = torch.full((T, 3), 0.6, dtype=torch.float64)
+    tracer = RayTracer(s.mesh_vertices, s.mesh_faces)
+    patches, F = form_factors_for_surface(s, tracer, patch_size=1, samples_per_patch=4096, seed=3)
+    pm = PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches)
+    H_rad = indirect_irradiance(local_terms("lambertian", s.normals, obs), obs.kappa, pd, pm, F.double())[0, :, 0]
+    H_ref = photon_irradiance(s, obs, pt, 2_560_000, seed=99)[0].irradiance[0, :, 0]
+    keep = away_from_fold(H, W)
+    rel = lambda a, b: float((blocks(a, H, W) - blocks(b, H, W))[keep].norm() / blocks(b, H, W)[keep].norm())
+    errors = {n: rel(photon_irradiance(s, obs, pt, n, seed=5)[0].irradiance[0, :, 0], H_ref)
+              for n in (10_000, 40_000, 160_000)}
+    # statistical error falls like 1/sqrt(N): a factor ~2 per 4x photons
+    for a, b in ((10_000, 40_000), (40_000, 160_000)):
+        assert 1.4 < errors[a] / errors[b] < 2.9, errors
+    # and the estimate converges to the radiosity solution (form factors by 4096 rays per texel)
+    assert rel(H_ref, H_rad) < 0.03
+
+
+def test_glossy_indirect_light_matches_the_path_tracer():
+    """The photon level's reflected indirect light (cache + differentiable gather) against the
+    synthetic renderer's camera paths on a glossy fold, away from the fold line."""
+    brdf = "torrance_sparrow"
+    s, obs, pt = fold_setup(brdf)
+    H, W = s.grid_shape
+    T = s.num_texels
+    pd, ps, sigma = material(T, 0.5, 0.4, 0.15)
+    cache, _ = photon_irradiance(s, obs, pt, 1_000_000, seed=2, brdf=brdf, pd=0.5, ps=0.4, sigma=0.15)
+    ours = indirect_radiance(cache, obs.kappa, pd, ps, sigma)[0, :, 0]
+
+    n_np = s.normals.numpy()
+    plate = lambda y: np.where((y[:, 2] < -y[:, 0])[:, None], n_np[0], n_np[-1])
+    mat = lambda y, tri: {"pd": np.full((len(y), 3), 0.5), "ps": np.full((len(y), 3), 0.4), "sigma": np.full(len(y), 0.15)}
+    r = IndirectRenderer(RayTracer(s.mesh_vertices, s.mesh_faces), lambda y, tri: plate(y), mat, brdf, offset=1e-3, seed=4)
+    g = r.render(s.positions.numpy(), n_np, obs.view_dir.numpy(), np.full((T, 3), 0.5), np.full((T, 3), 0.4),
+                 np.full(T, 0.15), np.broadcast_to(LIGHT[0], (1, T, 3)), n_paths=256)
+    theirs = torch.as_tensor(g[0, :, 0]) * float(obs.kappa[0]) * 1e4
+    keep = away_from_fold(H, W)
+    a, b = blocks(ours, H, W)[keep], blocks(theirs, H, W)[keep]
+    assert float((a - b).norm() / b.norm()) < 0.06
+    assert float(a.sum() / b.sum()) == pytest.approx(1.0, abs=0.03)
+
+
+def test_same_seed_same_result_whatever_the_threads():
+    s, obs, pt1 = fold_setup(threads=1)
+    _, _, pt2 = fold_setup(threads=2)
+    c1, h1 = photon_irradiance(s, obs, pt1, 300_000, seed=7)
+    c2, h2 = photon_irradiance(s, obs, pt2, 300_000, seed=7)
+    c3, _ = photon_irradiance(s, obs, pt2, 300_000, seed=8)
+    assert np.array_equal(h1.texel, h2.texel) and np.array_equal(h1.power, h2.power)
+    torch.testing.assert_close(c1.irradiance, c2.irradiance, rtol=0, atol=0)
+    assert not torch.equal(c1.irradiance, c3.irradiance)
+
+
+def test_a_light_almost_touching_the_surface_stays_finite():
+    s, _, pt = fold_setup()
+    source = s.positions[100].numpy() + 1e-4 * s.normals[100].numpy()
+    a = pt.landing(source)
+    assert np.isfinite(a).all() and a.sum() > 0
+    mat = TexelMaterial.from_tensors(*material(s.num_texels, 1.0, 0.5, 0.01))
+    hits = pt.trace(source[None], np.ones((1, 3)), 50_000, mat, seed=0)
+    assert np.isfinite(hits.power).all() and np.isfinite(hits.direction).all()
+
+
+def test_a_mesh_that_is_not_the_texel_grid_is_refused():
+    s = fold_surface(8, 8)
+    faces = np.vstack([s.mesh_faces, [[0, 1, 70]]])
+    verts = np.vstack([s.mesh_vertices, np.zeros((8, 3))])
+    with pytest.raises(Exception, match="not a mesh vertex|not texels"):
+        PhotonTracer(RayTracer(verts, faces), s.texel_index.numpy()[:60], s.positions.numpy()[:60],
+                     s.normals.numpy()[:60], "lambertian")

@@ -1,0 +1,125 @@
+"""Method III's outer loop (dissertation Ch.5): refresh the photon cache, refit, keep the best.
+
+Each outer iteration re-traces the photons with the current parameters (the cache is then fixed)
+and refines the texel tensors against local + cached indirect light:
+- joint: all of Pd, Ps, sigma on every fitted observation;
+- seed: the dissertation's alternation, process (a) Pd alone on the T_diff observations, then
+  process (b) Ps and sigma alone on the T_spec and T_none observations.
+The parameters are scored after every refresh by the mean absolute image difference (8-bit) over the
+fitted observations, with the cache traced at exactly those parameters, and the best are kept: the
+init is scored at refresh 0, the result of outer iteration k at refresh k + 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import torch
+
+from torchrefl.errors import ConfigError
+from torchrefl.fit.classify import T_DIFF, T_NONE, T_SPEC
+from torchrefl.fit.params import TexelParams
+from torchrefl.fit.refine import refine
+from torchrefl.report.stages import bar
+from torchrefl.transport.photon_level import LightSources, PhotonCache, build_cache, indirect_radiance
+from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
+
+SCHEDULES = ("joint", "seed")
+
+
+@dataclass
+class PhotonLevel:
+    """Everything a cache refresh needs besides the parameters."""
+
+    tracer: PhotonTracer
+    sources: LightSources
+    view_dirs: torch.Tensor
+    keep: torch.Tensor
+    photons_per_light: int
+    sigma_max: float
+    min_cos_light: float
+    seed: int
+    dtype: torch.dtype
+    device: torch.device
+
+    def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
+        """Trace photons with these parameters and reduce them to the cache."""
+        P, K = self.sources.positions.shape[:2]
+        per_map = max(1, math.ceil(self.photons_per_light / K))
+        mat = TexelMaterial.from_tensors(pd, ps, sigma)
+        with bar(P * K * per_map, f"photons (refresh {refresh})", progress, unit="ph") as pb:
+            last = [0]
+
+            def tick(done, total):
+                pb.update(done - last[0])
+                last[0] = done
+
+            hits = self.tracer.trace(self.sources.positions.reshape(-1, 3), np.repeat(self.sources.intensity, K, 0),
+                                     per_map, mat, seed=self.seed, refresh=refresh, progress=tick)
+        cache = build_cache(hits, self.sources, self.tracer.areas, self.tracer.normals, self.view_dirs, self.keep,
+                            self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
+                            self.min_cos_light, dtype=self.dtype)
+        return cache.to(self.dtype, self.device)
+
+
+def image_score(pred: torch.Tensor, intensity: torch.Tensor, mask: torch.Tensor) -> float:
+    """Mean absolute difference in 8-bit DN over the masked observations."""
+    return float(((pred - intensity).abs() * 255.0)[mask].mean())
+
+
+def run_schedule(params: TexelParams, level: PhotonLevel, local_predict: Callable, kappa: torch.Tensor,
+                 make_objective: Callable, intensity: torch.Tensor, fit_mask: torch.Tensor, classes: torch.Tensor, *,
+                 schedule: str, outer: int, optimizer: str, iterations: int, learning_rate: float,
+                 progress: bool = True, log=print) -> dict:
+    """Run the outer loop in place on params (left at the best parameters).
+
+    local_predict(pd, ps, sigma) -> (P, T, 3) direct light; make_objective(predict, weight) -> Objective;
+    fit_mask (P, T) fitted observations; classes (P, T) observation classes (for the seed schedule).
+    Returns history (losses), scores (one per refresh), best (refresh index), cache (at the best
+    parameters) and predict (the photon-level model with that cache).
+    """
+    if schedule not in SCHEDULES:
+        raise ConfigError(f"photon.schedule: unknown schedule '{schedule}', expected one of {', '.join(SCHEDULES)}")
+    device = intensity.device
+    fit_mask = fit_mask.to(device)
+    cls = classes.to(device)
+    masks = {"all": fit_mask, "diffuse": fit_mask & (cls == T_DIFF),
+             "specular": fit_mask & ((cls == T_SPEC) | (cls == T_NONE))}
+    model_for = lambda c: (lambda pd, ps, sg: local_predict(pd, ps, sg) + indirect_radiance(c, kappa, pd, ps, sg))
+    history: list[float] = []
+    scores: list[float] = []
+    best = (math.inf, -1, None, None)
+    for k in range(outer + 1):
+        with torch.no_grad():
+            values = params.values()
+            cache = level.cache(*values, refresh=k, progress=progress)
+            model = model_for(cache)
+            score = image_score(model(*values), intensity, fit_mask)
+        scores.append(score)
+        log(f"photon refresh {k}: {cache.stats['photons_emitted']} photons, {cache.stats['stored_hits']} stored hits, "
+            f"{cache.stats['specular_entries']} specular entries; image difference {score:.4f} DN")
+        if score < best[0]:
+            best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, cache)
+        if k == outer:
+            break
+        if schedule == "joint":
+            steps = [(None, masks["all"], "joint")]
+        else:
+            steps = [([params.raw_pd], masks["diffuse"], "(a) Pd on T_diff"),
+                     ([params.raw_ps, params.raw_sigma], masks["specular"], "(b) Ps, sigma on T_spec + T_none")]
+        for train, weight, name in steps:
+            if not bool(weight.any()):
+                log(f"photon outer {k + 1}: {name} skipped (no observation)")
+                continue
+            with bar(iterations, f"fit {k + 1}/{outer} {name}", progress) as pb:
+                history += refine(params, make_objective(model, weight), optimizer, iterations, learning_rate,
+                                  progress=pb, train=train)
+    _, k_best, state, cache = best
+    with torch.no_grad():
+        for n, p in params.named_parameters():
+            p.copy_(state[n])
+    log(f"photon level: kept the parameters of refresh {k_best} (image difference {best[0]:.4f} DN)")
+    return {"history": history, "scores": scores, "best": k_best, "cache": cache, "predict": model_for(cache)}

@@ -1,0 +1,205 @@
+"""Prediction at the photon level (Method III): local direct light plus the cached indirect light.
+
+The cache holds, for every light p and texel t, what the photons stored there (second and later
+bounces, torchrefl.transport.photon_trace) bring:
+    H_pt   = sum_k Phi_k w_k / A_t                              indirect irradiance (P, T, 3)
+    entries (p, t, theta_h, c): the photons' incident directions reduced to what the specular lobe
+           needs: theta_h = angle(n_t, half(wi_k, v_pt)) and c = Phi_k w_k / A_t * G(cos_i, cos_v) / cos_i,
+           merged over photons of the same (p, t) whose theta_h falls in the same bin (power-weighted
+           mean theta_h), kept only for fitted or evaluated observations and where the lobe at the
+           texel's current roughness (times 3, capped at sigma_max) is above 1e-7.
+w_k are the light-position weights below. The reflected indirect light is then differentiable in
+the receiving texel's parameters:
+    i_ind(p, t) = kappa * ( Pd_t / pi * H_pt + Ps_t * sum_entries D(theta_h; sigma_t) c )
+the photon estimate of kappa * sum_k f_t(wi_k, v_pt) Phi_k / A_t with f = g / cos_i (torchrefl.brdf).
+Photons reaching the texel at n.wi <= min_cos_light feed H but not the specular sum (the fitter
+does not use grazing light either).
+
+Moving lights. On the cylindrical rig the lights co-rotate with the scan, so each texel column sees
+light p from its own position L_pt = x_t + l_pt / sqrt(falloff_pt). `light_sources` places K
+sources per light at evenly spaced columns; a texel's indirect light is the linear (tent)
+interpolation in its column of the maps of the two nearest sources. A capture whose lights do not
+move uses one source per light.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from torchrefl import brdf as brdf_mod
+from torchrefl.errors import ConfigError
+from torchrefl.transport.photon_trace import PhotonHits
+
+THETA_BIN = 0.004         # radians; merged photons differ in theta_h by less than this
+LOBE_CUTOFF = 1e-7
+
+
+@dataclass
+class LightSources:
+    """positions (P, K, 3) source positions of light p's K maps; weights (K, T) per-texel weights of
+    the maps (each column sums to 1); intensity (P, 3)."""
+
+    positions: np.ndarray
+    weights: np.ndarray
+    intensity: np.ndarray
+
+    @property
+    def num_maps(self) -> int:
+        return int(self.positions.shape[1])
+
+
+def texel_light_positions(surface, obs) -> np.ndarray:
+    """(P, T, 3) position of light p as texel t saw it: x_t + l_pt / sqrt(falloff_pt)."""
+    if obs.light_positions is None:
+        raise ConfigError(f"fit.model: 'photon' needs point lights, but the capture {obs.source} has directional "
+                          "lights: use fit.model=local")
+    dist = 1.0 / torch.sqrt(obs.falloff.double().clamp_min(1e-300))
+    return (surface.positions.double()[None] + obs.light_dir.double() * dist[..., None]).numpy()
+
+
+def light_sources(surface, obs, max_maps: int) -> LightSources:
+    """Sources and tent weights (module docstring); one map per light when no light moves."""
+    L = texel_light_positions(surface, obs)
+    P, T, _ = L.shape
+    intensity = obs.light_intensity.double().numpy()
+    centre = np.median(L, axis=1)                                       # (P, 3)
+    spread = float(np.abs(L - centre[:, None]).max()) if T else 0.0
+    scale = float(np.abs(surface.positions.double().numpy()).max()) + 1.0
+    if spread <= 1e-6 * scale or max_maps <= 1:
+        return LightSources(centre[:, None] if spread <= 1e-6 * scale else L.mean(1)[:, None], np.ones((1, T)), intensity)
+    W = surface.grid_shape[1]
+    col = (surface.texel_index.numpy() % W).astype(np.float64)
+    cmin, cmax = col.min(), col.max()
+    K = int(min(max_maps, cmax - cmin + 1))
+    step = (cmax - cmin + 1) / K
+    centres = cmin - 0.5 + step * (np.arange(K) + 0.5)
+    s = np.clip((col - centres[0]) / step if K > 1 else np.zeros(T), 0.0, K - 1)
+    k0 = np.minimum(np.floor(s).astype(np.int64), K - 1)
+    a = s - k0
+    weights = np.zeros((K, T))
+    weights[k0, np.arange(T)] += 1.0 - a
+    k1 = np.minimum(k0 + 1, K - 1)
+    weights[k1, np.arange(T)] += a
+    positions = np.empty((P, K, 3))
+    for k, c in enumerate(centres):
+        nearest = np.abs(col - c)
+        sel = nearest <= nearest.min() + 1e-9
+        positions[:, k] = L[:, sel].mean(1)
+    return LightSources(positions, weights, intensity)
+
+
+@dataclass
+class PhotonCache:
+    """irradiance (P, T, 3); entry_obs (E,) flat p*T + t; entry_theta_h (E,); entry_weight (E, 3)."""
+
+    brdf: str
+    irradiance: torch.Tensor
+    entry_obs: torch.Tensor
+    entry_theta_h: torch.Tensor
+    entry_weight: torch.Tensor
+    stats: dict = field(default_factory=dict)
+
+    def to(self, dtype: torch.dtype, device=None) -> "PhotonCache":
+        mv = lambda x: x.to(device=device, dtype=dtype if x.is_floating_point() else x.dtype)
+        return PhotonCache(self.brdf, mv(self.irradiance), mv(self.entry_obs), mv(self.entry_theta_h),
+                           mv(self.entry_weight), dict(self.stats))
+
+
+def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
+                sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN) -> PhotonCache:
+    """Reduce photon hits to the cache.
+
+    hits: from PhotonTracer.trace over sources.positions.reshape(-1, 3) (source s = p * K + k);
+    areas (T,), normals (T, 3), view_dirs (T, 3) or (P, T, 3); keep (P, T) bool observations that are
+    predicted (fitted or evaluated); sigma (T,) current roughness (prunes the specular entries).
+    """
+    P, K = sources.positions.shape[:2]
+    T = int(areas.shape[0])
+    A = np.asarray(areas, dtype=np.float64)
+    p = hits.source // K
+    k = hits.source % K
+    t = hits.texel
+    flux = hits.power * (sources.weights[k, t] / A[t])[:, None]            # (N, 3)
+    H = np.zeros((P * T, 3))
+    obs_idx = p * T + t
+    for c in range(3):
+        H[:, c] = np.bincount(obs_idx, weights=flux[:, c], minlength=P * T)
+    stats = {"stored_hits": hits.count, "rays": hits.rays, "photons_emitted": int(hits.emitted.sum()),
+             "maps_per_light": K}
+    empty = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=dtype), torch.zeros(0, 3, dtype=dtype))
+    lobe = brdf != "lambertian"
+    keep_np = np.asarray(keep, dtype=bool).reshape(-1)
+    sel = np.flatnonzero(keep_np[obs_idx]) if lobe else np.zeros(0, dtype=np.int64)
+    if sel.size:
+        n = np.asarray(normals, dtype=np.float64)[t[sel]]
+        v = np.asarray(view_dirs, dtype=np.float64)
+        v = v[p[sel], t[sel]] if v.ndim == 3 else v[t[sel]]
+        wi = hits.direction[sel]
+        tt = lambda x: torch.from_numpy(np.ascontiguousarray(x))
+        with torch.no_grad():
+            cos_i = brdf_mod.dot(tt(n), tt(wi))
+            cos_v = brdf_mod.dot(tt(n), tt(v))
+            theta_h = brdf_mod.half_angle(tt(n), tt(wi), tt(v))
+            geom = brdf_mod.specular_geometry(brdf, cos_i, cos_v) / cos_i.clamp_min(min_cos_light)
+            sig = torch.as_tensor(np.asarray(sigma, dtype=np.float64))[t[sel]]
+            cap = torch.clamp(3.0 * sig, max=sigma_max)
+            alive = (cos_i > min_cos_light) & (cos_v > 0) & (brdf_mod.specular_lobe(brdf, theta_h, cap) > LOBE_CUTOFF)
+        alive = alive.numpy()
+        sel, theta_h = sel[alive], theta_h.numpy()[alive]
+        weight = flux[sel] * geom.numpy()[alive][:, None]
+        if sel.size:
+            bins = np.floor(theta_h / theta_bin).astype(np.int64)
+            key = obs_idx[sel] * (int(math.pi / 2 / theta_bin) + 2) + bins
+            uniq, inv = np.unique(key, return_inverse=True)
+            m = weight.mean(-1)
+            wsum = np.stack([np.bincount(inv, weights=weight[:, c], minlength=len(uniq)) for c in range(3)], -1)
+            msum = np.bincount(inv, weights=m, minlength=len(uniq))
+            tsum = np.bincount(inv, weights=m * theta_h, minlength=len(uniq))
+            cnt = np.bincount(inv, minlength=len(uniq))
+            first = np.zeros(len(uniq), dtype=np.int64)
+            first[inv[::-1]] = np.arange(len(inv))[::-1]
+            mean_theta = np.where(msum > 0, tsum / np.where(msum > 0, msum, 1.0), theta_h[first])
+            entry_obs = obs_idx[sel][first]
+            empty = (torch.from_numpy(entry_obs), torch.from_numpy(mean_theta).to(dtype), torch.from_numpy(wsum).to(dtype))
+            stats["specular_photons"] = int(cnt.sum())
+    stats["specular_entries"] = int(empty[0].numel())
+    return PhotonCache(brdf, torch.from_numpy(H.reshape(P, T, 3)).to(dtype), *empty, stats=stats)
+
+
+def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor, ps: torch.Tensor,
+                      sigma: torch.Tensor) -> torch.Tensor:
+    """(P, T, 3) sensor value of the reflected indirect light for pd (T, 3), ps (T, C), sigma (T,);
+    differentiable in all three."""
+    H = cache.irradiance
+    P, T, _ = H.shape
+    out = (pd[None] / math.pi) * H
+    if cache.entry_obs.numel():
+        t = cache.entry_obs % T
+        D = brdf_mod.specular_lobe(cache.brdf, cache.entry_theta_h, sigma[t])
+        S = torch.zeros(P * T, 3, dtype=H.dtype, device=H.device).index_add(0, cache.entry_obs, D[:, None] * cache.entry_weight)
+        out = out + ps[None] * S.view(P, T, 3)
+    return kappa * out
+
+
+def indirect_radiance_reference(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, brdf: str,
+                                kappa, pd, ps, sigma, min_cos_light: float) -> torch.Tensor:
+    """The same estimate straight from the stored photons and brdf.brdf (slow, obvious; tests only):
+    kappa * sum_k f_t(wi_k, v_pt) Phi_k w_k / A_t, with the specular part dropped at n.wi <= min_cos_light."""
+    P, K = sources.positions.shape[:2]
+    T = pd.shape[0]
+    out = torch.zeros(P, T, 3, dtype=pd.dtype)
+    ps3 = ps.expand(T, 3)
+    for i in range(hits.count):
+        p, k, t = int(hits.source[i] // K), int(hits.source[i] % K), int(hits.texel[i])
+        n = normals[t]
+        v = view_dirs[p, t] if view_dirs.dim() == 3 else view_dirs[t]
+        wi = torch.as_tensor(hits.direction[i], dtype=pd.dtype)
+        cos_i = float(n @ wi)
+        spec = ps3[t] if cos_i > min_cos_light else torch.zeros(3, dtype=pd.dtype)
+        f = brdf_mod.brdf(brdf, n, wi, v, pd[t], spec, sigma[t])
+        out[p, t] += f * torch.as_tensor(hits.power[i] * sources.weights[k, t] / float(areas[t]), dtype=pd.dtype)
+    return kappa * out

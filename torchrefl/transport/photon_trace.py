@@ -1,0 +1,268 @@
+"""Photon tracing with Embree (Method III, dissertation Ch.5): light paths from point lights over the texel mesh.
+
+Photons are aimed at the object: a photon of source s (position L, radiant intensity Y, RGB) first
+lands on texel t with probability proportional to the texel's unshadowed direct flux geometry
+    a_t = A_t max(n_t.l, 0) vis_t / |L - x_t|^2          (vis by an Embree shadow ray),
+which is exactly the density of a ray from L whose first hit is t, so every photon carries the same
+    Phi = Y * sum_t a_t / N                              (N photons of that source),
+and no photon is wasted on directions that miss. The first hit is not stored (direct light is
+computed analytically by the local terms) and needs no ray: the photon starts at the texel with
+wi = l. Later hits are found with Embree; a hit's texel is the nearest mesh vertex (mesh vertices
+are texel grid points). From the first hit on, the photon is scattered by the current BRDF of the texel it hit: a direction wo from the mixture of the
+cosine-weighted and specular-lobe samplers (torchrefl.transport.lobe_sampling) with weight
+    w = f(wi -> wo) cos(n, wo) / pdf(wo) = g(n, l=wi, v=wo) cos(n, wo) / (cos(n, wi) pdf(wo))
+(g = f cos_l, torchrefl.brdf.cosine_weighted_brdf; non-reciprocal lobes are evaluated with the light
+on the incident side, the way the fitter and the renderer use them), then Russian roulette with
+survival q = min(0.95, max_c w) and Phi <- Phi w / q. Every later hit on the front side of the mesh
+(face normal, oriented like the texel normals, towards wi) is stored with the texel, the incident direction wi (towards where the photon came from)
+and Phi; hits on the back of the scanned surface absorb the photon (the unscanned side is not modelled).
+Photons are scattered about the texel normal, or the face normal where the texel normal faces away
+from the photon (grazing arrival on a curved or folded mesh).
+
+Deterministic in `seed`: random numbers are keyed by (seed, refresh, source, chunk), never by thread.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from torchrefl import brdf as brdf_mod
+from torchrefl.errors import GeometryError
+from torchrefl.rays import RayTracer
+from torchrefl.transport.lobe_sampling import LOBES, row_dot, sample_mixture
+
+CHUNK = 1 << 17          # photons per work unit
+
+
+@dataclass
+class PhotonHits:
+    """Stored photon hits (second and later bounces) of all sources.
+
+    source: (N,) int64 index of the emitting source; texel: (N,) int64 receiving texel;
+    direction: (N, 3) unit incident direction wi; power: (N, 3) flux Phi.
+    emitted: (S,) photons emitted per source; rays: closest-hit rays traced in all.
+    """
+
+    source: np.ndarray
+    texel: np.ndarray
+    direction: np.ndarray
+    power: np.ndarray
+    emitted: np.ndarray
+    rays: int
+
+    @property
+    def count(self) -> int:
+        return int(len(self.texel))
+
+
+@dataclass
+class TexelMaterial:
+    """Current reflectance of every texel, for scattering: pd (T, 3), ps (T, 3), sigma (T,) float64."""
+
+    pd: np.ndarray
+    ps: np.ndarray
+    sigma: np.ndarray
+
+    @classmethod
+    def from_tensors(cls, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> "TexelMaterial":
+        T = pd.shape[0]
+        as64 = lambda x: x.detach().cpu().double().numpy()
+        return cls(as64(pd), np.ascontiguousarray(np.broadcast_to(as64(ps), (T, 3))), as64(sigma))
+
+
+class PhotonTracer:
+    """Photon tracing over the texel mesh of a Surface.
+
+    Photon densities use each texel's collection area, one third of the area of the mesh faces around
+    its vertex: the part of the mesh whose hits snap to it (barycentric regions are a third each).
+
+    tracer: Embree scene of surface.mesh_vertices / mesh_faces; texel_index, positions, normals:
+    the Surface's (mesh vertex v is grid point v; texel_index maps texels to grid points); brdf: model name;
+    offset: origin offset along the normal for scattered rays (scene units); max_bounces: cap on the
+    bounces after the first hit; min_bounces: bounces before Russian roulette starts.
+    """
+
+    def __init__(self, tracer: RayTracer, texel_index: np.ndarray, positions: np.ndarray, normals: np.ndarray,
+                 brdf: str, *,
+                 offset: float = 0.01, min_bounces: int = 1, max_bounces: int = 16):
+        brdf_mod.check_brdf_name(brdf, "reflectance.brdf")
+        if min_bounces < 0 or max_bounces < max(1, min_bounces):
+            raise GeometryError(f"photon.min_bounces/max_bounces: need 0 <= min ({min_bounces}) <= max ({max_bounces}), max >= 1")
+        self.tracer = tracer
+        self.brdf = brdf
+        self.lobe = LOBES[brdf]
+        self.positions = np.ascontiguousarray(positions, dtype=np.float64)
+        self.normals = np.ascontiguousarray(normals, dtype=np.float64)
+        self._landing: dict = {}
+        self.offset = float(offset)
+        self.min_bounces = int(min_bounces)
+        self.max_bounces = int(max_bounces)
+        V = len(tracer.vertices)
+        texel_index = np.asarray(texel_index, dtype=np.int64)
+        if texel_index.size and texel_index.max() >= V:
+            raise GeometryError(f"photon tracing: texel grid index {int(texel_index.max())} is not a mesh vertex "
+                                f"(the mesh has {V}); the mesh must be the texel grid's triangulation")
+        self.vertex_texel = np.full(V, -1, dtype=np.int64)
+        self.vertex_texel[texel_index] = np.arange(len(texel_index))
+        faces = np.asarray(tracer.faces, dtype=np.int64)
+        if faces.size and (self.vertex_texel[faces] < 0).any():
+            raise GeometryError("photon tracing: some mesh faces use grid points that are not texels")
+        self.faces = faces
+        verts = np.asarray(tracer.vertices, dtype=np.float64)
+        fa = 0.5 * np.linalg.norm(np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1)
+        fn = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]) if faces.size else np.zeros((0, 3))
+        fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+        side = np.sign(row_dot(fn, self.normals[self.vertex_texel[faces]].sum(1))) if faces.size else np.zeros(0)
+        self.face_normals = fn * np.where(side == 0, 1.0, side)[:, None]
+        self.areas = np.bincount(self.vertex_texel[faces].ravel(), weights=np.repeat(fa / 3.0, 3),
+                                 minlength=len(texel_index)) if faces.size else np.zeros(len(texel_index))
+
+    def landing(self, source: np.ndarray) -> np.ndarray:
+        """(T,) a_t of the module docstring for one source position (cached per position)."""
+        key = tuple(np.round(np.asarray(source, dtype=np.float64), 9))
+        if key not in self._landing:
+            to = np.asarray(source, dtype=np.float64)[None] - self.positions
+            d2 = row_dot(to, to)
+            cos = row_dot(self.normals, to) / np.sqrt(np.maximum(d2, 1e-300))
+            a = np.where(cos > 0, self.areas * cos / np.maximum(d2, 1e-300), 0.0)
+            lit = np.flatnonzero(a > 0)
+            if lit.size:
+                vis = self.tracer.visible(self.positions[lit], self.normals[lit], to[lit] + self.positions[lit],
+                                          offset=self.offset)
+                a[lit[~vis]] = 0.0
+            self._landing[key] = a
+        return self._landing[key]
+
+    # ------------------------------------------------------------------ pieces
+
+    def hit_texels(self, triangle: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        """Texel of each hit: the face vertex with the largest barycentric weight."""
+        w = np.stack([1.0 - bary[:, 0] - bary[:, 1], bary[:, 0], bary[:, 1]], -1)
+        corner = np.argmax(w, axis=1)
+        return self.vertex_texel[self.faces[triangle, corner]]
+
+    def shading_normals(self, texel: np.ndarray, triangle: np.ndarray, wi: np.ndarray) -> np.ndarray:
+        """The texel's normal, or the hit face's where the texel normal faces away from wi (a photon arriving
+        at a grazing angle on a curved or folded mesh: the smooth normal would absorb it)."""
+        n = self.normals[texel]
+        bad = row_dot(n, wi) <= 1e-6
+        if bad.any():
+            n = n.copy()
+            n[bad] = self.face_normals[triangle[bad]]
+        return n
+
+    def _g(self, n, l, v, pd, ps, sigma) -> np.ndarray:
+        t = lambda x: torch.from_numpy(np.ascontiguousarray(x, dtype=np.float64))
+        with torch.no_grad():
+            return brdf_mod.cosine_weighted_brdf(self.brdf, t(n), t(l), t(v), t(pd), t(ps), t(sigma)).numpy()
+
+    def scatter(self, n, wi, texel, mat: TexelMaterial, u) -> tuple[np.ndarray, np.ndarray]:
+        """Outgoing directions (N, 3) and weights (N, 3) f cos_o / pdf for photons arriving along -wi."""
+        pd, ps, sg = mat.pd[texel], mat.ps[texel], mat.sigma[texel]
+        wo, pdf = sample_mixture(self.lobe, n, wi, pd, ps, sg, u)
+        cos_o = row_dot(n, wo)
+        cos_i = row_dot(n, wi)
+        ok = (pdf > 0) & (cos_o > 0)
+        w = np.zeros((len(n), 3))
+        if ok.any():
+            i = np.flatnonzero(ok)
+            w[i] = self._g(n[i], wi[i], wo[i], pd[i], ps[i], sg[i]) * (cos_o[i] / (cos_i[i] * pdf[i]))[:, None]
+        return wo, w
+
+    # ------------------------------------------------------------------ paths
+
+    def trace_chunk(self, source: np.ndarray, intensity: np.ndarray, n: int, n_total: int, mat: TexelMaterial,
+                    rng: np.random.Generator) -> tuple[list, int]:
+        """n photons of one source (out of n_total for that source); returns ([texel, wi, power] arrays, rays)."""
+        a = self.landing(source)
+        total = float(a.sum())
+        out_t, out_d, out_p = [], [], []
+        if total <= 0:
+            return [out_t, out_d, out_p], 0
+        cdf = np.cumsum(a / total)
+        texel = np.minimum(np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right"), len(a) - 1)
+        y = self.positions[texel]
+        wi = np.asarray(source, dtype=np.float64)[None] - y
+        wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+        power = np.broadcast_to(intensity * (total / n_total), (n, 3)).copy()
+        n_t = self.normals[texel]
+        rays = 0
+        for depth in range(self.max_bounces + 1):
+            if depth > 0:
+                hits = self.tracer.closest_hit(origin, d)
+                rays += len(origin)
+                keep = np.flatnonzero(hits.hit)
+                if not keep.size:
+                    break
+                y = origin[keep] + hits.distance[keep, None] * d[keep]
+                texel = self.hit_texels(hits.triangle[keep], hits.barycentric[keep])
+                wi = -d[keep]
+                power = power[keep]
+                n_t = self.shading_normals(texel, hits.triangle[keep], wi)
+                front = row_dot(self.face_normals[hits.triangle[keep]], wi) > 0
+                if not front.all():
+                    y, texel, wi, power, n_t = y[front], texel[front], wi[front], power[front], n_t[front]
+            if depth > 0 and len(texel):
+                out_t.append(texel)
+                out_d.append(wi)
+                out_p.append(power)
+            if depth == self.max_bounces or not len(texel):
+                break
+            wo, w = self.scatter(n_t, wi, texel, mat, rng.random((len(texel), 3)))
+            power = power * w
+            if depth + 1 > self.min_bounces:
+                q = np.minimum(0.95, w.max(-1))
+                live = rng.random(len(q)) < q
+                power = power[live] / q[live, None]
+            else:
+                live = w.max(-1) > 0
+                power = power[live]
+            origin = y[live] + self.offset * n_t[live]
+            d = wo[live]
+            if not len(d):
+                break
+        return [out_t, out_d, out_p], rays
+
+    def trace(self, sources: np.ndarray, intensities: np.ndarray, photons_per_source: int, mat: TexelMaterial,
+              seed: int, refresh: int = 0, progress=None) -> PhotonHits:
+        """Trace photons_per_source photons from every source (S, 3) with intensities (S, 3)."""
+        sources = np.asarray(sources, dtype=np.float64).reshape(-1, 3)
+        intensities = np.asarray(intensities, dtype=np.float64).reshape(-1, 3)
+        S, N = len(sources), int(photons_per_source)
+        units = [(s, a, min(a + CHUNK, N)) for s in range(S) for a in range(0, N, CHUNK)]
+        results: list = [None] * len(units)
+        done = [0]
+        for s in range(S):                 # shadow rays of the landing densities, before the threads start
+            self.landing(sources[s])
+
+        def work(k: int) -> None:
+            s, a, b = units[k]
+            rng = np.random.default_rng([int(seed), 0x50, int(refresh), s, a // CHUNK])
+            results[k] = self.trace_chunk(sources[s], intensities[s], b - a, N, mat, rng)
+            done[0] += b - a
+            if progress is not None:
+                progress(done[0], S * N)
+
+        if self.tracer.threads > 1 and len(units) > 1:
+            with ThreadPoolExecutor(self.tracer.threads) as pool:
+                list(pool.map(work, range(len(units))))
+        else:
+            for k in range(len(units)):
+                work(k)
+        src, tex, dirs, pw = [], [], [], []
+        rays = 0
+        for (s, _, _), ((t, d, p), r) in zip(units, results):
+            rays += r
+            for a, b, c in zip(t, d, p):
+                src.append(np.full(len(a), s, dtype=np.int64))
+                tex.append(a)
+                dirs.append(b)
+                pw.append(c)
+        cat = lambda x, shape, dt: np.concatenate(x) if x else np.zeros(shape, dtype=dt)
+        return PhotonHits(cat(src, (0,), np.int64), cat(tex, (0,), np.int64), cat(dirs, (0, 3), np.float64),
+                          cat(pw, (0, 3), np.float64), np.full(S, N, dtype=np.int64), rays)
