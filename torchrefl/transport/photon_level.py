@@ -188,7 +188,9 @@ def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor,
 def indirect_radiance_reference(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, brdf: str,
                                 kappa, pd, ps, sigma, min_cos_light: float) -> torch.Tensor:
     """The same estimate straight from the stored photons and brdf.brdf (slow, obvious; tests only):
-    kappa * sum_k f_t(wi_k, v_pt) Phi_k w_k / A_t, with the specular part dropped at n.wi <= min_cos_light."""
+    kappa * sum_k f_t(wi_k, v_pt) Phi_k w_k / A_t, with the specular part dropped at n.wi <= min_cos_light
+    and where the texel faces away from the camera (the diffuse part counts every stored photon: it reached
+    the surface, even where the texel's smoothed normal disagrees)."""
     P, K = sources.positions.shape[:2]
     T = pd.shape[0]
     out = torch.zeros(P, T, 3, dtype=pd.dtype)
@@ -199,7 +201,8 @@ def indirect_radiance_reference(hits: PhotonHits, sources: LightSources, areas, 
         v = view_dirs[p, t] if view_dirs.dim() == 3 else view_dirs[t]
         wi = torch.as_tensor(hits.direction[i], dtype=pd.dtype)
         cos_i = float(n @ wi)
-        spec = ps3[t] if cos_i > min_cos_light else torch.zeros(3, dtype=pd.dtype)
-        f = brdf_mod.brdf(brdf, n, wi, v, pd[t], spec, sigma[t])
+        f = pd[t] / math.pi                         # every stored photon reached the surface
+        if cos_i > min_cos_light and float(n @ v) > 0:
+            f = f + brdf_mod.brdf(brdf, n, wi, v, torch.zeros_like(pd[t]), ps3[t], sigma[t])
         out[p, t] += f * torch.as_tensor(hits.power[i] * sources.weights[k, t] / float(areas[t]), dtype=pd.dtype)
     return kappa * out

@@ -1,0 +1,122 @@
+"""The photon cache and its differentiable gather: against the slow per-photon reference, float64
+gradcheck, finite values and gradients at the extremes, light maps of moving lights."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import fold_surface, point_light_observations
+from torchrefl.rays import RayTracer
+from torchrefl.transport.photon_level import (build_cache, indirect_radiance, indirect_radiance_reference,
+                                              light_sources, texel_light_positions)
+from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
+
+LIGHTS = np.array([[-40.0, 5.0, 50.0], [-20.0, -10.0, 70.0]])
+CAMERA = np.array([-150.0, 0.0, 150.0])
+
+
+@pytest.fixture(scope="module")
+def traced():
+    s = fold_surface(8, 16)
+    T = s.num_texels
+    obs = point_light_observations(s.normals, s.positions, LIGHTS, CAMERA, intensity=1e4)
+    pt = PhotonTracer(RayTracer(s.mesh_vertices, s.mesh_faces), s.texel_index.numpy(), s.positions.numpy(),
+                      s.normals.numpy(), "torrance_sparrow", offset=1e-3)
+    src = light_sources(s, obs, 4)
+    g = torch.Generator().manual_seed(0)
+    pd = 0.2 + 0.6 * torch.rand(T, 3, generator=g, dtype=torch.float64)
+    ps = 0.1 + 0.5 * torch.rand(T, 3, generator=g, dtype=torch.float64)
+    sigma = 0.05 + 0.3 * torch.rand(T, generator=g, dtype=torch.float64)
+    hits = pt.trace(src.positions.reshape(-1, 3), np.repeat(src.intensity, src.num_maps, 0), 3000,
+                    TexelMaterial.from_tensors(pd, ps, sigma), seed=0)
+    return s, obs, pt, src, hits, pd, ps, sigma
+
+
+def cache_of(traced, theta_bin, sigma_max=10.0):
+    s, obs, pt, src, hits, pd, ps, sigma = traced
+    keep = torch.ones(obs.valid.shape, dtype=torch.bool)
+    return build_cache(hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow",
+                       np.full(s.num_texels, 1.0), sigma_max, 0.02, theta_bin=theta_bin)
+
+
+def test_the_cache_reproduces_the_per_photon_sum(traced):
+    s, obs, pt, src, hits, pd, ps, sigma = traced
+    assert hits.count > 500
+    ref = indirect_radiance_reference(hits, src, pt.areas, s.normals, obs.view_dir, "torrance_sparrow",
+                                      obs.kappa, pd, ps, sigma, 0.02)
+    exact = indirect_radiance(cache_of(traced, 1e-12), obs.kappa, pd, ps, sigma)
+    torch.testing.assert_close(exact, ref, rtol=1e-9, atol=1e-12)
+    binned = indirect_radiance(cache_of(traced, 0.004), obs.kappa, pd, ps, sigma)
+    assert float((binned - ref).abs().max() / ref.abs().max()) < 0.02
+
+
+def test_gradcheck_float64(traced):
+    s, obs, pt, src, hits, pd, ps, sigma = traced
+    cache = cache_of(traced, 0.004)
+    assert cache.entry_obs.numel() > 0
+    f = lambda a, b, c: indirect_radiance(cache, obs.kappa, a, b, c)
+    assert torch.autograd.gradcheck(f, (pd.clone().requires_grad_(), ps.clone().requires_grad_(),
+                                        sigma.clone().requires_grad_()))
+
+
+@pytest.mark.parametrize("pd_v,ps_v,sigma_v", [(0.0, 0.0, 1e-4), (1.0, 4.0, 0.6), (0.99, 0.0, 0.01)])
+def test_extremes_are_finite(traced, pd_v, ps_v, sigma_v):
+    s, obs, pt, src, hits, *_ = traced
+    T = s.num_texels
+    pd = torch.full((T, 3), pd_v, dtype=torch.float64, requires_grad=True)
+    ps = torch.full((T, 1), ps_v, dtype=torch.float64, requires_grad=True)
+    sigma = torch.full((T,), sigma_v, dtype=torch.float64, requires_grad=True)
+    out = indirect_radiance(cache_of(traced, 0.004), obs.kappa, pd, ps, sigma)
+    out.sum().backward()
+    for x in (out, pd.grad, ps.grad, sigma.grad):
+        assert torch.isfinite(x).all()
+
+
+def test_texels_no_photon_reaches_get_no_indirect_light_and_finite_gradients(traced):
+    s, obs, pt, src, *_ = traced
+    T = s.num_texels
+    from torchrefl.transport.photon_trace import PhotonHits
+    empty = PhotonHits(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)),
+                       np.zeros(src.positions.shape[0] * src.num_maps, np.int64), 0)
+    cache = build_cache(empty, src, pt.areas, s.normals, obs.view_dir, obs.valid, "torrance_sparrow",
+                        np.full(T, 0.1), 0.6, 0.02)
+    pd = torch.full((T, 3), 0.5, dtype=torch.float64, requires_grad=True)
+    out = indirect_radiance(cache, obs.kappa, pd, torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64))
+    out.sum().backward()
+    assert (out == 0).all() and torch.isfinite(pd.grad).all()
+
+
+def test_float32_agrees_with_float64(traced):
+    s, obs, pt, src, hits, pd, ps, sigma = traced
+    c64 = cache_of(traced, 0.004)
+    a = indirect_radiance(c64, obs.kappa, pd, ps, sigma)
+    b = indirect_radiance(c64.to(torch.float32), obs.kappa.float(), pd.float(), ps.float(), sigma.float())
+    torch.testing.assert_close(b.double(), a, rtol=1e-4, atol=1e-6 * float(a.abs().max()))
+
+
+def test_moving_lights_get_light_maps_that_interpolate_by_column():
+    """On a co-rotating rig each column sees the light from its own position: maps sit at evenly spaced
+    columns with tent weights summing to one, and their positions are the lights the texels saw."""
+    s = fold_surface(4, 16)
+    H, W = s.grid_shape
+    col = s.texel_index % W
+    # a light that moves with the column (rotates about the fold's y axis)
+    angle = (col.double() - 8) * 0.05
+    L = torch.stack([-60 * torch.sin(angle) - 30, torch.zeros_like(angle), 60 * torch.cos(angle)], -1)
+    obs = point_light_observations(s.normals, s.positions, np.zeros((1, 3)), CAMERA)
+    to = L[None] - s.positions[None]
+    dist = to.norm(dim=-1)
+    obs.light_dir, obs.falloff = to / dist[..., None], 1.0 / dist ** 2
+    torch.testing.assert_close(torch.as_tensor(texel_light_positions(s, obs))[0], L)
+    src = light_sources(s, obs, 4)
+    assert src.positions.shape == (1, 4, 3)
+    np.testing.assert_allclose(src.weights.sum(0), 1.0)
+    # each map's position is the light of the texels in its centre columns (2 columns per map on 16 columns)
+    for k in range(4):
+        cols = (col == 4 * k + 1) | (col == 4 * k + 2)
+        np.testing.assert_allclose(src.positions[0, k], L[cols].mean(0).numpy(), atol=1e-9)
+    fixed = point_light_observations(s.normals, s.positions, LIGHTS, CAMERA)
+    one = light_sources(s, fixed, 4)
+    assert one.positions.shape == (2, 1, 3) and np.allclose(one.positions[:, 0], LIGHTS)
