@@ -165,6 +165,7 @@ class PhotonConfig:
     outer_iterations: int = opt(3, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0)
     schedule: str = opt("joint", "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation", choices=("joint", "seed"))
     iterations: Optional[int] = opt(None, "refinement iterations per outer iteration and process (None = fit.iterations)")
+    reinitialise: bool = opt(False, "start every outer iteration from the closed forms on the images minus the cached indirect light")
     min_bounces: int = opt(1, "scatterings before Russian roulette starts", low=0)
     max_bounces: int = opt(16, "cap on scatterings per photon", low=1)
 

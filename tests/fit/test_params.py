@@ -8,13 +8,24 @@ from torchrefl.fit.params import TexelParams, inverse_softplus_b, softplus_b
 def test_round_trip_of_initial_values():
     pd = torch.tensor([[0.0, 1e-4, 0.5], [1.0, 0.02, 2.0]], dtype=torch.float64)
     ps = torch.tensor([[0.3], [1e-5]], dtype=torch.float64)
-    sigma = torch.tensor([0.01, 0.6], dtype=torch.float64)
+    sigma = torch.tensor([0.05, 0.3], dtype=torch.float64)
     p = TexelParams(pd, ps, sigma, 0.01, 0.6, init_floor=1e-6)
     a, b, c = p.values()
     torch.testing.assert_close(a, pd.clamp_min(1e-6), atol=2e-6, rtol=1e-6)
     torch.testing.assert_close(b, ps.clamp_min(1e-6), atol=2e-6, rtol=1e-6)
-    assert (c >= 0.01).all() and (c <= 0.6).all()
     torch.testing.assert_close(c, sigma, atol=1e-6, rtol=0)
+
+
+def test_starts_on_a_bound_are_moved_inside_so_they_can_leave_it():
+    """A sigma started on its bound would be pinned (the sigmoid is flat there): it starts 1 % inside
+    and the gradient with respect to its raw parameter is not negligible."""
+    sigma = torch.tensor([0.01, 0.6], dtype=torch.float64)
+    p = TexelParams(torch.full((2, 3), 0.5), torch.full((2, 1), 0.3), sigma, 0.01, 0.6)
+    c = p.sigma()
+    assert (c > 0.01).all() and (c < 0.6).all()
+    torch.testing.assert_close(c, torch.tensor([0.01 + 0.0059, 0.6 - 0.0059], dtype=c.dtype), atol=1e-4, rtol=0)
+    c.sum().backward()
+    assert (p.raw_sigma.grad > 0.005 * 0.59).all()
 
 
 def test_init_floor_keeps_parameters_movable():

@@ -15,6 +15,7 @@ from torch.nn import functional as F
 
 SHARPNESS = 20.0
 _EDGE = 1e-6
+START_MARGIN = 0.01      # initial values keep this fraction of the range away from a sigmoid bound
 
 
 def softplus_b(x: torch.Tensor) -> torch.Tensor:
@@ -36,6 +37,8 @@ class TexelParams(nn.Module):
 
     Initial Pd and Ps are floored at init_floor: softplus is flat far below zero, so a parameter
     started at ~0 would barely move; any value down to 0 is still reachable by the optimiser.
+    For the same reason initial sigma (and Ps below ps_max) start at least START_MARGIN of their
+    range inside the sigmoid's bounds.
     """
 
     def __init__(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor, sigma_min: float, sigma_max: float,
@@ -52,12 +55,13 @@ class TexelParams(nn.Module):
         self.sigma_min = float(sigma_min)
         self.sigma_max = float(sigma_max)
         span = self.sigma_max - self.sigma_min
-        u = ((sigma - self.sigma_min) / span).clamp(_EDGE, 1 - _EDGE)
+        # a start on a bound would pin the parameter there (the sigmoid's slope vanishes): start just inside
+        u = ((sigma - self.sigma_min) / span).clamp(START_MARGIN, 1 - START_MARGIN)
         self.raw_pd = nn.Parameter(inverse_softplus_b(pd).detach().clone())
         if self.ps_max == float("inf"):
             self.raw_ps = nn.Parameter(inverse_softplus_b(ps).detach().clone())
         else:
-            self.raw_ps = nn.Parameter(torch.logit((ps / self.ps_max).clamp(_EDGE, 1 - _EDGE)).detach().clone())
+            self.raw_ps = nn.Parameter(torch.logit((ps / self.ps_max).clamp(_EDGE, 1 - START_MARGIN)).detach().clone())
         self.raw_sigma = nn.Parameter(torch.logit(u).detach().clone())
 
     def pd(self) -> torch.Tensor:
@@ -73,3 +77,11 @@ class TexelParams(nn.Module):
 
     def values(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return self.pd(), self.ps(), self.sigma()
+
+    def assign(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> None:
+        """Restart from new values (transformed as in __init__), in place."""
+        fresh = TexelParams(pd, ps, sigma, self.sigma_min, self.sigma_max, shared_specular=self.shared_specular,
+                            ps_max=self.ps_max)
+        with torch.no_grad():
+            for name, value in fresh.named_parameters():
+                getattr(self, name).copy_(value.to(getattr(self, name)))

@@ -5,6 +5,9 @@ and refines the texel tensors against local + cached indirect light:
 - joint: all of Pd, Ps, sigma on every fitted observation;
 - seed: the dissertation's alternation, process (a) Pd alone on the T_diff observations, then
   process (b) Ps and sigma alone on the T_spec and T_none observations.
+With a `reinitialise` callback (photon.reinitialise) every outer iteration first restarts from the
+closed forms on the images minus the cached indirect light (the photon analogue of Method II's
+eq. 4.9-4.11), so the start no longer carries the interreflection that the local start absorbed.
 The parameters are scored after every refresh by the mean absolute image difference (8-bit) over the
 fitted observations, with the cache traced at exactly those parameters, and the best are kept: the
 init is scored at refresh 0, the result of outer iteration k at refresh k + 1.
@@ -73,11 +76,12 @@ def image_score(pred: torch.Tensor, intensity: torch.Tensor, mask: torch.Tensor)
 def run_schedule(params: TexelParams, level: PhotonLevel, local_predict: Callable, kappa: torch.Tensor,
                  make_objective: Callable, intensity: torch.Tensor, fit_mask: torch.Tensor, classes: torch.Tensor, *,
                  schedule: str, outer: int, optimizer: str, iterations: int, learning_rate: float,
-                 progress: bool = True, log=print) -> dict:
+                 progress: bool = True, log=print, reinitialise: Callable | None = None) -> dict:
     """Run the outer loop in place on params (left at the best parameters).
 
     local_predict(pd, ps, sigma) -> (P, T, 3) direct light; make_objective(predict, weight) -> Objective;
-    fit_mask (P, T) fitted observations; classes (P, T) observation classes (for the seed schedule).
+    fit_mask (P, T) fitted observations; classes (P, T) observation classes (for the seed schedule);
+    reinitialise(direct_only (P, T, 3)) -> (pd, ps, sigma) or None.
     Returns history (losses), scores (one per refresh), best (refresh index), cache (at the best
     parameters) and predict (the photon-level model with that cache).
     """
@@ -105,6 +109,10 @@ def run_schedule(params: TexelParams, level: PhotonLevel, local_predict: Callabl
             best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, cache)
         if k == outer:
             break
+        if reinitialise is not None:
+            with torch.no_grad():
+                direct_only = intensity - indirect_radiance(cache, kappa, *values)
+            params.assign(*(x.to(intensity) for x in reinitialise(direct_only)))
         if schedule == "joint":
             steps = [(None, masks["all"], "joint")]
         else:

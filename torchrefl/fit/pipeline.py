@@ -167,10 +167,18 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             plevel = _photon_setup(cfg, surface, obs, fit_mask | eval_mask, device, dt)
             log(f"photon level: {plevel.sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
                 f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}")
+
+            def reinitialise(direct_only):
+                fresh = initialise_local(terms, direct_only.cpu().to(obs.intensity.dtype), cls, counts["T_spec"],
+                                         fit_mask, surface, **init_kw)
+                priors[0] = Prior((~fresh.known).to(device), fresh.ps.to(device), fresh.sigma.to(device), fc.prior_weight)
+                return fresh.pd, fresh.ps, fresh.sigma
+
             photon = run_schedule(params, plevel, local_model, obs.kappa.to(device), make_objective, intensity,
                                   fit_mask, cls, schedule=pc.schedule, outer=pc.outer_iterations,
                                   optimizer=fc.optimizer, iterations=pc.iterations if pc.iterations is not None else fc.iterations,
-                                  learning_rate=fc.learning_rate, progress=cfg.output.progress, log=log)
+                                  learning_rate=fc.learning_rate, progress=cfg.output.progress, log=log,
+                                  reinitialise=reinitialise if pc.reinitialise else None)
             model, history = photon["predict"], photon["history"] or [photon["scores"][0]]
         else:
             objective = make_objective(model, fit_mask)

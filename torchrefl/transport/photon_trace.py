@@ -1,7 +1,8 @@
 """Photon tracing with Embree (Method III, dissertation Ch.5): light paths from point lights over the texel mesh.
 
 Photons are aimed at the object: a photon of source s (position L, radiant intensity Y, RGB) first
-lands on texel t with probability proportional to the texel's unshadowed direct flux geometry
+lands on texel t with probability proportional to the texel's unshadowed direct flux geometry (drawn by
+systematic sampling)
     a_t = A_t max(n_t.l, 0) vis_t / |L - x_t|^2          (vis by an Embree shadow ray),
 which is exactly the density of a ray from L whose first hit is t, so every photon carries the same
     Phi = Y * sum_t a_t / N                              (N photons of that source),
@@ -184,8 +185,12 @@ class PhotonTracer:
         out_t, out_d, out_p = [], [], []
         if total <= 0:
             return [out_t, out_d, out_p], 0
-        cdf = np.cumsum(a / total)
-        texel = np.minimum(np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right"), len(a) - 1)
+        # systematic sampling: n stratified positions on the cdf (lower variance than independent draws, O(T + n),
+        # and the photons come out ordered by texel, which keeps the rays coherent)
+        edges = np.floor(np.concatenate([[0.0], np.cumsum(a / total)]) * n + rng.random())
+        counts = np.diff(edges).astype(np.int64)
+        texel = np.repeat(np.arange(len(a)), counts)
+        n = len(texel)
         y = self.positions[texel]
         wi = np.asarray(source, dtype=np.float64)[None] - y
         wi /= np.linalg.norm(wi, axis=1, keepdims=True)
