@@ -51,3 +51,24 @@ def test_auto_models_the_interreflection(runs):
     m = runs["auto"]
     assert m["model"] in ("radiosity", "photon") and m["model_numbers"]["diffuse_interreflection_dn_p999"] > 0.5
     assert "auto chose" in m["model_reason"]
+
+
+@pytest.fixture(scope="module")
+def glossy(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("oe2")
+    cfg = tmp / "oe2.yaml"
+    small = {**SMALL_E, "synthetic": {**SMALL_E["synthetic"], "object": "object_e_glossy"},
+             "photon": {"photons_per_light": 100_000, "outer_iterations": 1}, "fit": {"iterations": 20}}
+    cfg.write_text(yaml.safe_dump(small))
+    assert main([str(cfg), f"output.dir={tmp / 'auto'}", "fit.model=auto", "--quiet"]) == 0
+    return json.loads((tmp / "auto" / "metrics.json").read_text())
+
+
+def test_auto_picks_the_photon_level_for_glossy_interreflection(glossy):
+    m = glossy
+    assert m["model"] == "photon", m["model_reason"]
+    numbers = m["model_numbers"]
+    assert numbers["specular_interreflection_dn_p999"] > numbers["noise_floor_dn"]
+    assert "auto chose photon" in m["model_reason"]
+    p = m["photon"]
+    assert len(p["image_difference_per_refresh"]) == 2 and p["cache"]["stored_hits"] > 0

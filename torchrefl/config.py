@@ -166,6 +166,7 @@ class PhotonConfig:
     schedule: str = opt("joint", "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation", choices=("joint", "seed"))
     iterations: Optional[int] = opt(None, "refinement iterations per outer iteration and process (None = fit.iterations)")
     reinitialise: bool = opt(False, "start every outer iteration from the closed forms on the images minus the cached indirect light")
+    smoothing: float = opt(1.0, "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each texel's own photons)", low=0.0)
     min_bounces: int = opt(1, "scatterings before Russian roulette starts", low=0)
     max_bounces: int = opt(16, "cap on scatterings per photon", low=1)
 

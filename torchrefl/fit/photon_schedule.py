@@ -3,8 +3,9 @@
 Each outer iteration re-traces the photons with the current parameters (the cache is then fixed)
 and refines the texel tensors against local + cached indirect light:
 - joint: all of Pd, Ps, sigma on every fitted observation;
-- seed: the dissertation's alternation, process (a) Pd alone on the T_diff observations, then
-  process (b) Ps and sigma alone on the T_spec and T_none observations.
+- seed: the dissertation's alternation, process (a) Pd alone on the T_diff observations (on all
+  fitted observations of a texel that has none in T_diff), then process (b) Ps and sigma alone on
+  the T_spec and T_none observations.
 With a `reinitialise` callback (photon.reinitialise) every outer iteration first restarts from the
 closed forms on the images minus the cached indirect light (the photon analogue of Method II's
 eq. 4.9-4.11), so the start no longer carries the interreflection that the local start absorbed.
@@ -47,6 +48,8 @@ class PhotonLevel:
     seed: int
     dtype: torch.dtype
     device: torch.device
+    smoothing: float = 0.0
+    grid: tuple | None = None
 
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
@@ -64,7 +67,7 @@ class PhotonLevel:
                                      per_map, mat, seed=self.seed, refresh=refresh, progress=tick)
         cache = build_cache(hits, self.sources, self.tracer.areas, self.tracer.normals, self.view_dirs, self.keep,
                             self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
-                            self.min_cos_light, dtype=self.dtype)
+                            self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid)
         return cache.to(self.dtype, self.device)
 
 
@@ -90,7 +93,9 @@ def run_schedule(params: TexelParams, level: PhotonLevel, local_predict: Callabl
     device = intensity.device
     fit_mask = fit_mask.to(device)
     cls = classes.to(device)
-    masks = {"all": fit_mask, "diffuse": fit_mask & (cls == T_DIFF),
+    diffuse = fit_mask & (cls == T_DIFF)
+    no_diffuse = ~diffuse.any(0)                  # texels without a T_diff observation: Pd from all of theirs
+    masks = {"all": fit_mask, "diffuse": diffuse | (fit_mask & no_diffuse[None]),
              "specular": fit_mask & ((cls == T_SPEC) | (cls == T_NONE))}
     model_for = lambda c: (lambda pd, ps, sg: local_predict(pd, ps, sg) + indirect_radiance(c, kappa, pd, ps, sg))
     history: list[float] = []

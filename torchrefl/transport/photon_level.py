@@ -15,6 +15,12 @@ the photon estimate of kappa * sum_k f_t(wi_k, v_pt) Phi_k / A_t with f = g / co
 Photons reaching the texel at n.wi <= min_cos_light feed H but not the specular sum (the fitter
 does not use grazing light either).
 
+Density estimation. A texel's H from its own photons is noisy (a few photons per light and texel);
+with `smoothing` > 0 (texels) H is a Gaussian-weighted mean over neighbouring texels of the grid
+(normalised convolution over valid texels, kornia.filters.gaussian_blur2d): the photon-map gather
+radius, trading noise for blur where the indirect light changes fast (at a fold). The specular
+entries stay per texel.
+
 Moving lights. On the cylindrical rig the lights co-rotate with the scan, so each texel column sees
 light p from its own position L_pt = x_t + l_pt / sqrt(falloff_pt). `light_sources` places K
 sources per light at evenly spaced columns; a texel's indirect light is the linear (tent)
@@ -109,13 +115,34 @@ class PhotonCache:
                            mv(self.entry_weight), dict(self.stats))
 
 
+def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: tuple[int, int], sigma: float) -> torch.Tensor:
+    """Normalised Gaussian smoothing (std `sigma` texels) of per-texel values (..., T, C) over the grid."""
+    if sigma <= 0:
+        return values
+    from kornia.filters import gaussian_blur2d
+
+    H, W = grid_shape
+    lead, (T, C) = values.shape[:-2], values.shape[-2:]
+    flat = values.reshape(-1, T, C).permute(0, 2, 1).reshape(-1, T)            # (B*C, T)
+    grid = torch.zeros(flat.shape[0] + 1, H * W, dtype=values.dtype)
+    grid[:-1, texel_index] = flat
+    grid[-1, texel_index] = 1.0                                                  # the valid mask
+    k = 2 * int(math.ceil(3 * sigma)) + 1
+    blurred = gaussian_blur2d(grid.reshape(1, -1, H, W), (k, k), (sigma, sigma), border_type="constant")
+    blurred = blurred.reshape(-1, H * W)[:, texel_index]
+    out = blurred[:-1] / blurred[-1:].clamp_min(1e-12)
+    return out.reshape(-1, C, T).permute(0, 2, 1).reshape(*lead, T, C)
+
+
 def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
-                sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN) -> PhotonCache:
+                sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
+                smoothing: float = 0.0, grid=None) -> PhotonCache:
     """Reduce photon hits to the cache.
 
     hits: from PhotonTracer.trace over sources.positions.reshape(-1, 3) (source s = p * K + k);
     areas (T,), normals (T, 3), view_dirs (T, 3) or (P, T, 3); keep (P, T) bool observations that are
-    predicted (fitted or evaluated); sigma (T,) current roughness (prunes the specular entries).
+    predicted (fitted or evaluated); sigma (T,) current roughness (prunes the specular entries);
+    smoothing: std of the Gaussian density-estimation kernel in texels (needs grid = (texel_index, grid_shape)).
     """
     P, K = sources.positions.shape[:2]
     T = int(areas.shape[0])
@@ -167,7 +194,12 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
             empty = (torch.from_numpy(entry_obs), torch.from_numpy(mean_theta).to(dtype), torch.from_numpy(wsum).to(dtype))
             stats["specular_photons"] = int(cnt.sum())
     stats["specular_entries"] = int(empty[0].numel())
-    return PhotonCache(brdf, torch.from_numpy(H.reshape(P, T, 3)).to(dtype), *empty, stats=stats)
+    irradiance = torch.from_numpy(H.reshape(P, T, 3))
+    if smoothing > 0:
+        if grid is None:
+            raise ConfigError("photon.smoothing > 0 needs the texel grid (texel_index, grid_shape)")
+        irradiance = smooth_on_grid(irradiance, grid[0], grid[1], smoothing)
+    return PhotonCache(brdf, irradiance.to(dtype), *empty, stats=stats)
 
 
 def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor, ps: torch.Tensor,
