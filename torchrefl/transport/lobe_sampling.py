@@ -122,13 +122,58 @@ def mixture_pdf(lobe: str | None, n, v, l, pd, ps, sigma) -> np.ndarray:
     return p
 
 
-def sample_mixture(lobe: str | None, n, v, pd, ps, sigma, u) -> tuple[np.ndarray, np.ndarray]:
+def _combine(t, b, n, x, y, z) -> np.ndarray:
+    """x t + y b + z n, with few temporaries."""
+    d = t * x[:, None]
+    d += b * y[:, None]
+    d += n * z[:, None]
+    return d
+
+
+def _lobe_theta(lobe: str, sigma: np.ndarray, u1: np.ndarray) -> np.ndarray:
+    """theta_h drawn from the lobe's half-vector distribution (see sample_lobe)."""
+    if lobe == "torrance_sparrow":
+        theta = sigma * np.sqrt(-2.0 * np.log1p(-u1 * -np.expm1(-(np.pi / 2) ** 2 / (2 * sigma * sigma))))
+        return np.minimum(theta, np.pi / 2)
+    if lobe == "ward":
+        return np.arctan(sigma * np.sqrt(-np.log(np.maximum(1.0 - u1, 1e-300))))
+    raise GeometryError(f"synthetic.brdf: no lobe sampler for '{lobe}'")
+
+
+def sample_mixture(lobe: str | None, n, v, pd, ps, sigma, u, frame=None, q=None, with_cos_h: bool = False):
     """Directions (N, 3) about normals n with the lobe mirrored from v, and their pdf (N,), from
-    uniforms u (N, 3) (u[:, 2] picks the component)."""
-    q = specular_probability(lobe, pd, ps)
+    uniforms u (N, 3) (u[:, 2] picks the component).
+
+    The same distribution as sample_cosine / sample_lobe chosen by u[:, 2] < q with the pdf of
+    mixture_pdf, fused into one pass (one tangent frame, one half vector): the photon tracer's hot path.
+    frame: precomputed tangent_frame(n); q: precomputed specular_probability(lobe, pd, ps) (then pd and ps
+    are not read); with_cos_h: also return n.h (N,) of the half vector h = normalize(l + v).
+    """
+    t, b = tangent_frame(n) if frame is None else frame
+    u1 = u[:, 0]
+    phi = 2 * np.pi * u[:, 1]
+    cphi, sphi = np.cos(phi), np.sin(phi)
+    if lobe is None:
+        st, ct = np.sqrt(u1), np.sqrt(np.maximum(1.0 - u1, 0.0))
+        l = _combine(t, b, n, st * cphi, st * sphi, ct)
+        if with_cos_h:
+            h = l + v
+            return l, ct / np.pi, row_dot(n, h) / np.maximum(np.sqrt(row_dot(h, h)), 1e-300)
+        return l, ct / np.pi
+    q = specular_probability(lobe, pd, ps) if q is None else q
     spec = u[:, 2] < q
-    l = sample_cosine(n, u[:, 0], u[:, 1])
-    if spec.any():
-        i = np.flatnonzero(spec)
-        l[i] = sample_lobe(lobe, n[i], v[i], sigma[i], u[i, 0], u[i, 1])
-    return l, mixture_pdf(lobe, n, v, l, pd, ps, sigma)
+    sig = np.maximum(sigma, brdf_mod.SIGMA_EPS)
+    theta = _lobe_theta(lobe, sig, u1)
+    st = np.where(spec, np.sin(theta), np.sqrt(u1))
+    ct = np.where(spec, np.cos(theta), np.sqrt(np.maximum(1.0 - u1, 0.0)))
+    d = _combine(t, b, n, st * cphi, st * sphi, ct)
+    l = np.where(spec[:, None], 2.0 * row_dot(v, d)[:, None] * d - v, d)
+    # pdf of the mixture at l (the half vector of the lobe samples is d itself, up to rounding)
+    h = l + v
+    norm = np.sqrt(row_dot(h, h))
+    h /= np.maximum(norm, 1e-300)[:, None]
+    cos_h = row_dot(n, h)
+    vh = np.abs(row_dot(v, h))
+    p_lobe = np.where(norm > 1e-12, half_vector_pdf(lobe, np.abs(cos_h), sig) / np.maximum(4.0 * vh, 1e-300), 0.0)
+    pdf = (1.0 - q) * np.maximum(row_dot(n, l), 0.0) / np.pi + q * p_lobe
+    return (l, pdf, cos_h) if with_cos_h else (l, pdf)

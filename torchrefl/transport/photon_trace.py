@@ -35,7 +35,7 @@ import torch
 from torchrefl import brdf as brdf_mod
 from torchrefl.errors import GeometryError
 from torchrefl.rays import RayTracer
-from torchrefl.transport.lobe_sampling import LOBES, row_dot, sample_mixture
+from torchrefl.transport.lobe_sampling import LOBES, row_dot, sample_mixture, specular_probability, tangent_frame
 
 CHUNK = 1 << 17          # photons per work unit
 
@@ -68,6 +68,7 @@ class TexelMaterial:
     pd: np.ndarray
     ps: np.ndarray
     sigma: np.ndarray
+    q: np.ndarray | None = None          # specular sampling probability per texel (set by PhotonTracer.trace)
 
     @classmethod
     def from_tensors(cls, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> "TexelMaterial":
@@ -114,6 +115,7 @@ class PhotonTracer:
         if faces.size and (self.vertex_texel[faces] < 0).any():
             raise GeometryError("photon tracing: some mesh faces use grid points that are not texels")
         self.faces = faces
+        self.frame_t, self.frame_b = tangent_frame(self.normals)
         verts = np.asarray(tracer.vertices, dtype=np.float64)
         fa = 0.5 * np.linalg.norm(np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1)
         fn = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]) if faces.size else np.zeros((0, 3))
@@ -147,32 +149,44 @@ class PhotonTracer:
         corner = np.argmax(w, axis=1)
         return self.vertex_texel[self.faces[triangle, corner]]
 
-    def shading_normals(self, texel: np.ndarray, triangle: np.ndarray, wi: np.ndarray) -> np.ndarray:
+    def shading_normals(self, texel: np.ndarray, triangle: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The texel's normal, or the hit face's where the texel normal faces away from wi (a photon arriving
-        at a grazing angle on a curved or folded mesh: the smooth normal would absorb it)."""
+        at a grazing angle on a curved or folded mesh: the smooth normal would absorb it); and (N,) bool
+        True where it is the texel's own."""
         n = self.normals[texel]
-        bad = row_dot(n, wi) <= 1e-6
-        if bad.any():
-            n = n.copy()
-            n[bad] = self.face_normals[triangle[bad]]
-        return n
+        own = row_dot(n, wi) > 1e-6
+        if not own.all():
+            n[~own] = self.face_normals[triangle[~own]]
+        return n, own
 
-    def _g(self, n, l, v, pd, ps, sigma) -> np.ndarray:
-        t = lambda x: torch.from_numpy(np.ascontiguousarray(x, dtype=np.float64))
-        with torch.no_grad():
-            return brdf_mod.cosine_weighted_brdf(self.brdf, t(n), t(l), t(v), t(pd), t(ps), t(sigma)).numpy()
-
-    def scatter(self, n, wi, texel, mat: TexelMaterial, u) -> tuple[np.ndarray, np.ndarray]:
-        """Outgoing directions (N, 3) and weights (N, 3) f cos_o / pdf for photons arriving along -wi."""
+    def scatter(self, n, wi, texel, mat: TexelMaterial, u, own_normal=None) -> tuple[np.ndarray, np.ndarray]:
+        """Outgoing directions (N, 3) and weights (N, 3) f cos_o / pdf for photons arriving along -wi.
+        own_normal (N,) bool: n is the texel's normal (its precomputed tangent frame is used)."""
         pd, ps, sg = mat.pd[texel], mat.ps[texel], mat.sigma[texel]
-        wo, pdf = sample_mixture(self.lobe, n, wi, pd, ps, sg, u)
+        if own_normal is None or own_normal.all():
+            frame = (self.frame_t[texel], self.frame_b[texel])
+        else:
+            frame = tangent_frame(n)
+        q = None if mat.q is None else mat.q[texel]
+        wo, pdf, cos_h = sample_mixture(self.lobe, n, wi, pd, ps, sg, u, frame=frame, q=q, with_cos_h=True)
         cos_o = row_dot(n, wo)
         cos_i = row_dot(n, wi)
         ok = (pdf > 0) & (cos_o > 0)
         w = np.zeros((len(n), 3))
         if ok.any():
             i = np.flatnonzero(ok)
-            w[i] = self._g(n[i], wi[i], wo[i], pd[i], ps[i], sg[i]) * (cos_o[i] / (cos_i[i] * pdf[i]))[:, None]
+            # g(n, l=wi, v=wo) = Pd cos_i / pi + Ps D(theta_h) G(cos_i, cos_o): the decomposition of torchrefl.brdf
+            # that the local terms use, evaluated from the sampler's half vector
+            g = pd[i] * (np.maximum(cos_i[i], 0.0) / np.pi)[:, None]
+            if self.lobe is not None:
+                c = np.clip(cos_h[i], -1.0, 1.0)
+                t = lambda x: torch.from_numpy(np.ascontiguousarray(x))
+                theta_h = np.arctan2(np.sqrt(np.maximum(1.0 - c * c, 0.0)), c)
+                with torch.no_grad():
+                    spec = (brdf_mod.specular_lobe(self.brdf, t(theta_h), t(sg[i]))
+                            * brdf_mod.specular_geometry(self.brdf, t(cos_i[i]), t(cos_o[i]))).numpy()
+                g += ps[i] * spec[:, None]
+            w[i] = g * (cos_o[i] / (cos_i[i] * pdf[i]))[:, None]
         return wo, w
 
     # ------------------------------------------------------------------ paths
@@ -196,6 +210,7 @@ class PhotonTracer:
         wi /= np.linalg.norm(wi, axis=1, keepdims=True)
         power = np.broadcast_to(intensity * (total / n_total), (n, 3)).copy()
         n_t = self.normals[texel]
+        own = None
         rays = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
@@ -208,17 +223,17 @@ class PhotonTracer:
                 texel = self.hit_texels(hits.triangle[keep], hits.barycentric[keep])
                 wi = -d[keep]
                 power = power[keep]
-                n_t = self.shading_normals(texel, hits.triangle[keep], wi)
+                n_t, own = self.shading_normals(texel, hits.triangle[keep], wi)
                 front = row_dot(self.face_normals[hits.triangle[keep]], wi) > 0
                 if not front.all():
-                    y, texel, wi, power, n_t = y[front], texel[front], wi[front], power[front], n_t[front]
+                    y, texel, wi, power, n_t, own = y[front], texel[front], wi[front], power[front], n_t[front], own[front]
             if depth > 0 and len(texel):
                 out_t.append(texel)
                 out_d.append(wi)
                 out_p.append(power)
             if depth == self.max_bounces or not len(texel):
                 break
-            wo, w = self.scatter(n_t, wi, texel, mat, rng.random((len(texel), 3)))
+            wo, w = self.scatter(n_t, wi, texel, mat, rng.random((len(texel), 3)), own_normal=own)
             power = power * w
             if depth + 1 > self.min_bounces:
                 q = np.minimum(0.95, w.max(-1))
@@ -244,6 +259,8 @@ class PhotonTracer:
         done = [0]
         for s in range(S):                 # shadow rays of the landing densities, before the threads start
             self.landing(sources[s])
+        if mat.q is None and self.lobe is not None:
+            mat.q = specular_probability(self.lobe, mat.pd, mat.ps)
 
         def work(k: int) -> None:
             s, a, b = units[k]
