@@ -50,6 +50,7 @@ class PhotonLevel:
     device: torch.device
     smoothing: float = 0.0
     grid: tuple | None = None
+    linear_emitters: bool = False
 
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
@@ -67,7 +68,8 @@ class PhotonLevel:
                                      per_map, mat, seed=self.seed, refresh=refresh, progress=tick)
         cache = build_cache(hits, self.sources, self.tracer.areas, self.tracer.normals, self.view_dirs, self.keep,
                             self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
-                            self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid)
+                            self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
+                            emitter_pd=mat.pd if self.linear_emitters else None)
         return cache.to(self.dtype, self.device)
 
 

@@ -8,9 +8,14 @@ bounces, torchrefl.transport.photon_trace) bring:
            merged over photons of the same (p, t) whose theta_h falls in the same bin (power-weighted
            mean theta_h), kept only for fitted or evaluated observations and where the lobe at the
            texel's current roughness (times 3, capped at sigma_max) is above 1e-7.
-w_k are the light-position weights below. The reflected indirect light is then differentiable in
-the receiving texel's parameters:
-    i_ind(p, t) = kappa * ( Pd_t / pi * H_pt + Ps_t * sum_entries D(theta_h; sigma_t) c )
+w_k are the light-position weights below. H is kept linear in the Pd of the texel each photon was
+last scattered from (its emitter e_k): the part of Phi_k that the emitter's diffuse reflection
+carries is exactly proportional to Pd_e at that bounce, so
+    H_pt(Pd) = H0_pt + sum_k L_k Pd_{e_k},   L_k = Phi_k^diffuse-per-unit-Pd w_k / A_t
+(a sparse (light, texel) x texel matrix per channel), which makes the last bounce exact and
+differentiable in the emitters' Pd between refreshes; earlier bounces stay as traced. The reflected
+indirect light is differentiable in the receiving texel's parameters and in the emitters' Pd:
+    i_ind(p, t) = kappa * ( Pd_t / pi * H_pt(Pd) + Ps_t * sum_entries D(theta_h; sigma_t) c )
 the photon estimate of kappa * sum_k f_t(wi_k, v_pt) Phi_k / A_t with f = g / cos_i (torchrefl.brdf).
 Photons reaching the texel at n.wi <= min_cos_light feed H but not the specular sum (the fitter
 does not use grazing light either).
@@ -100,7 +105,9 @@ def light_sources(surface, obs, max_maps: int) -> LightSources:
 
 @dataclass
 class PhotonCache:
-    """irradiance (P, T, 3); entry_obs (E,) flat p*T + t; entry_theta_h (E,); entry_weight (E, 3)."""
+    """irradiance (P, T, 3) H0 (smoothed); entry_obs (E,) flat p*T + t; entry_theta_h (E,); entry_weight (E, 3);
+    linear: sparse (3 P T, 3 T) L, rows c P T + p T + t, columns c T + e, or None; smoothing, grid: the
+    density-estimation kernel applied to L Pd (H0 is stored smoothed)."""
 
     brdf: str
     irradiance: torch.Tensor
@@ -108,11 +115,26 @@ class PhotonCache:
     entry_theta_h: torch.Tensor
     entry_weight: torch.Tensor
     stats: dict = field(default_factory=dict)
+    linear: torch.Tensor | None = None
+    smoothing: float = 0.0
+    grid: tuple | None = None
 
     def to(self, dtype: torch.dtype, device=None) -> "PhotonCache":
         mv = lambda x: x.to(device=device, dtype=dtype if x.is_floating_point() else x.dtype)
         return PhotonCache(self.brdf, mv(self.irradiance), mv(self.entry_obs), mv(self.entry_theta_h),
-                           mv(self.entry_weight), dict(self.stats))
+                           mv(self.entry_weight), dict(self.stats), None if self.linear is None else mv(self.linear),
+                           self.smoothing, self.grid)
+
+    def irradiance_at(self, pd: torch.Tensor) -> torch.Tensor:
+        """(P, T, 3) H(Pd) for texel Pd (T, 3)."""
+        if self.linear is None:
+            return self.irradiance
+        P, T, _ = self.irradiance.shape
+        lin = torch.sparse.mm(self.linear, pd.t().reshape(-1, 1).to(self.irradiance.dtype))
+        lin = lin.reshape(3, P, T).permute(1, 2, 0)
+        if self.smoothing > 0:
+            lin = smooth_on_grid(lin, self.grid[0], self.grid[1], self.smoothing)
+        return self.irradiance + lin
 
 
 def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: tuple[int, int], sigma: float) -> torch.Tensor:
@@ -136,13 +158,14 @@ def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: 
 
 def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
                 sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
-                smoothing: float = 0.0, grid=None) -> PhotonCache:
+                smoothing: float = 0.0, grid=None, emitter_pd=None) -> PhotonCache:
     """Reduce photon hits to the cache.
 
     hits: from PhotonTracer.trace over sources.positions.reshape(-1, 3) (source s = p * K + k);
     areas (T,), normals (T, 3), view_dirs (T, 3) or (P, T, 3); keep (P, T) bool observations that are
     predicted (fitted or evaluated); sigma (T,) current roughness (prunes the specular entries);
-    smoothing: std of the Gaussian density-estimation kernel in texels (needs grid = (texel_index, grid_shape)).
+    smoothing: std of the Gaussian density-estimation kernel in texels (needs grid = (texel_index, grid_shape));
+    emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd.
     """
     P, K = sources.positions.shape[:2]
     T = int(areas.shape[0])
@@ -155,6 +178,17 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     obs_idx = p * T + t
     for c in range(3):
         H[:, c] = np.bincount(obs_idx, weights=flux[:, c], minlength=P * T)
+    linear = None
+    if emitter_pd is not None and hits.emitter is not None and hits.count:
+        lin = hits.diffuse_per_pd * (sources.weights[k, t] / A[t])[:, None]          # (N, 3) per unit Pd
+        e = hits.emitter
+        pd_ref = np.asarray(emitter_pd, dtype=np.float64)
+        for c in range(3):
+            H[:, c] -= np.bincount(obs_idx, weights=lin[:, c] * pd_ref[e, c], minlength=P * T)
+        rows = np.concatenate([c * P * T + obs_idx for c in range(3)])
+        cols = np.concatenate([c * T + e for c in range(3)])
+        linear = torch.sparse_coo_tensor(torch.from_numpy(np.stack([rows, cols])), torch.from_numpy(lin.T.reshape(-1)),
+                                         (3 * P * T, 3 * T), check_invariants=False).coalesce().to(dtype)
     stats = {"stored_hits": hits.count, "rays": hits.rays, "photons_emitted": int(hits.emitted.sum()),
              "maps_per_light": K}
     empty = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=dtype), torch.zeros(0, 3, dtype=dtype))
@@ -199,14 +233,16 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
         if grid is None:
             raise ConfigError("photon.smoothing > 0 needs the texel grid (texel_index, grid_shape)")
         irradiance = smooth_on_grid(irradiance, grid[0], grid[1], smoothing)
-    return PhotonCache(brdf, irradiance.to(dtype), *empty, stats=stats)
+    if linear is not None:
+        stats["linear_entries"] = int(linear._nnz())
+    return PhotonCache(brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoothing=smoothing, grid=grid)
 
 
 def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor, ps: torch.Tensor,
                       sigma: torch.Tensor) -> torch.Tensor:
     """(P, T, 3) sensor value of the reflected indirect light for pd (T, 3), ps (T, C), sigma (T,);
     differentiable in all three."""
-    H = cache.irradiance
+    H = cache.irradiance_at(pd)
     P, T, _ = H.shape
     out = (pd[None] / math.pi) * H
     if cache.entry_obs.numel():

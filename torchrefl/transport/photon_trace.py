@@ -45,7 +45,10 @@ class PhotonHits:
     """Stored photon hits (second and later bounces) of all sources.
 
     source: (N,) int64 index of the emitting source; texel: (N,) int64 receiving texel;
-    direction: (N, 3) unit incident direction wi; power: (N, 3) flux Phi.
+    direction: (N, 3) unit incident direction wi; power: (N, 3) flux Phi;
+    emitter: (N,) int64 texel of the photon's last scattering; diffuse_per_pd: (N, 3) the share of Phi
+    that is linear in the emitter's Pd, per unit Pd: Phi (cos_i / pi) / g at that scattering, so that
+    Phi(Pd') = Phi + diffuse_per_pd (Pd' - Pd) exactly for the last bounce.
     emitted: (S,) photons emitted per source; rays: closest-hit rays traced in all.
     """
 
@@ -55,6 +58,8 @@ class PhotonHits:
     power: np.ndarray
     emitted: np.ndarray
     rays: int
+    emitter: np.ndarray | None = None
+    diffuse_per_pd: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -159,8 +164,9 @@ class PhotonTracer:
             n[~own] = self.face_normals[triangle[~own]]
         return n, own
 
-    def scatter(self, n, wi, texel, mat: TexelMaterial, u, own_normal=None) -> tuple[np.ndarray, np.ndarray]:
-        """Outgoing directions (N, 3) and weights (N, 3) f cos_o / pdf for photons arriving along -wi.
+    def scatter(self, n, wi, texel, mat: TexelMaterial, u, own_normal=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Outgoing directions (N, 3), weights (N, 3) f cos_o / pdf for photons arriving along -wi, and the
+        part of the weight per unit Pd (N,) (cos_i / pi) cos_o / (cos_i pdf) = cos_o / (pi pdf).
         own_normal (N,) bool: n is the texel's normal (its precomputed tangent frame is used)."""
         pd, ps, sg = mat.pd[texel], mat.ps[texel], mat.sigma[texel]
         if own_normal is None or own_normal.all():
@@ -173,6 +179,7 @@ class PhotonTracer:
         cos_i = row_dot(n, wi)
         ok = (pdf > 0) & (cos_o > 0)
         w = np.zeros((len(n), 3))
+        w_pd = np.zeros(len(n))
         if ok.any():
             i = np.flatnonzero(ok)
             # g(n, l=wi, v=wo) = Pd cos_i / pi + Ps D(theta_h) G(cos_i, cos_o): the decomposition of torchrefl.brdf
@@ -186,8 +193,10 @@ class PhotonTracer:
                     spec = (brdf_mod.specular_lobe(self.brdf, t(theta_h), t(sg[i]))
                             * brdf_mod.specular_geometry(self.brdf, t(cos_i[i]), t(cos_o[i]))).numpy()
                 g += ps[i] * spec[:, None]
-            w[i] = g * (cos_o[i] / (cos_i[i] * pdf[i]))[:, None]
-        return wo, w
+            scale = cos_o[i] / (cos_i[i] * pdf[i])
+            w[i] = g * scale[:, None]
+            w_pd[i] = np.where(cos_i[i] > 0, cos_i[i] / np.pi, 0.0) * scale
+        return wo, w, w_pd
 
     # ------------------------------------------------------------------ paths
 
@@ -196,9 +205,9 @@ class PhotonTracer:
         """n photons of one source (out of n_total for that source); returns ([texel, wi, power] arrays, rays)."""
         a = self.landing(source)
         total = float(a.sum())
-        out_t, out_d, out_p = [], [], []
+        out_t, out_d, out_p, out_e, out_k = [], [], [], [], []
         if total <= 0:
-            return [out_t, out_d, out_p], 0
+            return [out_t, out_d, out_p, out_e, out_k], 0
         # systematic sampling: n stratified positions on the cdf (lower variance than independent draws, O(T + n),
         # and the photons come out ordered by texel, which keeps the rays coherent)
         edges = np.floor(np.concatenate([[0.0], np.cumsum(a / total)]) * n + rng.random())
@@ -211,6 +220,7 @@ class PhotonTracer:
         power = np.broadcast_to(intensity * (total / n_total), (n, 3)).copy()
         n_t = self.normals[texel]
         own = None
+        emitter = per_pd = None
         rays = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
@@ -222,31 +232,37 @@ class PhotonTracer:
                 y = origin[keep] + hits.distance[keep, None] * d[keep]
                 texel = self.hit_texels(hits.triangle[keep], hits.barycentric[keep])
                 wi = -d[keep]
-                power = power[keep]
+                power, emitter, per_pd = power[keep], emitter[keep], per_pd[keep]
                 n_t, own = self.shading_normals(texel, hits.triangle[keep], wi)
                 front = row_dot(self.face_normals[hits.triangle[keep]], wi) > 0
                 if not front.all():
                     y, texel, wi, power, n_t, own = y[front], texel[front], wi[front], power[front], n_t[front], own[front]
+                    emitter, per_pd = emitter[front], per_pd[front]
             if depth > 0 and len(texel):
                 out_t.append(texel)
                 out_d.append(wi)
                 out_p.append(power)
+                out_e.append(emitter)
+                out_k.append(per_pd)
             if depth == self.max_bounces or not len(texel):
                 break
-            wo, w = self.scatter(n_t, wi, texel, mat, rng.random((len(texel), 3)), own_normal=own)
+            wo, w, w_pd = self.scatter(n_t, wi, texel, mat, rng.random((len(texel), 3)), own_normal=own)
+            per_pd = power * w_pd[:, None]
             power = power * w
             if depth + 1 > self.min_bounces:
                 q = np.minimum(0.95, w.max(-1))
                 live = rng.random(len(q)) < q
                 power = power[live] / q[live, None]
+                per_pd = per_pd[live] / q[live, None]
             else:
                 live = w.max(-1) > 0
-                power = power[live]
+                power, per_pd = power[live], per_pd[live]
+            emitter = texel[live]
             origin = y[live] + self.offset * n_t[live]
             d = wo[live]
             if not len(d):
                 break
-        return [out_t, out_d, out_p], rays
+        return [out_t, out_d, out_p, out_e, out_k], rays
 
     def trace(self, sources: np.ndarray, intensities: np.ndarray, photons_per_source: int, mat: TexelMaterial,
               seed: int, refresh: int = 0, progress=None) -> PhotonHits:
@@ -276,15 +292,18 @@ class PhotonTracer:
         else:
             for k in range(len(units)):
                 work(k)
-        src, tex, dirs, pw = [], [], [], []
+        src, tex, dirs, pw, em, kk = [], [], [], [], [], []
         rays = 0
-        for (s, _, _), ((t, d, p), r) in zip(units, results):
+        for (s, _, _), ((t, d, p, e, k), r) in zip(units, results):
             rays += r
-            for a, b, c in zip(t, d, p):
+            for a, b, c, f, g in zip(t, d, p, e, k):
                 src.append(np.full(len(a), s, dtype=np.int64))
                 tex.append(a)
                 dirs.append(b)
                 pw.append(c)
+                em.append(f)
+                kk.append(g)
         cat = lambda x, shape, dt: np.concatenate(x) if x else np.zeros(shape, dtype=dt)
         return PhotonHits(cat(src, (0,), np.int64), cat(tex, (0,), np.int64), cat(dirs, (0, 3), np.float64),
-                          cat(pw, (0, 3), np.float64), np.full(S, N, dtype=np.int64), rays)
+                          cat(pw, (0, 3), np.float64), np.full(S, N, dtype=np.int64), rays,
+                          cat(em, (0,), np.int64), cat(kk, (0, 3), np.float64))

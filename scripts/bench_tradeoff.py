@@ -1,0 +1,146 @@
+"""The speed-versus-accuracy trade of the interreflection levels, measured.
+
+For each scene (glossy Object E, configs/object_e_setup2.yaml, and the concave bowl, configs/concave.yaml)
+the capture is rendered once (path-traced interreflection, noise, 8 bit) with two lights held out, then
+fitted at many settings, one knob at a time around a base point:
+
+    local                          the baseline (Method I)
+    radiosity  patch size          radiosity.patch_size in 1, 2, 4
+               hemisphere samples  radiosity.hemisphere_samples in 64, 256, 1024
+    photon     photons per light   photon.photons_per_light in 100k, 400k, 1.6M
+               outer iterations    photon.outer_iterations in 1, 2, 3
+               precision           dtype float32, float64
+
+For every point: the wall time of the fit (precompute + initialise + fit stages), the ground-truth
+errors (pd_rmse, ps_median_rel_err, sigma_median_rel_err) and the held-out image error
+(holdout.mean_abs_diff_8bit). Writes tradeoff.json, a markdown table (tradeoff.md, with the machine)
+and a plot of held-out error and pd_rmse against time with the Pareto front marked (tradeoff.png).
+
+    python scripts/bench_tradeoff.py [--out outputs/tradeoff] [--full] [--scenes object_e_setup2 concave]
+
+Default size 256 x 225 texels (1.4 deg, 1.12 mm) so the sweep takes minutes; --full uses the seed's 512 x 450.
+Times are only comparable within one run (shared, noisy machines).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from torchrefl.config import load_config
+from torchrefl.train import run
+
+ROOT = Path(__file__).resolve().parents[1]
+QUICK = ["synthetic.columns=256", "synthetic.rows=225", "synthetic.angle_step_deg=1.4",
+         "synthetic.height_step_mm=1.12", "synthetic.indirect_samples=64", "synthetic.supersample=2"]
+COMMON = ["output.progress=false", "output.map_lights=0", "selection.num_lights=14", "fit.holdout=[3,10]"]
+PHOTON_BASE = ["fit.model=photon", "photon.photons_per_light=400000", "photon.outer_iterations=2"]
+RADIOSITY_BASE = ["fit.model=radiosity", "radiosity.patch_size=2", "radiosity.hemisphere_samples=256"]
+POINTS = [
+    ("local", "-", ["fit.model=local"]),
+    ("radiosity", "patch_size=1", RADIOSITY_BASE + ["radiosity.patch_size=1"]),
+    ("radiosity", "patch_size=2 (base)", RADIOSITY_BASE),
+    ("radiosity", "patch_size=4", RADIOSITY_BASE + ["radiosity.patch_size=4"]),
+    ("radiosity", "hemisphere_samples=64", RADIOSITY_BASE + ["radiosity.hemisphere_samples=64"]),
+    ("radiosity", "hemisphere_samples=1024", RADIOSITY_BASE + ["radiosity.hemisphere_samples=1024"]),
+    ("photon", "photons=100k", PHOTON_BASE + ["photon.photons_per_light=100000"]),
+    ("photon", "photons=400k (base)", PHOTON_BASE),
+    ("photon", "photons=1.6M", PHOTON_BASE + ["photon.photons_per_light=1600000"]),
+    ("photon", "outer=1", PHOTON_BASE + ["photon.outer_iterations=1"]),
+    ("photon", "outer=3", PHOTON_BASE + ["photon.outer_iterations=3"]),
+    ("photon", "float64", PHOTON_BASE + ["dtype=float64"]),
+]
+
+
+def pareto(times, errors) -> np.ndarray:
+    """Mask of the points no other point beats in both time and error."""
+    t, e = np.asarray(times, float), np.asarray(errors, float)
+    return np.array([not np.any((t <= t[i]) & (e <= e[i]) & ((t < t[i]) | (e < e[i]))) for i in range(len(t))])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="outputs/tradeoff")
+    ap.add_argument("--full", action="store_true")
+    ap.add_argument("--scenes", nargs="+", default=["object_e_setup2", "concave"])
+    args = ap.parse_args()
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    size = [] if args.full else QUICK
+    rows = []
+    for scene in args.scenes:
+        config = ROOT / "configs" / f"{scene}.yaml"
+        capture = out / scene / "capture_run"
+        first = load_config(config, size + COMMON + [f"output.dir={capture}", "fit.model=local"])
+        print(f"{scene}: rendering the capture ...", flush=True)
+        run(first, quiet=True)
+        for level, knob, over in POINTS:
+            name = f"{level}_{knob.split(' ')[0].replace('=', '')}"
+            cfg = load_config(config, size + COMMON + over + [
+                f"output.dir={out / scene / name}", "capture.kind=cylindrical_scan", f"capture.path={capture / 'capture'}"])
+            print(f"{scene}: {level} {knob} ...", flush=True)
+            m = run(cfg, quiet=True)
+            t = m["timing_s"]
+            gt, ho = m.get("ground_truth", {}), m.get("holdout", {})
+            rows.append({"scene": scene, "level": level, "setting": knob, "model": m["model"],
+                         "time_s": round(sum(t.get(k, 0.0) for k in ("precompute", "initialise", "fit")), 2),
+                         "pd_rmse": gt.get("pd_rmse"), "ps_median_rel_err": gt.get("ps_median_rel_err"),
+                         "sigma_median_rel_err": gt.get("sigma_median_rel_err"),
+                         "holdout_mean_abs_diff_8bit": ho.get("mean_abs_diff_8bit"),
+                         "holdout_var_diff_8bit": ho.get("var_diff_8bit")})
+            (out / "tradeoff.json").write_text(json.dumps(rows, indent=2))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    import torch
+
+    machine = f"{platform.machine()}, {platform.processor() or 'cpu'}, torch {torch.__version__}, {torch.get_num_threads()} threads"
+    lines = [f"Machine: {machine}; size {'512 x 450' if args.full else '256 x 225'} texels; times are precompute + initialise + fit.", "",
+             "| scene | level | setting | time s | pd_rmse | Ps med rel | sigma med rel | held-out mean 8-bit | held-out var | Pareto |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    fig, axes = plt.subplots(2, len(args.scenes), figsize=(6 * len(args.scenes), 8), squeeze=False)
+    for j, scene in enumerate(args.scenes):
+        sr = [r for r in rows if r["scene"] == scene]
+        times = [r["time_s"] for r in sr]
+        for i, key in enumerate(("holdout_mean_abs_diff_8bit", "pd_rmse")):
+            err = [r[key] if r[key] is not None else np.inf for r in sr]
+            front = pareto(times, err)
+            if key == "holdout_mean_abs_diff_8bit":
+                for r, f in zip(sr, front):
+                    r["pareto_holdout"] = bool(f)
+            ax = axes[i][j]
+            for level, marker in (("local", "s"), ("radiosity", "o"), ("photon", "^")):
+                sel = [k for k, r in enumerate(sr) if r["level"] == level]
+                ax.scatter([times[k] for k in sel], [err[k] for k in sel], marker=marker, label=level)
+            order = np.argsort(times)
+            fx = [times[k] for k in order if front[k]]
+            fy = [err[k] for k in order if front[k]]
+            ax.plot(fx, fy, "k--", lw=1, label="Pareto front")
+            for k, r in enumerate(sr):
+                ax.annotate(r["setting"].split(" ")[0], (times[k], err[k]), fontsize=6)
+            ax.set_xscale("log")
+            ax.set_xlabel("fit time [s]")
+            ax.set_ylabel(key)
+            ax.set_title(scene)
+            ax.legend(fontsize=7)
+        for r in sr:
+            f = lambda v: f"{v:.4g}" if isinstance(v, float) else "-"
+            lines.append(f"| {scene} | {r['level']} | {r['setting']} | {r['time_s']:.1f} | {f(r['pd_rmse'])} | "
+                         f"{f(r['ps_median_rel_err'])} | {f(r['sigma_median_rel_err'])} | {f(r['holdout_mean_abs_diff_8bit'])} | "
+                         f"{f(r['holdout_var_diff_8bit'])} | {'yes' if r.get('pareto_holdout') else ''} |")
+    fig.tight_layout()
+    fig.savefig(out / "tradeoff.png", dpi=100)
+    (out / "tradeoff.md").write_text("\n".join(lines) + "\n")
+    (out / "tradeoff.json").write_text(json.dumps(rows, indent=2))
+    print("\n".join(lines))
+    print(f"\nwritten {out / 'tradeoff.md'}, {out / 'tradeoff.png'}, {out / 'tradeoff.json'}")
+
+
+if __name__ == "__main__":
+    main()
