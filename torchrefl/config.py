@@ -95,6 +95,7 @@ class GeometryConfig:
     fit_window: int = opt(5, "Yokoya-Levine quadratic fit window (odd)", low=3)
     noise_tolerance: float = opt(2.0, "Yokoya-Levine window choice: most centred window within this factor of the median residual of the best (0 = the seed's strict smallest residual, poor on quantised ranges)", low=0.0)
     shadow_offset_mm: float = opt(0.05, "origin offset along the normal for shadow rays, mm", low=0.0)
+    edge_width: int = opt(1, "texels within this many texels of the scanned surface's boundary (silhouettes, depth discontinuities: mixed pixels) are not fitted or evaluated (0 = use them)", low=0)
 
 
 @dataclass

@@ -112,7 +112,8 @@ def load_capture(cfg: Config, out: Path, stages: Stages, log) -> dict:
     with stages.stage("observations"):
         obs, stats = load_scan_observations(
             geom, light_subset=cfg.capture.light_subset, saturation_level=cfg.capture.saturation_level,
-            shadow_offset=cfg.geometry.shadow_offset_mm, threads=cfg.threads, dtype=dtype)
+            shadow_offset=cfg.geometry.shadow_offset_mm, threads=cfg.threads, dtype=dtype,
+            edge_width=cfg.geometry.edge_width)
     result.update(surface=geom.surface, obs=obs, stats=stats, truth=load_truth(folder, geom.surface))
     return result
 

@@ -53,3 +53,25 @@ def texel_areas(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
     good = np.isfinite(area) & valid
     fill = float(np.median(area[good])) if good.any() else 1.0
     return np.where(good, area, np.where(valid, fill, 0.0))
+
+
+def boundary_texels(faces: np.ndarray, grid_shape: tuple[int, int], texel_index: np.ndarray, width: int = 1) -> np.ndarray:
+    """(T,) bool: texels within `width` texels of the triangulated surface's boundary (the silhouette,
+    holes, depth discontinuities that grid_triangulation left open).
+
+    A grid vertex with all four quads around it triangulated belongs to six triangles; fewer means
+    its footprint straddles an edge, where a texel's colour mixes surfaces (a "mixed pixel").
+    width = 0: none.
+    """
+    T = len(texel_index)
+    if width <= 0:
+        return np.zeros(T, dtype=bool)
+    H, W = grid_shape
+    count = np.bincount(np.asarray(faces, dtype=np.int64).ravel(), minlength=H * W)
+    edge = np.zeros(H * W, dtype=bool)
+    edge[texel_index] = count[texel_index] < 6
+    if width > 1:
+        from scipy.ndimage import binary_dilation
+
+        edge = binary_dilation(edge.reshape(H, W), iterations=width - 1).ravel()
+    return edge[texel_index]
