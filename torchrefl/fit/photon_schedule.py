@@ -81,12 +81,14 @@ def image_score(pred: torch.Tensor, intensity: torch.Tensor, mask: torch.Tensor)
 def run_schedule(params: TexelParams, level: PhotonLevel, local_predict: Callable, kappa: torch.Tensor,
                  make_objective: Callable, intensity: torch.Tensor, fit_mask: torch.Tensor, classes: torch.Tensor, *,
                  schedule: str, outer: int, optimizer: str, iterations: int, learning_rate: float,
-                 progress: bool = True, log=print, reinitialise: Callable | None = None) -> dict:
+                 progress: bool = True, log=print, reinitialise: Callable | None = None, damping: float = 0.0) -> dict:
     """Run the outer loop in place on params (left at the best parameters).
 
     local_predict(pd, ps, sigma) -> (P, T, 3) direct light; make_objective(predict, weight) -> Objective;
     fit_mask (P, T) fitted observations; classes (P, T) observation classes (for the seed schedule);
-    reinitialise(direct_only (P, T, 3)) -> (pd, ps, sigma) or None.
+    reinitialise(direct_only (P, T, 3)) -> (pd, ps, sigma) or None; damping: after each refit, Pd moves
+    only (1 - damping) of the way from the Pd the cache was traced with (under-relaxation of the
+    fixed point between cache and fit, which oscillates where texels light each other strongly).
     Returns history (losses), scores (one per refresh), best (refresh index), cache (at the best
     parameters) and predict (the photon-level model with that cache).
     """
@@ -132,6 +134,10 @@ def run_schedule(params: TexelParams, level: PhotonLevel, local_predict: Callabl
             with bar(iterations, f"fit {k + 1}/{outer} {name}", progress) as pb:
                 history += refine(params, make_objective(model, weight), optimizer, iterations, learning_rate,
                                   progress=pb, train=train)
+        if damping > 0:
+            with torch.no_grad():
+                new_pd, new_ps, new_sigma = params.values()
+                params.assign(damping * values[0] + (1.0 - damping) * new_pd, new_ps, new_sigma)
     _, k_best, state, cache = best
     with torch.no_grad():
         for n, p in params.named_parameters():

@@ -179,7 +179,7 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
                                   fit_mask, cls, schedule=pc.schedule, outer=pc.outer_iterations,
                                   optimizer=fc.optimizer, iterations=pc.iterations if pc.iterations is not None else fc.iterations,
                                   learning_rate=fc.learning_rate, progress=cfg.output.progress, log=log,
-                                  reinitialise=reinitialise if pc.reinitialise else None)
+                                  reinitialise=reinitialise if pc.reinitialise else None, damping=pc.damping)
             model, history = photon["predict"], photon["history"] or [photon["scores"][0]]
         else:
             objective = make_objective(model, fit_mask)

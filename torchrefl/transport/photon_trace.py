@@ -38,6 +38,7 @@ from torchrefl.rays import RayTracer
 from torchrefl.transport.lobe_sampling import LOBES, row_dot, sample_mixture, specular_probability, tangent_frame
 
 CHUNK = 1 << 17          # photons per work unit
+COLLECT_COS = 0.9        # a face corner collects photons for its texel when their normals agree this well
 
 
 @dataclass
@@ -86,7 +87,9 @@ class PhotonTracer:
     """Photon tracing over the texel mesh of a Surface.
 
     Photon densities use each texel's collection area, one third of the area of the mesh faces around
-    its vertex: the part of the mesh whose hits snap to it (barycentric regions are a third each).
+    its vertex (the part of the mesh whose hits snap to it: barycentric regions are a third each),
+    counting only faces whose normal agrees with the texel's (cos > COLLECT_COS): a face cutting across
+    a fold still scatters photons but does not count towards the fold texels' densities.
 
     tracer: Embree scene of surface.mesh_vertices / mesh_faces; texel_index, positions, normals:
     the Surface's (mesh vertex v is grid point v; texel_index maps texels to grid points); brdf: model name;
@@ -127,7 +130,14 @@ class PhotonTracer:
         fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         side = np.sign(row_dot(fn, self.normals[self.vertex_texel[faces]].sum(1))) if faces.size else np.zeros(0)
         self.face_normals = fn * np.where(side == 0, 1.0, side)[:, None]
-        self.areas = np.bincount(self.vertex_texel[faces].ravel(), weights=np.repeat(fa / 3.0, 3),
+        # a corner of a face collects for its texel only where the face lies along the texel's surface
+        # (normals within ~25 deg): faces that cut across a fold or a crease (their normal between the two
+        # sides) still scatter photons but do not count in the fold texels' density, which would
+        # otherwise average the crease strip's (higher) irradiance into the plates'
+        corner_texel = self.vertex_texel[faces] if faces.size else np.zeros((0, 3), dtype=np.int64)
+        self.collects = (np.einsum("fi,fci->fc", self.face_normals, self.normals[corner_texel]) > COLLECT_COS
+                         if faces.size else np.zeros((0, 3), dtype=bool))
+        self.areas = np.bincount(corner_texel.ravel(), weights=(np.repeat(fa[:, None] / 3.0, 3, 1) * self.collects).ravel(),
                                  minlength=len(texel_index)) if faces.size else np.zeros(len(texel_index))
 
     def landing(self, source: np.ndarray) -> np.ndarray:
@@ -148,11 +158,12 @@ class PhotonTracer:
 
     # ------------------------------------------------------------------ pieces
 
-    def hit_texels(self, triangle: np.ndarray, bary: np.ndarray) -> np.ndarray:
-        """Texel of each hit: the face vertex with the largest barycentric weight."""
+    def hit_texels(self, triangle: np.ndarray, bary: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Texel of each hit (the face vertex with the largest barycentric weight) and whether the hit
+        counts in that texel's density (self.collects)."""
         w = np.stack([1.0 - bary[:, 0] - bary[:, 1], bary[:, 0], bary[:, 1]], -1)
         corner = np.argmax(w, axis=1)
-        return self.vertex_texel[self.faces[triangle, corner]]
+        return self.vertex_texel[self.faces[triangle, corner]], self.collects[triangle, corner]
 
     def shading_normals(self, texel: np.ndarray, triangle: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The texel's normal, or the hit face's where the texel normal faces away from wi (a photon arriving
@@ -230,20 +241,21 @@ class PhotonTracer:
                 if not keep.size:
                     break
                 y = origin[keep] + hits.distance[keep, None] * d[keep]
-                texel = self.hit_texels(hits.triangle[keep], hits.barycentric[keep])
+                texel, collect = self.hit_texels(hits.triangle[keep], hits.barycentric[keep])
                 wi = -d[keep]
                 power, emitter, per_pd = power[keep], emitter[keep], per_pd[keep]
                 n_t, own = self.shading_normals(texel, hits.triangle[keep], wi)
                 front = row_dot(self.face_normals[hits.triangle[keep]], wi) > 0
                 if not front.all():
                     y, texel, wi, power, n_t, own = y[front], texel[front], wi[front], power[front], n_t[front], own[front]
-                    emitter, per_pd = emitter[front], per_pd[front]
+                    emitter, per_pd, collect = emitter[front], per_pd[front], collect[front]
             if depth > 0 and len(texel):
-                out_t.append(texel)
-                out_d.append(wi)
-                out_p.append(power)
-                out_e.append(emitter)
-                out_k.append(per_pd)
+                c = slice(None) if collect.all() else collect
+                out_t.append(texel[c])
+                out_d.append(wi[c])
+                out_p.append(power[c])
+                out_e.append(emitter[c])
+                out_k.append(per_pd[c])
             if depth == self.max_bounces or not len(texel):
                 break
             wo, w, w_pd = self.scatter(n_t, wi, texel, mat, rng.random((len(texel), 3)), own_normal=own)
