@@ -48,8 +48,9 @@ class TexelParams(nn.Module):
         self.num_texels = int(pd.shape[0])
         self.shared_specular = shared_specular
         if shared_specular:                      # one lobe for the whole object: (1, C) and (1,)
-            ps = ps.median(dim=0, keepdim=True).values
-            sigma = sigma.median(dim=0, keepdim=True).values
+            # contiguous: torch's median of an expanded (stride-0) tensor returns NaN
+            ps = ps.contiguous().median(dim=0, keepdim=True).values
+            sigma = sigma.contiguous().median(dim=0, keepdim=True).values
         pd = pd.clamp_min(init_floor)
         ps = ps.clamp_min(init_floor)
         self.sigma_min = float(sigma_min)
