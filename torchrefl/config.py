@@ -163,6 +163,7 @@ class PhotonConfig:
 
     photons_per_light: int = opt(400_000, "photons traced per light and cache refresh (shared by its light maps)", low=1)
     light_maps: int = opt(8, "photon maps per light when the lights move with the scan (co-rotating rig); texels interpolate between the two nearest", low=1)
+    start: str = opt("radiosity", "initial parameters: radiosity (Method II's closed forms: the first cache starts near the solution) or local (Method I's)", choices=("radiosity", "local"))
     outer_iterations: int = opt(3, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0)
     schedule: str = opt("joint", "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation", choices=("joint", "seed"))
     iterations: Optional[int] = opt(None, "refinement iterations per outer iteration and process (None = fit.iterations)")

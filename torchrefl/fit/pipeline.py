@@ -7,7 +7,7 @@ radiosity (Method II, Ch.4): form factors between texel patches (Embree), the cl
     radiosity (eq. 4.7) for the patches' diffuse reflectance, the local closed forms on the
     intensities with the predicted diffuse interreflection removed (eq. 4.9-4.11), then the
     autograd refinement with the radiosity prediction (gradients through the linear solve).
-photon (Method III, Ch.5): the local start (or Method II's when auto chose photon), then the outer
+photon (Method III, Ch.5): Method II's start (photon.start: radiosity, the default) or Method I's, then the outer
     loop of torchrefl.fit.photon_schedule: photons traced with the current parameters into a cache
     of indirect light per (light, texel), refit against local + cached indirect light, repeat.
 """
@@ -113,10 +113,13 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
         if fc.model == "auto" and not surface.has_mesh:
             choice = choose_level(False, None, None, None, fc.noise_floor_dn)
             level, reason = choice.level, choice.reason
-        if level in ("radiosity", "auto"):
+        if level in ("radiosity", "auto") or (level == "photon" and cfg.photon.start == "radiosity"):
             pmap, F, solver, rho_patch, rho_det, indirect, note = _radiosity_setup(cfg, surface, obs, terms, cls, fit_mask, log)
             log(note)
-            reason = "fit.model is 'radiosity': direct light plus diffuse interreflection (" + note + ")"
+            if level == "photon":
+                reason += "; started from Method II (" + note + ")"
+            else:
+                reason = "fit.model is 'radiosity': direct light plus diffuse interreflection (" + note + ")"
     init_kw = dict(ps_channels=rc.ps_channels, sigma_min=rc.sigma_min, sigma_max=rc.sigma_max, ps_max=rc.ps_max,
                    window=fc.interpolation_window, sigma_search=fc.sigma_search, specular=fc.specular)
     with stages.stage("initialise"):
