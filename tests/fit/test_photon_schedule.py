@@ -105,3 +105,27 @@ def test_same_seed_same_result(scene):
     a, _ = fit(s, obs, terms, "joint", seed=3, outer=1)
     b, _ = fit(s, obs, terms, "joint", seed=3, outer=1)
     torch.testing.assert_close(a.pd(), b.pd(), rtol=0, atol=0)
+
+
+def test_damping_moves_pd_part_of_the_way_and_leaves_the_lobe(scene):
+    """With damping d the Pd handed to the next refresh is d * (Pd the cache was traced with) + (1 - d) * refit,
+    so a damped run ends between the start and the undamped refit; Ps and sigma are not re-clamped."""
+    s, obs, terms = scene
+    T = s.num_texels
+    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
+    make = lambda model, weight: Objective(predict=model, intensity=obs.intensity, weight=weight, loss="l2")
+    local = lambda pd, ps, sg: predict(terms, pd, ps, sg)
+    ends = {}
+    for d in (0.0, 0.5):
+        params = TexelParams(torch.full((T, 3), 0.9, dtype=torch.float64), torch.full((T, 3), 0.002, dtype=torch.float64),
+                             torch.full((T,), 0.1, dtype=torch.float64), 0.01, 0.6, init_floor=1e-4)
+        out = run_schedule(params, level_for(s, obs, seed=1), local, obs.kappa, make, obs.intensity, obs.valid, cls,
+                           schedule="seed", outer=1, optimizer="lbfgs", iterations=20, learning_rate=0.05,
+                           progress=False, log=lambda *a: None, damping=d)
+        ends[d] = (params, out)
+    keep = away_from_fold(s)
+    pd0, pd_half = ends[0.0][0].pd().detach()[keep, 0], ends[0.5][0].pd().detach()[keep, 0]
+    assert ends[0.0][1]["best"] == 1 and ends[0.5][1]["best"] == 1
+    torch.testing.assert_close(pd_half, 0.5 * 0.9 + 0.5 * pd0, rtol=0, atol=1e-6)
+    # Ps (truth 0) stays where the refit put it: damping does not re-floor it at the starting floor 0.01
+    assert float((ends[0.5][0].ps().detach() < 0.01).double().mean()) > 0.9

@@ -25,7 +25,7 @@ import torch
 
 from torchrefl.errors import ConfigError
 from torchrefl.fit.classify import T_DIFF, T_NONE, T_SPEC
-from torchrefl.fit.params import TexelParams
+from torchrefl.fit.params import TexelParams, inverse_softplus_b
 from torchrefl.fit.refine import refine
 from torchrefl.report.stages import bar
 from torchrefl.transport.photon_level import LightSources, PhotonCache, build_cache, indirect_radiance
@@ -134,10 +134,9 @@ def run_schedule(params: TexelParams, level: PhotonLevel, local_predict: Callabl
             with bar(iterations, f"fit {k + 1}/{outer} {name}", progress) as pb:
                 history += refine(params, make_objective(model, weight), optimizer, iterations, learning_rate,
                                   progress=pb, train=train)
-        if damping > 0:
+        if damping > 0:                 # Pd only: Ps and sigma keep their refit values exactly
             with torch.no_grad():
-                new_pd, new_ps, new_sigma = params.values()
-                params.assign(damping * values[0] + (1.0 - damping) * new_pd, new_ps, new_sigma)
+                params.raw_pd.copy_(inverse_softplus_b(damping * values[0] + (1.0 - damping) * params.pd()))
     _, k_best, state, cache = best
     with torch.no_grad():
         for n, p in params.named_parameters():
