@@ -154,7 +154,11 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             kappa = obs.kappa.to(device)
             model = lambda pd, ps, sg: local_model(pd, ps, sg) + (kappa / math.pi) * pd[None] * indirect(pd)
         T = surface.num_texels
-        priors = [Prior((~init.known).to(device), init.ps.to(device), init.sigma.to(device), fc.prior_weight)]
+        # texels without specular evidence are pulled towards their interpolated lobe; a shared lobe has no
+        # per-texel values to pull towards (the pull went to the unknown texels' floor values and, with few
+        # highlights observed, collapsed the object's lobe to Ps ~ 0)
+        prior_weight = 0.0 if fc.specular == "shared" else fc.prior_weight
+        priors = [Prior((~init.known).to(device), init.ps.to(device), init.sigma.to(device), prior_weight)]
         if fc.specular == "pooled" and init.shared_lobe is not None:
             priors.append(Prior(torch.ones(T, dtype=torch.bool, device=device),
                                 init.shared_lobe[0].expand(T, -1).to(device), init.shared_lobe[1].expand(T).to(device),
@@ -175,7 +179,7 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             def reinitialise(direct_only):
                 fresh = initialise_local(terms, direct_only.cpu().to(obs.intensity.dtype), cls, counts["T_spec"],
                                          fit_mask, surface, **init_kw)
-                priors[0] = Prior((~fresh.known).to(device), fresh.ps.to(device), fresh.sigma.to(device), fc.prior_weight)
+                priors[0] = Prior((~fresh.known).to(device), fresh.ps.to(device), fresh.sigma.to(device), prior_weight)
                 return fresh.pd, fresh.ps, fresh.sigma
 
             photon = run_schedule(params, plevel, local_model, obs.kappa.to(device), make_objective, intensity,
