@@ -2,7 +2,6 @@
 the radiosity level reduces the Pd error that interreflection causes in Method I."""
 
 import json
-from pathlib import Path
 
 import pytest
 import yaml

@@ -3,7 +3,6 @@ renderer's camera paths, not the fitter's photons): the photon level removes the
 bias that a local fit keeps, with both schedules; the kept parameters are the best scored; same seed,
 same result."""
 
-import math
 
 import numpy as np
 import pytest
@@ -11,7 +10,7 @@ import torch
 
 from conftest import fold_surface, point_light_observations
 from torchrefl.capture.synthetic_gi import IndirectRenderer
-from torchrefl.fit.classify import T_DIFF, T_NONE, classify
+from torchrefl.fit.classify import classify
 from torchrefl.fit.params import TexelParams
 from torchrefl.fit.photon_schedule import PhotonLevel, run_schedule
 from torchrefl.fit.refine import Objective, refine

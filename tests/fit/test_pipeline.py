@@ -1,6 +1,5 @@
 """The fit pipeline's choices that only show end to end."""
 
-import numpy as np
 import torch
 
 from conftest import dome_scene, point_light_observations

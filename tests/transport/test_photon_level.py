@@ -1,7 +1,6 @@
 """The photon cache and its differentiable gather: against the slow per-photon reference, float64
 gradcheck, finite values and gradients at the extremes, light maps of moving lights."""
 
-import math
 
 import numpy as np
 import pytest

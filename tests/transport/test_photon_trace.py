@@ -1,7 +1,6 @@
 """Photon tracing: energy balance in a closed sphere, convergence to the radiosity solution like
 1/sqrt(N) on a diffuse fold, agreement with the path tracer on a glossy fold, determinism."""
 
-import math
 
 import numpy as np
 import pytest

@@ -3,7 +3,6 @@ an explicit list, and ordered to keep the gantry's travel short (nearest neighbo
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 

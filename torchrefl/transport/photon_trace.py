@@ -25,7 +25,6 @@ Deterministic in `seed`: random numbers are keyed by (seed, refresh, source, chu
 
 from __future__ import annotations
 
-import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
