@@ -36,8 +36,9 @@ QUICK = ["synthetic.columns=256", "synthetic.rows=225", "synthetic.angle_step_de
          "synthetic.indirect_samples=48", "synthetic.supersample=2"]
 
 
-def profile(params_path: Path, capture: Path, info: dict, bin_mm: float = 2.0):
-    """Signed distance from the fold (upper plate +) and mean Pd per bin over the inside texels."""
+def inside_texels(params_path: Path, capture: Path, info: dict) -> dict:
+    """The estimated inside texels away from the plates' side edges: signed distance from the fold
+    (upper plate +), estimated and true Pd (channel means)."""
     p = np.load(params_path)
     truth = np.load(capture / "truth.npz")
     mask = p["mask"] & (truth["region"] >= 0)
@@ -46,39 +47,34 @@ def profile(params_path: Path, capture: Path, info: dict, bin_mm: float = 2.0):
     region = truth["region"][mask]
     rel = x - info["fold_start"]
     along = rel @ info["fold_dir"]
-    perp = rel - along[:, None] * info["fold_dir"]
-    dist = np.linalg.norm(perp, axis=1) * np.where(region == 0, 1.0, -1.0)
+    dist = np.linalg.norm(rel - along[:, None] * info["fold_dir"], axis=1) * np.where(region == 0, 1.0, -1.0)
     inside = (n * info["inside_normals"][region]).sum(1) > 0.9
-    keep = inside & (along > 10) & (along < info["length"] - 10)      # away from the plates' side edges
-    pd = p["pd"][mask].mean(-1)
-    tpd = truth["pd"][mask].mean(-1)
+    keep = inside & (along > 10) & (along < info["length"] - 10)
+    return {"dist": dist[keep], "pd": p["pd"][mask].mean(-1)[keep], "truth": truth["pd"][mask].mean(-1)[keep]}
+
+
+def profile(params_path: Path, capture: Path, info: dict, bin_mm: float = 2.0):
+    """Signed distance from the fold and mean Pd per bin over the inside texels."""
+    t = inside_texels(params_path, capture, info)
     edges = np.arange(-info["width"], info["width"] + bin_mm, bin_mm)
-    idx = np.digitize(dist[keep], edges)
+    idx = np.digitize(t["dist"], edges)
     centres, est, tru = [], [], []
     for k in np.unique(idx):
         sel = idx == k
         if sel.sum() < 5:
             continue
-        centres.append(float(dist[keep][sel].mean()))
-        est.append(float(pd[keep][sel].mean()))
-        tru.append(float(tpd[keep][sel].mean()))
+        centres.append(float(t["dist"][sel].mean()))
+        est.append(float(t["pd"][sel].mean()))
+        tru.append(float(t["truth"][sel].mean()))
     return np.array(centres), np.array(est), np.array(tru)
 
 
 def texel_errors(params_path: Path, capture: Path, info: dict, near_mm: float = 10.0) -> dict:
-    """Per-texel relative Pd error over the observed inside texels (away from the plates' side edges)."""
-    p = np.load(params_path)
-    truth = np.load(capture / "truth.npz")
-    mask = p["mask"] & (truth["region"] >= 0)
-    x = p["positions"][mask].astype(np.float64)
-    n = p["normals"][mask].astype(np.float64)
-    region = truth["region"][mask]
-    rel = x - info["fold_start"]
-    along = rel @ info["fold_dir"]
-    dist = np.linalg.norm(rel - along[:, None] * info["fold_dir"], axis=1)
-    inside = (n * info["inside_normals"][region]).sum(1) > 0.9
-    keep = inside & (along > 10) & (along < info["length"] - 10) & (dist < info["width"] - 5)
-    err = np.abs(p["pd"][mask].mean(-1) / truth["pd"][mask].mean(-1) - 1.0)[keep]
+    """Per-texel relative Pd error over the inside texels, without the plates' outer 5 mm."""
+    t = inside_texels(params_path, capture, info)
+    dist = np.abs(t["dist"])
+    keep = dist < info["width"] - 5
+    err = np.abs(t["pd"] / t["truth"] - 1.0)[keep]
     near = dist[keep] <= near_mm
     q = lambda e: float(np.percentile(e, 95)) if e.size else None
     return {"texels_within_2pct": float((err <= 0.02).mean()) if err.size else None,

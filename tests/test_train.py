@@ -128,7 +128,7 @@ def test_diligent_ball_subset(tmp_path):
 
 
 @pytest.mark.skipif(not BALL.is_dir(), reason="../shared/data/diligent_ball not present")
-def test_auto_on_photometric_stereo_is_local_and_radiosity_is_refused(tmp_path, capsys):
+def test_auto_on_photometric_stereo_is_local_and_radiosity_and_photon_are_refused(tmp_path, capsys):
     out = tmp_path / "ball_auto"
     base = [str(ROOT / "configs" / "diligent_ball.yaml"), f"output.dir={out}", "capture.light_subset=[0,10,20,30,40]",
             "fit.holdout=[]", "fit.iterations=5", "output.progress=false", "--quiet"]
@@ -137,6 +137,9 @@ def test_auto_on_photometric_stereo_is_local_and_radiosity_is_refused(tmp_path, 
     assert m["model"] == "local" and "no depth" in m["model_reason"]
     assert main(base + ["fit.model=radiosity"]) == 2
     assert "needs geometry with depth" in capsys.readouterr().err
+    assert main(base + ["fit.model=photon"]) == 2
+    err = capsys.readouterr().err
+    assert "fit.model: 'photon' needs geometry with depth" in err and "diligent" in err.lower()
 
 
 def test_relative_errors_skip_texels_without_a_true_lobe():

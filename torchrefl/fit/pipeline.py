@@ -45,9 +45,6 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance, inverse_radiosity
 
     rc = cfg.radiosity
-    if not surface.has_mesh:
-        raise ConfigError(f"fit.model: 'radiosity' needs geometry with depth, but the capture {surface.source} has no "
-                          "mesh (photometric stereo): use fit.model=local")
     tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
     patches, F = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size,
                                           samples_per_patch=rc.hemisphere_samples, seed=cfg.seed)
@@ -70,9 +67,6 @@ def _photon_setup(cfg: Config, surface, obs, keep, device, dtype):
     from torchrefl.transport.photon_level import light_sources
     from torchrefl.transport.photon_trace import PhotonTracer
 
-    if not surface.has_mesh:
-        raise ConfigError(f"fit.model: 'photon' needs geometry with depth, but the capture {surface.source} has no "
-                          "mesh (photometric stereo): use fit.model=local")
     pc, rc = cfg.photon, cfg.reflectance
     tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
     offset = 1e-3 * math.sqrt(float(surface.areas.double().median()))
@@ -93,6 +87,9 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
     bad = [i for i in fc.holdout if i >= P]
     if bad:
         raise ConfigError(f"fit.holdout: light indices {bad} out of range (the capture has {P} lights, indices 0..{P - 1})")
+    if fc.model in ("radiosity", "photon") and not surface.has_mesh:
+        raise ConfigError(f"fit.model: '{fc.model}' needs geometry with depth, but the capture {surface.source} has no "
+                          "mesh (photometric stereo): use fit.model=local")
     held = torch.zeros(P, dtype=torch.bool)
     held[list(fc.holdout)] = True
     with stages.stage("precompute"):
