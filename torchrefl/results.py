@@ -1,0 +1,214 @@
+"""A finished run's outputs, for notebooks and other tools.
+
+    from torchrefl.results import load_run
+    run = load_run("outputs/default")
+    print(run.summary())                 # the table the CLI prints at the end
+    run.figure()                         # Pd, Ps, sigma and coverage maps (matplotlib)
+    img = run.render(light_position=(0, 200, 400), camera=(0, 0, 300))   # relight the estimate
+
+`load_run` reads the outputs contract of the README (params.npz, metrics.json, config.yaml) and
+checks it: a missing file or key is a CaptureError naming the file and what was expected.
+Maps are on the texel grid (H, W); texels outside `mask` (no estimate) are 0 in the arrays and
+blank in the figure.
+
+`render` shades the estimated texels under one new light with the fitted BRDF (torchrefl.brdf),
+in the model the fitter uses, i = kappa * Y * falloff * g(n, l, v): local transport only (no cast
+shadows, no interreflection), a preview of the estimate under lighting that was never captured.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from torchrefl import brdf as brdf_mod
+from torchrefl.errors import CaptureError
+
+PARAMS = "params.npz"
+METRICS = "metrics.json"
+CONFIG = "config.yaml"
+REQUIRED_KEYS = ("pd", "ps", "sigma", "mask", "brdf", "positions", "normals", "kappa")
+
+
+@dataclass
+class RunResult:
+    """The estimate of one run on its texel grid (H, W).
+
+    pd (H, W, 3), ps (H, W, C) with C in {1, 3}, sigma (H, W): the reflectance; mask (H, W) bool: texels
+    with an estimate; positions, normals (H, W, 3): the texel geometry (world frame, `units`);
+    coverage (H, W): how each texel was determined (torchrefl.report.maps); n_diffuse, n_specular (H, W):
+    observations per texel in T_diff and T_spec; kappa (3,): the camera gain; brdf: the model name;
+    metrics: metrics.json; config: the resolved config.yaml as a dict (None where the file is absent).
+    """
+
+    folder: Path
+    pd: np.ndarray
+    ps: np.ndarray
+    sigma: np.ndarray
+    mask: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    kappa: np.ndarray
+    brdf: str
+    units: str
+    coverage: np.ndarray | None
+    n_diffuse: np.ndarray | None
+    n_specular: np.ndarray | None
+    metrics: dict
+    config: dict | None
+
+    @property
+    def grid_shape(self) -> tuple[int, int]:
+        return tuple(self.mask.shape)
+
+    def summary(self) -> str:
+        """The summary table the command line prints at the end of the run."""
+        from torchrefl.train import summary_table
+
+        return summary_table(self.metrics)
+
+    def render(self, *, light_position=None, light_direction=None, intensity=1.0, camera=None, view_dir=None,
+               dtype=torch.float64) -> np.ndarray:
+        """(H, W, 3) predicted sensor values (fractions of full range) of the estimated texels under one light.
+
+        The light: light_position (3,) a point light (falloff 1 / C^2) or light_direction (3,) a directional
+        light towards the light; intensity: its radiant intensity Y, a scalar or RGB (3,), in the capture's
+        units (metrics.json and the capture's light table). The camera: camera (3,) a pinhole position, or
+        view_dir (3,) or (H, W, 3) the direction towards the camera (orthographic; photometric stereo: (0, 0, 1)).
+        Texels outside `mask` or facing away from the light or the camera are 0.
+        """
+        if (light_position is None) == (light_direction is None):
+            raise CaptureError("RunResult.render: give exactly one of light_position=(x, y, z) (a point light) "
+                               "and light_direction=(x, y, z) (a directional light)")
+        if (camera is None) == (view_dir is None):
+            raise CaptureError("RunResult.render: give exactly one of camera=(x, y, z) (a pinhole camera) and "
+                               "view_dir=(x, y, z) or an (H, W, 3) array (an orthographic camera)")
+        m = torch.from_numpy(self.mask)
+        t = lambda a: torch.as_tensor(np.array(a, dtype=np.float64), dtype=dtype)
+        x, n = t(self.positions)[m], t(self.normals)[m]
+        Y = _vector("intensity", intensity, allow_scalar=True).to(dtype)
+        if light_position is not None:
+            to = _vector("light_position", light_position).to(dtype) - x
+            dist2 = (to * to).sum(-1)
+            if not bool((dist2 > 0).all()):
+                raise CaptureError("RunResult.render: light_position lies on an estimated texel (distance 0)")
+            l, falloff = to / dist2.sqrt()[:, None], 1.0 / dist2
+        else:
+            l = brdf_mod.safe_normalize(_vector("light_direction", light_direction, unit=True).to(dtype)).expand_as(x)
+            falloff = torch.ones(len(x), dtype=dtype)
+        if camera is not None:
+            v = brdf_mod.safe_normalize(_vector("camera", camera).to(dtype) - x)
+        else:
+            vd = np.asarray(view_dir, dtype=np.float64)
+            if vd.shape == (3,):
+                v = brdf_mod.safe_normalize(_vector("view_dir", vd, unit=True).to(dtype)).expand_as(x)
+            elif vd.shape == self.grid_shape + (3,):
+                v = brdf_mod.safe_normalize(t(vd)[m])
+            else:
+                raise CaptureError(f"RunResult.render: view_dir has shape {vd.shape}, expected (3,) or {self.grid_shape + (3,)}")
+        g = brdf_mod.cosine_weighted_brdf(self.brdf, n, l, v, t(self.pd)[m], t(self.ps)[m], t(self.sigma)[m])
+        seen = (brdf_mod.dot(n, v) > 0).to(dtype)
+        values = t(self.kappa) * Y * (falloff * seen)[:, None] * g
+        out = np.zeros(self.grid_shape + (3,))
+        out[self.mask] = values.numpy()
+        return out
+
+    def figure(self, sigma_max: float | None = None):
+        """A matplotlib Figure with Pd (RGB), Ps (mean over channels), sigma and the coverage map."""
+        import matplotlib.pyplot as plt
+        from matplotlib.colors import ListedColormap
+
+        from torchrefl.report.maps import COVERAGE_COLOURS
+
+        blank = lambda a: np.where(self.mask if a.ndim == 2 else self.mask[..., None], a, np.nan)
+        fig, axes = plt.subplots(1, 4, figsize=(16, 4), constrained_layout=True)
+        pd_img = np.clip(self.pd, 0.0, 1.0)
+        axes[0].imshow(np.concatenate([pd_img, self.mask[..., None].astype(float)], axis=-1))
+        axes[0].set_title("Pd (RGB)")
+        ps = self.ps.mean(axis=-1)
+        im = axes[1].imshow(blank(ps), cmap="magma")
+        axes[1].set_title("Ps (mean of channels)")
+        fig.colorbar(im, ax=axes[1], shrink=0.8)
+        top = sigma_max if sigma_max is not None else (self.config or {}).get("reflectance", {}).get("sigma_max")
+        im = axes[2].imshow(blank(self.sigma), cmap="viridis", vmin=0.0, vmax=top)
+        axes[2].set_title("sigma (rad)")
+        fig.colorbar(im, ax=axes[2], shrink=0.8)
+        if self.coverage is not None:
+            colours = np.array([COVERAGE_COLOURS[k] for k in sorted(COVERAGE_COLOURS)]) / 255.0
+            axes[3].imshow(self.coverage, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5,
+                           interpolation="nearest")
+            axes[3].set_title("coverage: none / Pd / Pd+spec / Pd bound")
+        else:
+            axes[3].set_title("coverage: not in params.npz")
+        for a in axes:
+            a.set_xticks([])
+            a.set_yticks([])
+        fig.suptitle(f"{self.folder}: model {self.metrics.get('model', '?')}, brdf {self.brdf}")
+        return fig
+
+
+def _vector(name: str, value, allow_scalar: bool = False, unit: bool = False) -> torch.Tensor:
+    a = np.asarray(value, dtype=np.float64)
+    if allow_scalar and a.ndim == 0:
+        a = np.full(3, float(a))
+    if a.shape != (3,) or not np.isfinite(a).all():
+        raise CaptureError(f"RunResult.render: {name}={value!r}, expected 3 finite numbers"
+                           + (" or one" if allow_scalar else ""))
+    if allow_scalar and (a < 0).any():
+        raise CaptureError(f"RunResult.render: {name}={value!r}, expected values >= 0")
+    if unit and not np.linalg.norm(a) > 0:
+        raise CaptureError(f"RunResult.render: {name}={value!r} is the zero vector, expected a direction")
+    return torch.from_numpy(a)
+
+
+def load_run(folder) -> RunResult:
+    """Read a run's output folder (python -m torchrefl.train ... output.dir=FOLDER)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise CaptureError(f"{folder}: run folder missing (expected the output.dir of a torchrefl.train run)")
+    params_path = folder / PARAMS
+    if not params_path.is_file():
+        raise CaptureError(f"{params_path}: missing (a run that finished writes it; was the run interrupted?)")
+    try:
+        with np.load(params_path, allow_pickle=False) as npz:
+            p = {k: npz[k] for k in npz.files}
+    except Exception as exc:  # a truncated or foreign file: say which and why
+        raise CaptureError(f"{params_path}: unreadable as a numpy .npz archive ({exc})") from None
+    missing = [k for k in REQUIRED_KEYS if k not in p]
+    if missing:
+        raise CaptureError(f"{params_path}: missing key(s) {', '.join(missing)} (expected {', '.join(REQUIRED_KEYS)})")
+    mask = p["mask"]
+    if mask.ndim != 2 or mask.dtype != bool:
+        raise CaptureError(f"{params_path}: 'mask' is {mask.dtype} {mask.shape}, expected a bool (H, W) grid")
+    H, W = mask.shape
+    expect = {"pd": (H, W, 3), "sigma": (H, W), "positions": (H, W, 3), "normals": (H, W, 3), "kappa": (3,)}
+    for key, shape in expect.items():
+        if p[key].shape != shape:
+            raise CaptureError(f"{params_path}: '{key}' has shape {p[key].shape}, expected {shape}")
+    if p["ps"].shape not in ((H, W, 1), (H, W, 3)):
+        raise CaptureError(f"{params_path}: 'ps' has shape {p['ps'].shape}, expected ({H}, {W}, 1) or ({H}, {W}, 3)")
+    brdf = brdf_mod.check_brdf_name(str(p["brdf"]), f"{params_path}: brdf")
+    metrics_path = folder / METRICS
+    if not metrics_path.is_file():
+        raise CaptureError(f"{metrics_path}: missing (written with params.npz at the end of a run)")
+    try:
+        metrics = json.loads(metrics_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CaptureError(f"{metrics_path}: not valid JSON ({exc})") from None
+    config = None
+    if (folder / CONFIG).is_file():
+        import yaml
+
+        try:
+            config = yaml.safe_load((folder / CONFIG).read_text())
+        except yaml.YAMLError as exc:
+            raise CaptureError(f"{folder / CONFIG}: not valid YAML ({exc})") from None
+    optional = lambda k: p[k] if k in p else None
+    return RunResult(folder=folder, pd=p["pd"], ps=p["ps"], sigma=p["sigma"], mask=mask, positions=p["positions"],
+                     normals=p["normals"], kappa=p["kappa"], brdf=brdf, units=str(p.get("units", "")),
+                     coverage=optional("coverage"), n_diffuse=optional("n_diffuse"), n_specular=optional("n_specular"),
+                     metrics=metrics, config=config)
