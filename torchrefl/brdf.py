@@ -17,11 +17,19 @@ Models (DESIGN.md "One model"):
 - "ward" (eq. 5.9): f = Pd/pi + Ps exp(-tan^2 theta_h / sigma^2) / (4 pi sigma^2),
   optionally times 1/sqrt(cos_l cos_v) (the standard Ward normalisation; the seed drops it).
 
+Diffuse part (reflectance.diffuse):
+- "lambert" (eq. 2.9): Pd / pi.
+- "minnaert": Pd / pi * (cos_l cos_v)^(k - 1), Minnaert's generalisation of Lambert (reciprocal;
+  k = 1 is Lambert, k > 1 darker than Lambert towards grazing light and view). One exponent k for
+  the object; local transport only (radiosity and photon levels carry Lambertian light).
+
 Numerical guards (the only clamps in the physics, documented here):
 - cos_v is clamped below at COS_EPS before dividing (grazing views are excluded
   from fitting anyway by the validity mask; the clamp keeps values finite);
 - cos(theta_h) is clamped below at COS_EPS inside tan(theta_h);
-- sigma is clamped below at SIGMA_EPS inside the exponent.
+- sigma is clamped below at SIGMA_EPS inside the exponent;
+- cos_l and cos_v are clamped below at COS_EPS inside the Minnaert power (finite gradients in k and
+  in the angles at grazing; the factor is 0 where cos_l <= 0 anyway).
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ SIGMA_EPS = 1e-4
 _TINY = 1e-30
 
 BRDF_NAMES = ("torrance_sparrow", "ward", "ward_normalised", "lambertian")
+DIFFUSE_MODELS = ("lambert", "minnaert")
 
 
 def check_brdf_name(name: str, where: str = "fit.brdf") -> str:
@@ -138,6 +147,21 @@ def specular_geometry(model: str, cos_l: torch.Tensor, cos_v: torch.Tensor) -> t
     raise ConfigError(f"fit.brdf: unknown BRDF '{model}', expected one of {', '.join(BRDF_NAMES)}")
 
 
+def minnaert_factor(cos_l: torch.Tensor, cos_v: torch.Tensor, k) -> torch.Tensor:
+    """(cos_l cos_v)^(k - 1) with both cosines clamped below at COS_EPS; k a float or a tensor (scalar)."""
+    log_lv = torch.log(cos_l.clamp_min(COS_EPS)) + torch.log(cos_v.clamp_min(COS_EPS))
+    return torch.exp((k - 1.0) * log_lv)
+
+
+def diffuse_term(cos_l: torch.Tensor, cos_v: torch.Tensor, k=1.0) -> torch.Tensor:
+    """The diffuse part of f * max(cos_l, 0) per unit Pd: max(cos_l, 0) / pi, times the Minnaert
+    factor (cos_l cos_v)^(k - 1) unless k is exactly 1 (Lambert)."""
+    lam = cos_l.clamp_min(0.0) / math.pi
+    if not isinstance(k, torch.Tensor) and float(k) == 1.0:
+        return lam
+    return lam * minnaert_factor(cos_l, cos_v, k)
+
+
 def cosine_weighted_brdf(
     model: str,
     n: torch.Tensor,
@@ -146,17 +170,19 @@ def cosine_weighted_brdf(
     pd: torch.Tensor,
     ps: torch.Tensor,
     sigma: torch.Tensor,
+    diffuse_exponent=1.0,
 ) -> torch.Tensor:
     """g = f(l, v) * max(n.l, 0), per channel.
 
     n, l, v: (..., 3) unit vectors; pd: (..., C) diffuse reflectance; ps: (..., C) or (..., 1)
-    specular reflectance (grey broadcasts); sigma: (...) roughness in radians.
+    specular reflectance (grey broadcasts); sigma: (...) roughness in radians; diffuse_exponent:
+    Minnaert's k (1 = Lambert), a float or a scalar tensor.
     Returns (..., C).
     """
     cos_l = dot(n, l)
     cos_v = dot(n, v)
     theta_h = half_angle(n, l, v)
-    diffuse = pd * (cos_l.clamp_min(0.0) / math.pi).unsqueeze(-1)
+    diffuse = pd * diffuse_term(cos_l, cos_v, diffuse_exponent).unsqueeze(-1)
     spec = (specular_lobe(model, theta_h, sigma) * specular_geometry(model, cos_l, cos_v)).unsqueeze(-1)
     return diffuse + ps * spec
 

@@ -54,6 +54,7 @@ class SyntheticConfig:
     size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
     materials: str = opt("regions", "ground-truth material layout", choices=("regions", "uniform"))
     brdf: str = opt("torrance_sparrow", "BRDF used to render the synthetic images", choices=("torrance_sparrow", "ward", "ward_normalised"))
+    minnaert_k: float = opt(1.0, "Minnaert exponent k of the rendered diffuse part, Pd/pi (cos_l cos_v)^(k-1) (1 = Lambert; objects without interreflection only)", low=0.5, high=2.0)
     columns: int = opt(512, "texels around (scan angles); the seed: 512", low=8)
     rows: int = opt(450, "texels along the axis (scan heights); the seed: 450", low=8)
     angle_step_deg: float = opt(0.7, "scan angle step in degrees; the seed: 0.7", low=0.0)
@@ -114,6 +115,8 @@ class ReflectanceConfig:
     """The reflectance model and the observation classes (dissertation 2.4, 3.2)."""
 
     brdf: str = opt("torrance_sparrow", "specular lobe", choices=("torrance_sparrow", "ward", "ward_normalised", "lambertian"))
+    diffuse: str = opt("lambert", "diffuse part: lambert (Pd/pi, eq. 2.9) or minnaert (Pd/pi (cos_l cos_v)^(k-1), darker than Lambert towards grazing for k > 1; local transport only)", choices=("lambert", "minnaert"))
+    minnaert_k: Optional[float] = opt(None, "Minnaert exponent k with diffuse: minnaert; null = fitted on the diffuse-only (T_diff) observations, one k for the object", low=0.5, high=2.0)
     ps_channels: int = opt(3, "specular reflectance channels: 3 = RGB, 1 = grey", choices=(1, 3))
     class_angle: str = opt("half", "angle the classes threshold: half = n vs half vector (dissertation eq. 2.15), mirror = view vs mirror direction (conference papers)", choices=("half", "mirror"))
     theta_diffuse_deg: float = opt(60.0, "theta_th1: half-angle above which an observation is diffuse only (eq. 2.20)", low=0.0, high=90.0)
@@ -287,6 +290,16 @@ def _apply(obj, data: dict, prefix: str, where: str) -> None:
 def _validate(cfg: Config, where: str) -> None:
     if cfg.reflectance.sigma_min >= cfg.reflectance.sigma_max:
         raise ConfigError(f"{where}: reflectance.sigma_min ({cfg.reflectance.sigma_min}) must be < reflectance.sigma_max ({cfg.reflectance.sigma_max})")
+    rc = cfg.reflectance
+    if rc.minnaert_k is not None and rc.diffuse != "minnaert":
+        raise ConfigError(f"{where}: key 'reflectance.minnaert_k' is set but reflectance.diffuse is '{rc.diffuse}'; "
+                          "set reflectance.diffuse: minnaert or drop the key")
+    if rc.diffuse != "lambert" and cfg.fit.model in ("radiosity", "photon"):
+        raise ConfigError(f"{where}: reflectance.diffuse '{rc.diffuse}' is for local transport only; fit.model "
+                          f"'{cfg.fit.model}' carries Lambertian interreflection (use reflectance.diffuse: lambert)")
+    if cfg.synthetic.minnaert_k != 1.0 and cfg.synthetic.indirect_samples > 0:
+        raise ConfigError(f"{where}: key 'synthetic.minnaert_k' = {cfg.synthetic.minnaert_k} needs synthetic.indirect_samples: 0 "
+                          "(the interreflection renderer is Lambertian)")
     if cfg.reflectance.theta_specular_deg >= cfg.reflectance.theta_diffuse_deg:
         raise ConfigError(f"{where}: reflectance.theta_specular_deg must be < reflectance.theta_diffuse_deg")
     if len(cfg.capture.kappa) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.capture.kappa):

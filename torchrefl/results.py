@@ -42,6 +42,7 @@ class RunResult:
     with an estimate; positions, normals (H, W, 3): the texel geometry (world frame, `units`);
     coverage (H, W): how each texel was determined (torchrefl.report.maps); n_diffuse, n_specular (H, W):
     observations per texel in T_diff and T_spec; kappa (3,): the camera gain; brdf: the model name;
+    diffuse, minnaert_k: the diffuse part (lambert, or minnaert with its exponent; 1 = Lambert);
     metrics: metrics.json; config: the resolved config.yaml as a dict (None where the file is absent).
     """
 
@@ -60,6 +61,8 @@ class RunResult:
     n_specular: np.ndarray | None
     metrics: dict
     config: dict | None
+    diffuse: str = "lambert"
+    minnaert_k: float = 1.0
 
     @property
     def grid_shape(self) -> tuple[int, int]:
@@ -110,7 +113,8 @@ class RunResult:
                 v = brdf_mod.safe_normalize(t(vd)[m])
             else:
                 raise CaptureError(f"RunResult.render: view_dir has shape {vd.shape}, expected (3,) or {self.grid_shape + (3,)}")
-        g = brdf_mod.cosine_weighted_brdf(self.brdf, n, l, v, t(self.pd)[m], t(self.ps)[m], t(self.sigma)[m])
+        g = brdf_mod.cosine_weighted_brdf(self.brdf, n, l, v, t(self.pd)[m], t(self.ps)[m], t(self.sigma)[m],
+                                          self.minnaert_k)
         seen = (brdf_mod.dot(n, v) > 0).to(dtype)
         values = t(self.kappa) * Y * (falloff * seen)[:, None] * g
         out = np.zeros(self.grid_shape + (3,))
@@ -211,4 +215,5 @@ def load_run(folder) -> RunResult:
     return RunResult(folder=folder, pd=p["pd"], ps=p["ps"], sigma=p["sigma"], mask=mask, positions=p["positions"],
                      normals=p["normals"], kappa=p["kappa"], brdf=brdf, units=str(p.get("units", "")),
                      coverage=optional("coverage"), n_diffuse=optional("n_diffuse"), n_specular=optional("n_specular"),
-                     metrics=metrics, config=config)
+                     metrics=metrics, config=config, diffuse=str(p.get("diffuse", "lambert")),
+                     minnaert_k=float(p.get("minnaert_k", 1.0)))

@@ -130,6 +130,7 @@ def write_outputs(cfg: Config, out: Path, cap: dict, res: dict, stages: Stages, 
             normals=grid(surface.normals.float()), coverage=grid(res["coverage"]),
             n_diffuse=grid(res["counts"]["T_diff"].to(torch.int16)), n_specular=grid(res["counts"]["T_spec"].to(torch.int16)),
             kappa=obs.kappa.numpy(), units=np.array(surface.units),
+            diffuse=np.array(res["diffuse"]["model"]), minnaert_k=np.array(res["diffuse"]["k"]),
         )
         metrics = {
             "version": __version__,
@@ -138,6 +139,7 @@ def write_outputs(cfg: Config, out: Path, cap: dict, res: dict, stages: Stages, 
             "model_numbers": res["model_numbers"],
             **({"photon": res["photon"]} if res.get("photon") else {}),
             "brdf": cfg.reflectance.brdf,
+            "diffuse": {**res["diffuse"], **({"k_true": cap["truth"]["minnaert_k"]} if cap.get("truth") else {})},
             "capture": {"kind": cfg.capture.kind, **{k: v for k, v in cap["stats"].items() if isinstance(v, (int, float, str))}},
             "texels": surface.num_texels, "lights": obs.num_lights,
             "holdout_lights": list(cfg.fit.holdout),
@@ -181,6 +183,9 @@ def summary_table(metrics: dict) -> str:
     lines += [f"  {a:<{w}}  {b:>8}" for a, b in rows]
     fmt = lambda d: ", ".join(f"{k} {v:.4g}" for k, v in d.items() if isinstance(v, float))
     lines.append(f"  texels {metrics['texels']}, lights {metrics['lights']}, model {metrics['model']}, brdf {metrics['brdf']}")
+    d = metrics.get("diffuse") or {}
+    if d.get("model", "lambert") != "lambert":
+        lines.append(f"  diffuse: {d['model']} k {d['k']:.4f} ({'fitted' if d.get('fitted') else 'reflectance.minnaert_k'})")
     lines.append(f"  re-render (fitted): {fmt(metrics['rerender'])}")
     if "holdout" in metrics:
         lines.append(f"  held-out lights:    {fmt(metrics['holdout'])}")

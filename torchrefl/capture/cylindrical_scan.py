@@ -329,4 +329,5 @@ def load_truth(folder, surface: Surface) -> dict | None:
         "ps": surface.from_grid(data["ps"]).double(),
         "sigma": surface.from_grid(data["sigma"]).double(),
         "brdf": str(data["brdf"]) if "brdf" in data else None,
+        "minnaert_k": float(data["minnaert_k"]) if "minnaert_k" in data else 1.0,
     }

@@ -326,7 +326,7 @@ class SyntheticScan:
                 flat = lambda key: self.truth[key].reshape((H * W,) + self.truth[key].shape[2:])[tex]
             with torch.no_grad():
                 g = brdf_mod.cosine_weighted_brdf(cfg.brdf, tt(n[idx]), tt(l[idx]), tt(smp["view"][idx]),
-                                                  tt(flat("pd")), tt(flat("ps")), tt(flat("sigma"))).numpy()
+                                                  tt(flat("pd")), tt(flat("ps")), tt(flat("sigma")), cfg.minnaert_k).numpy()
             value = self.kappa * cfg.light_intensity * g / (dist[idx, None] ** 2)
             for c in range(3):
                 img[:, c] = np.bincount(tex, weights=value[:, c], minlength=H * W)
@@ -365,7 +365,7 @@ class SyntheticScan:
         folder.mkdir(parents=True, exist_ok=True)
         np.save(folder / "range.npy", self.range_image().astype(np.float32))
         np.savez(folder / "truth.npz", pd=self.truth["pd"], ps=self.truth["ps"], sigma=self.truth["sigma"],
-                 region=self.truth["region"], brdf=self.cfg.brdf)
+                 region=self.truth["region"], brdf=self.cfg.brdf, minnaert_k=float(self.cfg.minnaert_k))
         (folder / "scan.yaml").write_text(yaml.safe_dump(self.scan_yaml(), sort_keys=False))
         return folder
 

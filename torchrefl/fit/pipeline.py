@@ -23,6 +23,7 @@ from torchrefl.brdf import classification_angle
 from torchrefl.config import Config
 from torchrefl.errors import ConfigError
 from torchrefl.fit.classify import T_DIFF, class_counts, classify
+from torchrefl.fit.diffuse_shape import fit_minnaert_exponent
 from torchrefl.fit.initialise import initialise_local
 from torchrefl.fit.params import TexelParams
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
@@ -90,6 +91,10 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
     if fc.model in ("radiosity", "photon") and not surface.has_mesh:
         raise ConfigError(f"fit.model: '{fc.model}' needs geometry with depth, but the capture {surface.source} has no "
                           "mesh (photometric stereo): use fit.model=local")
+    if rc.diffuse != "lambert" and fc.model != "local" and surface.has_mesh:
+        raise ConfigError(f"reflectance.diffuse: '{rc.diffuse}' is for local transport only, and fit.model '{fc.model}' "
+                          f"may model the interreflection of {surface.source} (Lambertian): use fit.model=local or "
+                          "reflectance.diffuse=lambert")
     held = torch.zeros(P, dtype=torch.bool)
     held[list(fc.holdout)] = True
     with stages.stage("precompute"):
@@ -101,6 +106,16 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             rc.class_angle, surface.normals[None], obs.light_dir, obs.view_dirs_full())
         cls = classify(angle, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
         counts = class_counts(cls)
+        diffuse = {"model": rc.diffuse, "k": 1.0}
+        if rc.diffuse == "minnaert":
+            if rc.minnaert_k is None:
+                shape = fit_minnaert_exponent(terms, obs.intensity, (cls == T_DIFF) & fit_mask)
+                diffuse.update(shape.as_dict(), fitted=True)
+                log(shape.note)
+            else:
+                diffuse.update(k=float(rc.minnaert_k), fitted=False)
+                log(f"diffuse: Minnaert k = {rc.minnaert_k} (reflectance.minnaert_k)")
+            terms = local_terms(rc.brdf, surface.normals, obs, diffuse_exponent=diffuse["k"])
         level = fc.model
         reason = "fit.model is 'local': direct light with cast shadows"
         indirect = None
@@ -197,7 +212,7 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
     return {
         "pd": pd, "ps": ps, "sigma": sigma, "pred": pred, "fit_mask": fit_mask, "eval_mask": eval_mask,
         "classes": cls, "counts": counts, "coverage": init.coverage, "estimated": init.defined, "history": history,
-        "init": init, "n_spec": counts["T_spec"], "held": held, "model_reason": reason, "model": level,
+        "init": init, "n_spec": counts["T_spec"], "held": held, "model_reason": reason, "model": level, "diffuse": diffuse,
         "model_numbers": choice.numbers if choice is not None else {},
         "photon": None if photon is None else {"image_difference_per_refresh": photon["scores"],
                                                "kept_refresh": photon["best"], "cache": photon["cache"].stats},

@@ -5,14 +5,14 @@ The measured value of observation (p, t) in channel c is
 with g the cosine-weighted BRDF (torchrefl.brdf). The geometry is fixed during a fit,
 so LocalTerms precomputes everything that does not depend on the parameters:
     i = Pd * A + Ps * D(theta_h; sigma) * B,
-A = kappa Y falloff vis max(n.l,0)/pi and B = kappa Y falloff vis G(cos_l, cos_v).
+A = kappa Y falloff vis max(n.l,0)/pi and B = kappa Y falloff vis G(cos_l, cos_v); with a Minnaert
+diffuse part (brdf.diffuse_term) A carries the factor (cos_l cos_v)^(k - 1) of the exponent k.
 `predict` is the fast path; `render_reference` evaluates the BRDF function directly
 and is what the fast path is tested against.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -29,6 +29,7 @@ class LocalTerms:
     cos_l, cos_v: (P, T) cosines with the normal.
     diffuse: (P, T, 3) factor A multiplying Pd.
     specular: (P, T, 3) factor B multiplying Ps * D(theta_h; sigma).
+    diffuse_exponent: Minnaert's k built into `diffuse` (1 = Lambert).
     """
 
     brdf: str
@@ -37,6 +38,7 @@ class LocalTerms:
     cos_v: torch.Tensor
     diffuse: torch.Tensor
     specular: torch.Tensor
+    diffuse_exponent: float = 1.0
 
     @property
     def num_lights(self) -> int:
@@ -49,8 +51,9 @@ def light_scale(obs: Observations) -> torch.Tensor:
     return obs.kappa * obs.light_intensity[:, None, :] * (obs.falloff * unshadowed)[..., None]
 
 
-def local_terms(brdf_name: str, normals: torch.Tensor, obs: Observations) -> LocalTerms:
-    """Precompute LocalTerms for normals (T, 3) and the observations' light/view geometry."""
+def local_terms(brdf_name: str, normals: torch.Tensor, obs: Observations, diffuse_exponent: float = 1.0) -> LocalTerms:
+    """Precompute LocalTerms for normals (T, 3) and the observations' light/view geometry
+    (diffuse_exponent: Minnaert's k, 1 = Lambert)."""
     brdf_mod.check_brdf_name(brdf_name)
     n = normals.unsqueeze(0)
     l = obs.light_dir
@@ -59,9 +62,9 @@ def local_terms(brdf_name: str, normals: torch.Tensor, obs: Observations) -> Loc
     cos_v = brdf_mod.dot(n, v)
     theta_h = brdf_mod.half_angle(n, l, v)
     scale = light_scale(obs)
-    diffuse = scale * (cos_l.clamp_min(0.0) / math.pi)[..., None]
+    diffuse = scale * brdf_mod.diffuse_term(cos_l, cos_v, float(diffuse_exponent))[..., None]
     specular = scale * brdf_mod.specular_geometry(brdf_name, cos_l, cos_v)[..., None]
-    return LocalTerms(brdf_name, theta_h, cos_l, cos_v, diffuse, specular)
+    return LocalTerms(brdf_name, theta_h, cos_l, cos_v, diffuse, specular, float(diffuse_exponent))
 
 
 def predict(terms: LocalTerms, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
@@ -70,10 +73,10 @@ def predict(terms: LocalTerms, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.
     return pd.unsqueeze(0) * terms.diffuse + ps.unsqueeze(0) * (lobe[..., None] * terms.specular)
 
 
-def render_reference(brdf_name: str, normals, obs: Observations, pd, ps, sigma) -> torch.Tensor:
+def render_reference(brdf_name: str, normals, obs: Observations, pd, ps, sigma, diffuse_exponent: float = 1.0) -> torch.Tensor:
     """(P, T, 3) the same prediction straight from brdf.cosine_weighted_brdf (slow, obvious)."""
     g = brdf_mod.cosine_weighted_brdf(
         brdf_name, normals.unsqueeze(0), obs.light_dir, obs.view_dirs_full(),
-        pd.unsqueeze(0), ps.unsqueeze(0), sigma.unsqueeze(0),
+        pd.unsqueeze(0), ps.unsqueeze(0), sigma.unsqueeze(0), diffuse_exponent,
     )
     return light_scale(obs) * g
