@@ -182,3 +182,63 @@ def test_mirror_angle_is_twice_the_half_angle_in_the_plane():
         assert abs(float(mr) - 2 * float(th)) < 1e-9
     with pytest.raises(ConfigError, match="class_angle"):
         brdf.classification_angle("other", n, n, n)
+
+
+# ------------------------------------------------------------------ Minnaert diffuse part
+
+def minnaert_written_out(nrm, l, v, pd, k):
+    """Pd / pi (cos_l cos_v)^(k - 1) cos_l, written out (front-facing light and view)."""
+    cos_l = (nrm * l).sum(1)
+    cos_v = (nrm * v).sum(1)
+    return pd / math.pi * ((cos_l * cos_v) ** (k - 1.0) * cos_l)[:, None]
+
+
+@pytest.mark.parametrize("k", [0.6, 1.0, 1.08, 1.7])
+def test_minnaert_diffuse_is_the_formula_and_k_1_is_lambert(k):
+    nrm, l, v, pd, ps, sigma = config(seed=8)
+    zero = np.zeros_like(ps)
+    g = brdf.cosine_weighted_brdf("torrance_sparrow", T(nrm), T(l), T(v), T(pd), T(zero), T(sigma), k)
+    np.testing.assert_allclose(g.numpy(), minnaert_written_out(nrm, l, v, pd, k), rtol=1e-10, atol=1e-14)
+    lam = brdf.cosine_weighted_brdf("torrance_sparrow", T(nrm), T(l), T(v), T(pd), T(zero), T(sigma))
+    if k == 1.0:
+        np.testing.assert_array_equal(g.numpy(), lam.numpy())
+    # reciprocity: f(l, v) = f(v, l), so g(l, v) / cos_l = g(v, l) / cos_v
+    g_swapped = brdf.cosine_weighted_brdf("torrance_sparrow", T(nrm), T(v), T(l), T(pd), T(zero), T(sigma), k)
+    cos_l, cos_v = (nrm * l).sum(1, keepdims=True), (nrm * v).sum(1, keepdims=True)
+    np.testing.assert_allclose(g.numpy() / cos_l, g_swapped.numpy() / cos_v, rtol=1e-9)
+
+
+def test_gradcheck_minnaert_exponent_and_parameters():
+    nrm, l, v, pd, ps, sigma = config(n=6, seed=9)
+    k = torch.tensor(1.15, dtype=torch.float64, requires_grad=True)
+    args = [T(pd).requires_grad_(), T(ps).requires_grad_(), T(sigma).requires_grad_(), k]
+    f = lambda a, b, c, e: brdf.cosine_weighted_brdf("torrance_sparrow", T(nrm), T(l), T(v), a, b, c, e)
+    assert torch.autograd.gradcheck(f, args)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("k", [0.5, 1.3, 2.0])
+def test_minnaert_extremes_are_finite(dtype, k):
+    """Grazing and back-facing light and view at the exponent's bounds: finite values and gradients (k included)."""
+    up = [0.0, 0.0, 1.0]
+    dirs = [up, [1.0, 0.0, 1e-7], [1.0, 0.0, 0.0], [0.0, 0.6, 0.8], [0.0, 0.0, -1.0]]
+    rows = [(a, b) for a in dirs for b in dirs]
+    n = torch.tensor([up] * len(rows), dtype=dtype)
+    l = brdf.safe_normalize(torch.tensor([r[0] for r in rows], dtype=dtype)).requires_grad_()
+    v = brdf.safe_normalize(torch.tensor([r[1] for r in rows], dtype=dtype)).requires_grad_()
+    pd = torch.ones(len(rows), 3, dtype=dtype, requires_grad=True)
+    e = torch.tensor(k, dtype=dtype, requires_grad=True)
+    g = brdf.cosine_weighted_brdf("torrance_sparrow", n, l, v, pd, torch.zeros(len(rows), 3, dtype=dtype),
+                                  torch.full((len(rows),), 0.2, dtype=dtype), e)
+    assert torch.isfinite(g).all() and (g >= 0).all()
+    g.sum().backward()
+    for t in (l, v, pd, e):
+        assert torch.isfinite(t.grad).all()
+
+
+def test_minnaert_float32_agrees_with_float64():
+    nrm, l, v, pd, ps, sigma = config(n=500, seed=10)
+    g64 = brdf.cosine_weighted_brdf("torrance_sparrow", T(nrm), T(l), T(v), T(pd), T(ps), T(sigma), 1.2)
+    f = lambda x: T(x).float()
+    g32 = brdf.cosine_weighted_brdf("torrance_sparrow", f(nrm), f(l), f(v), f(pd), f(ps), f(sigma), 1.2)
+    np.testing.assert_allclose(g32.double().numpy(), g64.numpy(), rtol=2e-4, atol=1e-6)

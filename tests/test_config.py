@@ -124,3 +124,17 @@ def test_relative_capture_path_from_the_command_line_is_relative_to_cwd(tmp_path
     monkeypatch.chdir(tmp_path)
     cfg = load_config(cfg_file, ["capture.path=elsewhere/y"])
     assert resolve_path(cfg, cfg.capture.path) == tmp_path / "elsewhere" / "y"
+
+
+def test_minnaert_keys_are_checked():
+    with pytest.raises(ConfigError, match="'reflectance.minnaert_k' is set but reflectance.diffuse is 'lambert'"):
+        load_config(None, ["reflectance.minnaert_k=1.1"])
+    with pytest.raises(ConfigError, match="reflectance.minnaert_k"):
+        load_config(None, ["reflectance.diffuse=minnaert", "reflectance.minnaert_k=3.0"])
+    for model in ("radiosity", "photon"):
+        with pytest.raises(ConfigError, match=f"local transport only; fit.model '{model}'"):
+            load_config(None, ["reflectance.diffuse=minnaert", f"fit.model={model}"])
+    with pytest.raises(ConfigError, match="'synthetic.minnaert_k' = 1.2 needs synthetic.indirect_samples: 0"):
+        load_config(None, ["synthetic.minnaert_k=1.2", "synthetic.indirect_samples=8"])
+    cfg = load_config(None, ["reflectance.diffuse=minnaert", "reflectance.minnaert_k=1.1"])
+    assert cfg.reflectance.minnaert_k == 1.1

@@ -13,7 +13,7 @@ from torchrefl.results import load_run
 matplotlib.use("Agg")
 
 
-def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow"):
+def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow", minnaert_k=None):
     """A run folder with known parameters on a spherical cap of radius 50 (texel grid H x W)."""
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True, exist_ok=True)
@@ -26,6 +26,8 @@ def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow"):
         sigma=rng.uniform(0.05, 0.4, (H, W)), mask=mask, brdf=np.array(brdf), positions=50.0 * n, normals=n,
         kappa=np.full(3, math.pi), units=np.array("mm"), coverage=np.full((H, W), 2, dtype=np.int16),
     )
+    if minnaert_k is not None:
+        params.update(diffuse=np.array("minnaert"), minnaert_k=np.array(minnaert_k))
     np.savez_compressed(folder / "params.npz", **params)
     (folder / "metrics.json").write_text(json.dumps({
         "model": "local", "brdf": brdf, "texels": int(mask.sum()), "lights": 3, "timing_s": {"fit": 1.0, "total": 2.0},
@@ -33,8 +35,9 @@ def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow"):
     return params
 
 
-def eq_2_9(params, L, Y, camera):
-    """The seed's eq. 2.9 for a point light, texel by texel (kappa = pi): Y / C^2 (Pd cos_l + Ps exp(-th^2 / 2 s^2) / cos_v)."""
+def eq_2_9(params, L, Y, camera, k=1.0):
+    """The seed's eq. 2.9 for a point light, texel by texel (kappa = pi): Y / C^2 (Pd cos_l + Ps exp(-th^2 / 2 s^2) / cos_v),
+    with the diffuse term times Minnaert's (cos_l cos_v)^(k - 1)."""
     H, W = params["mask"].shape
     out = np.zeros((H, W, 3))
     for r in range(H):
@@ -52,22 +55,23 @@ def eq_2_9(params, L, Y, camera):
             h = (l + v) / np.linalg.norm(l + v)
             th = math.acos(min(1.0, float(n @ h)))
             ps = params["ps"][r, c] * np.ones(3)
-            out[r, c] = np.asarray(Y) / C ** 2 * (params["pd"][r, c] * cl
+            out[r, c] = np.asarray(Y) / C ** 2 * (params["pd"][r, c] * cl * (cl * cv) ** (k - 1.0)
                                                    + ps * math.exp(-th * th / (2 * params["sigma"][r, c] ** 2)) / cv)
     return out
 
 
-@pytest.mark.parametrize("ps_channels", [1, 3])
-def test_render_matches_eq_2_9(tmp_path, ps_channels):
-    params = write_run(tmp_path / "run", ps_channels=ps_channels)
+@pytest.mark.parametrize("ps_channels,k", [(1, None), (3, None), (3, 1.15)])
+def test_render_matches_eq_2_9(tmp_path, ps_channels, k):
+    params = write_run(tmp_path / "run", ps_channels=ps_channels, minnaert_k=k)
     run = load_run(tmp_path / "run")
+    assert run.minnaert_k == (k or 1.0) and run.diffuse == ("minnaert" if k else "lambert")
     assert run.grid_shape == (6, 7) and run.brdf == "torrance_sparrow" and run.units == "mm"
     np.testing.assert_array_equal(run.pd, params["pd"])
     for L, camera, Y in [((0.0, 30.0, 120.0), (0.0, 0.0, 200.0), (2.0e4, 1.5e4, 1.0e4)),
                          ((80.0, -10.0, 40.0), (-30.0, 20.0, 150.0), 3.0e4)]:
         Y3 = np.broadcast_to(np.asarray(Y, float), (3,))
         img = run.render(light_position=L, camera=camera, intensity=Y)
-        ref = eq_2_9(params, L, Y3, camera)
+        ref = eq_2_9(params, L, Y3, camera, k or 1.0)
         assert img.shape == (6, 7, 3)
         np.testing.assert_allclose(img, ref, rtol=1e-9, atol=1e-12)
         assert (ref > 0).any() and (img[~params["mask"]] == 0).all()

@@ -29,6 +29,20 @@ def test_fast_path_matches_reference(model, C):
     assert (fast[3, :50] == 0).all()
 
 
+@pytest.mark.parametrize("k", [0.7, 1.25])
+def test_fast_path_matches_reference_with_a_minnaert_diffuse_part(k):
+    nrm, pos, lights, cam = dome_scene(T=200)
+    obs = point_light_observations(nrm, pos, lights, cam)
+    pd, ps, sigma = params(200)
+    n = torch.as_tensor(nrm)
+    terms = local_terms("torrance_sparrow", n, obs, diffuse_exponent=k)
+    assert terms.diffuse_exponent == k
+    torch.testing.assert_close(predict(terms, pd, ps, sigma), render_reference("torrance_sparrow", n, obs, pd, ps, sigma, k),
+                               rtol=1e-10, atol=1e-13)
+    lam = predict(local_terms("torrance_sparrow", n, obs), pd, ps * 0, sigma)
+    assert not torch.allclose(predict(terms, pd, ps * 0, sigma), lam)
+
+
 def test_gradcheck_predict():
     nrm, pos, lights, cam = dome_scene(T=4)
     obs = point_light_observations(nrm, pos, lights[::10], cam)
