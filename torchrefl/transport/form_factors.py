@@ -26,6 +26,8 @@ torchrefl.geometry.range_mesh.grid_triangulation).
 from __future__ import annotations
 
 import math
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -39,6 +41,8 @@ from torchrefl.rays import RayTracer
 #: hemisphere_form_factors returns a dense (Q, Q) tensor when Q * Q <= DENSE_MAX_ENTRIES
 #: (Q <= 2048: at most 32 MiB in float64), a sparse COO tensor otherwise.
 DENSE_MAX_ENTRIES = 2048 * 2048
+#: rays per work unit of hemisphere_form_factors (whole patches; one thread samples, traces and tallies a unit)
+UNIT_RAYS = 1 << 16
 
 
 @dataclass
@@ -198,8 +202,9 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     normal. F_uv = (rays from u whose first hit is on the front of a face of patch v) / N; the front
     is the side the patch normal (weighted mean of its normals) points to, tested per face.
     layout: 'dense', 'sparse' (coalesced COO) or 'auto': dense when Q * Q <= DENSE_MAX_ENTRIES,
-    else sparse. Both support .to_dense(). Deterministic in seed (independent of threads/chunks).
-    progress(done_rays, total_rays) is called after each batch of rays.
+    else sparse. Both support .to_dense(). Deterministic in seed (independent of the thread count: each
+    work unit of about UNIT_RAYS rays draws from its own stream keyed by seed and unit).
+    progress(done_rays, total_rays) is called after each work unit.
     """
     if isinstance(samples_per_patch, bool) or not isinstance(samples_per_patch, (int, np.integer)) \
             or samples_per_patch < 1:
@@ -243,15 +248,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         raise GeometryError(f"face_patch values must lie in -1..{Q - 1} (Q = {Q} patches from origins)")
 
     N = int(samples_per_patch)
-    rng = np.random.default_rng(seed)
-    # origin choice by inverse CDF of the weights, per patch; a zero-weight slot has the same cdf as
-    # the slot before it, so right=True never picks padding
-    cdf = np.cumsum(w, axis=1)
-    cdf /= cdf[:, -1:]
-    u = rng.random((Q, N))
-    k = torch.searchsorted(torch.from_numpy(cdf), torch.from_numpy(u), right=True).numpy()
-    k = np.minimum(k, K - 1)
-    src = np.repeat(np.arange(Q), N)
+    cdf = torch.from_numpy(np.cumsum(w, axis=1) / row[:, None])
     # frames and start points once per candidate origin (Q * K), then gathered per ray (float32, like Embree)
     cand = np.flatnonzero(used.ravel())
     slot = np.full(Q * K, -1, dtype=np.int64)
@@ -259,33 +256,50 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     cn = nm.reshape(-1, 3)[cand].astype(np.float64)
     cn /= np.linalg.norm(cn, axis=1, keepdims=True)
     ct, cb = _onb(cn)
-    cstart = o.reshape(-1, 3)[cand].astype(np.float64) + offset * cn
-    j = slot[src * K + k.ravel()]
-    u1, u2 = rng.random((2, Q * N))
-    r = np.sqrt(u1).astype(np.float32)
-    phi = (2.0 * np.pi * u2).astype(np.float32)
-    d = ((r * np.cos(phi))[:, None] * ct.astype(np.float32)[j] + (r * np.sin(phi))[:, None] * cb.astype(np.float32)[j]
-         + np.sqrt(np.maximum(1.0 - u1, 0.0)).astype(np.float32)[:, None] * cn.astype(np.float32)[j])
-    start = cstart.astype(np.float32)[j]
+    frames = np.stack([ct, cb, cn], 1).astype(np.float32)                     # (C, 3, 3): rows t, b, n
+    cstart = (o.reshape(-1, 3)[cand].astype(np.float64) + offset * cn).astype(np.float32)
+    front = None if count_back_hits else _front_faces(tracer, fp, w, nm, Q).astype(np.float32)
 
+    # work units of whole patches (about UNIT_RAYS rays each), each sampled, traced and tallied by one thread
+    # with its own random stream keyed by (seed, unit): the result does not depend on the thread count
+    per_unit = max(1, UNIT_RAYS // N)
+    units = [(a, min(a + per_unit, Q)) for a in range(0, Q, per_unit)]
     total = Q * N
-    step = max(1, tracer.chunk_size * tracer.threads)
-    tri = np.empty(total, dtype=np.int64)
-    for a in range(0, total, step):
-        e = min(a + step, total)
-        tri[a:e] = tracer.closest_hit(start[a:e], d[a:e]).triangle
-        if progress is not None:
-            progress(e, total)
+    done = [0]
+    lock = threading.Lock()
 
-    dst = np.where(tri >= 0, fp[np.maximum(tri, 0)], -1)
-    if not count_back_hits:
-        front = _front_faces(tracer, fp, w, nm, Q)
-        hit = dst >= 0
-        facing = np.zeros(total, dtype=bool)
-        facing[hit] = np.einsum("ni,ni->n", d[hit], front[tri[hit]]) < 0
-        dst = np.where(facing, dst, -1)
-    ok = dst >= 0
-    keys = src[ok] * Q + dst[ok]
+    def work(i: int) -> np.ndarray:
+        a, b = units[i]
+        rng = np.random.default_rng([int(seed), 0xF0, i])
+        # origin choice by inverse CDF of the weights; a zero-weight slot has the same cdf as the slot
+        # before it, so right=True never picks padding
+        u = torch.from_numpy(rng.random((b - a, N)))
+        k = np.minimum(torch.searchsorted(cdf[a:b], u, right=True).numpy(), K - 1)
+        src = np.repeat(np.arange(a, b), N)
+        j = slot[src * K + k.ravel()]
+        u1 = rng.random(len(j), dtype=np.float32)
+        phi = rng.random(len(j), dtype=np.float32) * np.float32(2.0 * np.pi)
+        r = np.sqrt(u1)
+        local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(np.float32(1.0) - u1, 0))], 1)
+        d = np.einsum("ni,nij->nj", local, frames[j])
+        tri = tracer.scene.run(cstart[j], d, query="INTERSECT").astype(np.int64)
+        dst = np.where(tri >= 0, fp[np.maximum(tri, 0)], -1)
+        if front is not None:
+            hit = np.flatnonzero(dst >= 0)
+            back = np.einsum("ni,ni->n", d[hit], front[tri[hit]]) >= 0
+            dst[hit[back]] = -1
+        ok = dst >= 0
+        with lock:
+            done[0] += len(j)
+            if progress is not None:
+                progress(done[0], total)
+        return src[ok] * Q + dst[ok]
+
+    if tracer.threads > 1 and len(units) > 1:
+        with ThreadPoolExecutor(tracer.threads) as pool:
+            keys = np.concatenate(list(pool.map(work, range(len(units)))))
+    else:
+        keys = np.concatenate([work(i) for i in range(len(units))])
     uniq, counts = np.unique(keys, return_counts=True)
     values = torch.from_numpy(counts.astype(np.float64) / N)
     idx = torch.from_numpy(np.stack([uniq // Q, uniq % Q]))
