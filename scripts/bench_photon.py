@@ -114,13 +114,14 @@ def main() -> None:
     from torchrefl.rays import RayTracer
     from torchrefl.transport.form_factors import form_factors_for_surface
     tracer = RayTracer(V, F, threads=args.threads)
-    samples = 64
+    rc = base.radiosity                        # the configured (default) patch size and hemisphere samples
     start = time.perf_counter()
-    patches, Fm = form_factors_for_surface(geom.surface, tracer, patch_size=2, samples_per_patch=samples)
+    patches, Fm = form_factors_for_surface(geom.surface, tracer, patch_size=rc.patch_size, samples_per_patch=rc.hemisphere_samples)
     ff_s = time.perf_counter() - start
-    ff_rays = patches.num_patches * samples
-    report["form_factors"] = {"patches": patches.num_patches, "rays": ff_rays, "seconds": round(ff_s, 2),
-                              "rays_per_s": round(ff_rays / ff_s), "ratio_to_bare_same_threads": round(ff_rays / ff_s / bareN, 3)}
+    ff_rays = patches.num_patches * rc.hemisphere_samples
+    report["form_factors"] = {"patches": patches.num_patches, "patch_size": rc.patch_size, "samples_per_patch": rc.hemisphere_samples,
+                              "rays": ff_rays, "seconds": round(ff_s, 2), "rays_per_s": round(ff_rays / ff_s),
+                              "ratio_to_bare_same_threads": round(ff_rays / ff_s / bareN, 3)}
 
     # 3. scaling of one refresh
     if not args.no_scaling:
