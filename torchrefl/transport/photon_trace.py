@@ -25,6 +25,7 @@ Deterministic in `seed`: random numbers are keyed by (seed, refresh, source, chu
 
 from __future__ import annotations
 
+import copy
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -103,6 +104,10 @@ class PhotonTracer:
         if min_bounces < 0 or max_bounces < max(1, min_bounces):
             raise GeometryError(f"photon.min_bounces/max_bounces: need 0 <= min ({min_bounces}) <= max ({max_bounces}), max >= 1")
         self.tracer = tracer
+        # the work units of `trace` run on tracer.threads threads; inside a unit, rays go through Embree on
+        # that unit's thread (a second pool per bounce would oversubscribe the cores)
+        self._unit_tracer = copy.copy(tracer)
+        self._unit_tracer.threads = 1
         self.brdf = brdf
         self.lobe = LOBES[brdf]
         self.positions = np.ascontiguousarray(positions, dtype=np.float64)
@@ -234,7 +239,7 @@ class PhotonTracer:
         rays = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
-                hits = self.tracer.closest_hit(origin, d)
+                hits = self._unit_tracer.closest_hit(origin, d)
                 rays += len(origin)
                 keep = np.flatnonzero(hits.hit)
                 if not keep.size:
