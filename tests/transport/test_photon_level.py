@@ -8,8 +8,9 @@ import torch
 
 from conftest import fold_surface, point_light_observations
 from torchrefl.rays import RayTracer
+from torchrefl.errors import ConfigError
 from torchrefl.transport.photon_level import (build_cache, indirect_radiance, indirect_radiance_reference,
-                                              light_sources, texel_light_positions)
+                                              light_sources, smooth_on_grid, texel_light_positions)
 from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
 
 LIGHTS = np.array([[-40.0, 5.0, 50.0], [-20.0, -10.0, 70.0]])
@@ -33,13 +34,13 @@ def traced():
     return s, obs, pt, src, hits, pd, ps, sigma
 
 
-def cache_of(traced, theta_bin, sigma_max=10.0, linear=False, smoothing=0.0):
+def cache_of(traced, theta_bin, sigma_max=10.0, linear=False, smoothing=0.0, smoothing_normal=0.0):
     s, obs, pt, src, hits, pd, ps, sigma = traced
     keep = torch.ones(obs.valid.shape, dtype=torch.bool)
     return build_cache(hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow",
                        np.full(s.num_texels, 1.0), sigma_max, 0.02, theta_bin=theta_bin,
                        emitter_pd=pd.numpy() if linear else None, smoothing=smoothing,
-                       grid=(s.texel_index, s.grid_shape))
+                       grid=(s.texel_index, s.grid_shape, s.normals), smoothing_normal=smoothing_normal)
 
 
 def test_the_linear_cache_is_exact_at_the_traced_pd(traced):
@@ -85,10 +86,10 @@ def test_the_cache_reproduces_the_per_photon_sum(traced):
     assert float((binned - ref).abs().max() / ref.abs().max()) < 0.02
 
 
-@pytest.mark.parametrize("linear,smoothing", [(False, 0.0), (True, 1.0)])
-def test_gradcheck_float64(traced, linear, smoothing):
+@pytest.mark.parametrize("linear,smoothing,smoothing_normal", [(False, 0.0, 0.0), (True, 1.0, 0.0), (True, 1.0, 0.1)])
+def test_gradcheck_float64(traced, linear, smoothing, smoothing_normal):
     s, obs, pt, src, hits, pd, ps, sigma = traced
-    cache = cache_of(traced, 0.004, linear=linear, smoothing=smoothing)
+    cache = cache_of(traced, 0.004, linear=linear, smoothing=smoothing, smoothing_normal=smoothing_normal)
     assert cache.entry_obs.numel() > 0
     f = lambda a, b, c: indirect_radiance(cache, obs.kappa, a, b, c)
     assert torch.autograd.gradcheck(f, (pd.clone().requires_grad_(), ps.clone().requires_grad_(),
@@ -155,3 +156,30 @@ def test_moving_lights_get_light_maps_that_interpolate_by_column():
     fixed = point_light_observations(s.normals, s.positions, LIGHTS, CAMERA)
     one = light_sources(s, fixed, 4)
     assert one.positions.shape == (2, 1, 3) and np.allclose(one.positions[:, 0], LIGHTS)
+
+
+def test_normal_aware_smoothing_does_not_gather_across_a_fold():
+    """A field constant on each side of a 90 degree fold: the plain Gaussian mixes the sides in the columns next to
+    the fold, the normal-aware kernel keeps each side's value; on one side alone both are the same Gaussian."""
+    s = fold_surface(12, 24)
+    floor = s.normals[:, 2] > 0.5
+    values = torch.where(floor, 1.0, 3.0).to(torch.float64)[None, :, None].expand(2, -1, 3).clone()
+    plain = smooth_on_grid(values, s.texel_index, s.grid_shape, 1.0)
+    aware = smooth_on_grid(values, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)
+    torch.testing.assert_close(aware, values, rtol=0, atol=1e-12)
+    col = (s.texel_index % s.grid_shape[1])
+    next_to_fold = (col == 11) | (col == 12)
+    assert (plain[0, next_to_fold, 0] - values[0, next_to_fold, 0]).abs().min() > 0.1
+    # a smooth field on one plate: the normal factor is 1 there, so the result is the normalised Gaussian
+    ramp = (s.positions[:, 1:2] * 0.1 + 2.0).expand(-1, 3)[None]
+    on_floor = lambda x: x[:, floor & (col < 8)]
+    torch.testing.assert_close(on_floor(smooth_on_grid(ramp, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)),
+                               on_floor(smooth_on_grid(ramp, s.texel_index, s.grid_shape, 1.0)), rtol=1e-10, atol=1e-12)
+
+
+def test_normal_aware_smoothing_needs_the_normals(traced):
+    s, obs, pt, src, hits, pd, ps, sigma = traced
+    keep = torch.ones(obs.valid.shape, dtype=torch.bool)
+    with pytest.raises(ConfigError, match="smoothing_normal"):
+        build_cache(hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow", np.full(s.num_texels, 1.0),
+                    10.0, 0.02, smoothing=1.0, grid=(s.texel_index, s.grid_shape), smoothing_normal=0.1)

@@ -51,6 +51,7 @@ class PhotonLevel:
     smoothing: float = 0.0
     grid: tuple | None = None
     linear_emitters: bool = False
+    smoothing_normal: float = 0.0
 
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
@@ -69,7 +70,7 @@ class PhotonLevel:
         cache = build_cache(hits, self.sources, self.tracer.areas, self.tracer.normals, self.view_dirs, self.keep,
                             self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
                             self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
-                            emitter_pd=mat.pd if self.linear_emitters else None)
+                            emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal)
         return cache.to(self.dtype, self.device)
 
 

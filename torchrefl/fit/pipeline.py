@@ -77,7 +77,8 @@ def _photon_setup(cfg: Config, surface, obs, keep, device, dtype):
     sources = light_sources(surface, obs, pc.light_maps)
     view = obs.view_dirs_full() if obs.view_dir.dim() == 3 else obs.view_dir
     return PhotonLevel(ptracer, sources, view.double(), keep, pc.photons_per_light, rc.sigma_max, rc.min_cos_light,
-                       cfg.seed, dtype, device, smoothing=pc.smoothing, grid=(surface.texel_index, surface.grid_shape),
+                       cfg.seed, dtype, device, smoothing=pc.smoothing,
+                       grid=(surface.texel_index, surface.grid_shape, surface.normals.double()), smoothing_normal=pc.smoothing_normal,
                        linear_emitters=pc.linear_emitters)
 
 

@@ -22,9 +22,13 @@ does not use grazing light either).
 
 Density estimation. A texel's H from its own photons is noisy (a few photons per light and texel);
 with `smoothing` > 0 (texels) H is a Gaussian-weighted mean over neighbouring texels of the grid
-(normalised convolution over valid texels, kornia.filters.gaussian_blur2d): the photon-map gather
-radius, trading noise for blur where the indirect light changes fast (at a fold). The specular
-entries stay per texel.
+(normalised convolution over valid texels): the photon-map gather radius, trading noise for blur
+where the indirect light changes fast. With `smoothing_normal` s > 0 a neighbour also weighs
+exp(-|n - n'|^2 / (2 s^2)) by how far its normal n' is from the texel's n (a joint bilateral filter
+guided by the normals, kornia.filters.joint_bilateral_blur; plain kornia.filters.gaussian_blur2d
+otherwise), so the kernel gathers along the surface and not across a fold or a crease, where the
+two sides receive different indirect light (a photon map's gather with a normal test). The
+specular entries stay per texel.
 
 Moving lights. On the cylindrical rig the lights co-rotate with the scan, so each texel column sees
 light p from its own position L_pt = x_t + l_pt / sqrt(falloff_pt). `light_sources` places K
@@ -106,8 +110,8 @@ def light_sources(surface, obs, max_maps: int) -> LightSources:
 @dataclass
 class PhotonCache:
     """irradiance (P, T, 3) H0 (smoothed); entry_obs (E,) flat p*T + t; entry_theta_h (E,); entry_weight (E, 3);
-    linear: sparse (3 P T, 3 T) L, rows c P T + p T + t, columns c T + e, or None; smoothing, grid: the
-    density-estimation kernel applied to L Pd (H0 is stored smoothed)."""
+    linear: sparse (3 P T, 3 T) L, rows c P T + p T + t, columns c T + e, or None; smoothing, grid,
+    smoothing_normal: the density-estimation kernel applied to L Pd (H0 is stored smoothed)."""
 
     brdf: str
     irradiance: torch.Tensor
@@ -118,12 +122,13 @@ class PhotonCache:
     linear: torch.Tensor | None = None
     smoothing: float = 0.0
     grid: tuple | None = None
+    smoothing_normal: float = 0.0
 
     def to(self, dtype: torch.dtype, device=None) -> "PhotonCache":
         mv = lambda x: x.to(device=device, dtype=dtype if x.is_floating_point() else x.dtype)
         return PhotonCache(self.brdf, mv(self.irradiance), mv(self.entry_obs), mv(self.entry_theta_h),
                            mv(self.entry_weight), dict(self.stats), None if self.linear is None else mv(self.linear),
-                           self.smoothing, self.grid)
+                           self.smoothing, self.grid, self.smoothing_normal)
 
     def irradiance_at(self, pd: torch.Tensor) -> torch.Tensor:
         """(P, T, 3) H(Pd) for texel Pd (T, 3)."""
@@ -133,15 +138,24 @@ class PhotonCache:
         lin = torch.sparse.mm(self.linear, pd.t().reshape(-1, 1).to(self.irradiance.dtype))
         lin = lin.reshape(3, P, T).permute(1, 2, 0)
         if self.smoothing > 0:
-            lin = smooth_on_grid(lin, self.grid[0], self.grid[1], self.smoothing)
+            index, shape, normals = _grid_parts(self.grid)
+            lin = smooth_on_grid(lin, index, shape, self.smoothing, normals, self.smoothing_normal)
         return self.irradiance + lin
 
 
-def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: tuple[int, int], sigma: float) -> torch.Tensor:
-    """Normalised Gaussian smoothing (std `sigma` texels) of per-texel values (..., T, C) over the grid."""
+def _grid_parts(grid: tuple) -> tuple:
+    """(texel_index, grid_shape, normals or None) of a grid tuple (texel_index, grid_shape[, normals])."""
+    return grid[0], grid[1], (grid[2] if len(grid) > 2 else None)
+
+
+def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: tuple[int, int], sigma: float,
+                   normals: torch.Tensor | None = None, normal_sigma: float = 0.0) -> torch.Tensor:
+    """Normalised Gaussian smoothing (std `sigma` texels) of per-texel values (..., T, C) over the grid;
+    with normals (T, 3) and normal_sigma > 0 each neighbour's weight also has the factor
+    exp(-|n - n'|^2 / (2 normal_sigma^2)) (joint bilateral filter guided by the normals)."""
     if sigma <= 0:
         return values
-    from kornia.filters import gaussian_blur2d
+    from kornia.filters import gaussian_blur2d, joint_bilateral_blur
 
     H, W = grid_shape
     lead, (T, C) = values.shape[:-2], values.shape[-2:]
@@ -150,7 +164,13 @@ def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: 
     grid[:-1, texel_index] = flat
     grid[-1, texel_index] = 1.0                                                  # the valid mask
     k = 2 * int(math.ceil(3 * sigma)) + 1
-    blurred = gaussian_blur2d(grid.reshape(1, -1, H, W), (k, k), (sigma, sigma), border_type="constant")
+    if normals is not None and normal_sigma > 0:
+        guide = torch.zeros(3, H * W, dtype=values.dtype)
+        guide[:, texel_index] = normals.to(values.dtype).t()
+        blurred = joint_bilateral_blur(grid.reshape(1, -1, H, W), guide.reshape(1, 3, H, W), (k, k), float(normal_sigma),
+                                       (sigma, sigma), border_type="constant", color_distance_type="l2")
+    else:
+        blurred = gaussian_blur2d(grid.reshape(1, -1, H, W), (k, k), (sigma, sigma), border_type="constant")
     blurred = blurred.reshape(-1, H * W)[:, texel_index]
     out = blurred[:-1] / blurred[-1:].clamp_min(1e-12)
     return out.reshape(-1, C, T).permute(0, 2, 1).reshape(*lead, T, C)
@@ -158,13 +178,15 @@ def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: 
 
 def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
                 sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
-                smoothing: float = 0.0, grid=None, emitter_pd=None) -> PhotonCache:
+                smoothing: float = 0.0, grid=None, emitter_pd=None, smoothing_normal: float = 0.0) -> PhotonCache:
     """Reduce photon hits to the cache.
 
     hits: from PhotonTracer.trace over sources.positions.reshape(-1, 3) (source s = p * K + k);
     areas (T,), normals (T, 3), view_dirs (T, 3) or (P, T, 3); keep (P, T) bool observations that are
     predicted (fitted or evaluated); sigma (T,) current roughness (prunes the specular entries);
-    smoothing: std of the Gaussian density-estimation kernel in texels (needs grid = (texel_index, grid_shape));
+    smoothing: std of the Gaussian density-estimation kernel in texels (needs grid = (texel_index, grid_shape)
+    or (texel_index, grid_shape, normals (T, 3))); smoothing_normal: the kernel's normal-difference std (needs
+    the normals in grid; 0 = plain Gaussian);
     emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd.
     """
     P, K = sources.positions.shape[:2]
@@ -232,10 +254,14 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     if smoothing > 0:
         if grid is None:
             raise ConfigError("photon.smoothing > 0 needs the texel grid (texel_index, grid_shape)")
-        irradiance = smooth_on_grid(irradiance, grid[0], grid[1], smoothing)
+        if smoothing_normal > 0 and _grid_parts(grid)[2] is None:
+            raise ConfigError("photon.smoothing_normal > 0 needs the texel normals in the grid (texel_index, grid_shape, normals)")
+        index, shape, normals = _grid_parts(grid)
+        irradiance = smooth_on_grid(irradiance, index, shape, smoothing, normals, smoothing_normal)
     if linear is not None:
         stats["linear_entries"] = int(linear._nnz())
-    return PhotonCache(brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoothing=smoothing, grid=grid)
+    return PhotonCache(brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoothing=smoothing, grid=grid,
+                       smoothing_normal=smoothing_normal)
 
 
 def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor, ps: torch.Tensor,
