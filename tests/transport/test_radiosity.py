@@ -126,3 +126,21 @@ def test_strided_right_hand_sides_are_solved():
     B = solve_radiosity(rho, E, F.float(), method="direct")
     ref = solve_radiosity(rho, E.contiguous(), F.float(), method="iterative", tol=1e-7)
     torch.testing.assert_close(B, ref, rtol=1e-4, atol=1e-5)
+
+
+def test_float32_iterative_solve_meets_a_tolerance_below_its_precision():
+    """In float32 the change between iterates stalls at rounding level: a tolerance of 1e-9 (or the default
+    1e-7, right at float32's eps) is met at 8 eps instead of failing after max_iter, forward and backward."""
+    A, F = random_reciprocal(Q=60, leak=0.2)
+    g = torch.Generator().manual_seed(5)
+    rho = (0.5 + 0.45 * torch.rand(60, 3, generator=g, dtype=torch.float64))
+    E = torch.rand(4, 60, 3, generator=g, dtype=torch.float64)
+    ref = solve_radiosity(rho, E, F, method="direct")
+    for tol in (1e-9, 1e-7):
+        r32 = rho.float().requires_grad_()
+        B = solve_radiosity(r32, E.float(), F.float(), method="iterative", tol=tol, max_iter=500)
+        B.sum().backward()
+        assert torch.isfinite(r32.grad).all()
+        torch.testing.assert_close(B.double(), ref, rtol=2e-5, atol=1e-6)
+    with pytest.raises(FitError, match="raise radiosity.max_iterations or set radiosity.solver: direct"):
+        solve_radiosity(rho, E, F, method="iterative", tol=1e-12, max_iter=2)

@@ -82,11 +82,15 @@ def _direct(rho, E, F, transpose=False):
 
 
 def _iterate(rho, E, F, tol, max_iter, transpose=False):
-    """Fixed point X = E + rho F X (or X = E + F^T (rho X)); rho (Q, C), E (Q, C, K)."""
+    """Fixed point X = E + rho F X (or X = E + F^T (rho X)); rho (Q, C), E (Q, C, K).
+
+    The relative tolerance is raised to 8 eps of the working precision at least: in float32 the change
+    between iterates stalls at rounding level (~1e-7) and a tighter tolerance could never be met."""
     Q, C, K = E.shape
     Ft = _transpose(F) if transpose else F
     Ft = Ft.to(rho.dtype)
     X = E.clone()
+    tol = max(float(tol), 8.0 * torch.finfo(E.dtype).eps)
     scale = E.abs().max().clamp_min(1e-30)
     for it in range(max_iter):
         if transpose:
@@ -98,7 +102,7 @@ def _iterate(rho, E, F, tol, max_iter, transpose=False):
         if delta <= tol * scale:
             return X, it + 1
     raise FitError(f"radiosity: the iterative solver did not reach tolerance {tol} in {max_iter} iterations "
-                   f"(last change {float(delta / scale):.3g}); raise fit.radiosity_max_iter or use the direct solver")
+                   f"(last change {float(delta / scale):.3g}); raise radiosity.max_iterations or set radiosity.solver: direct")
 
 
 class _Solve(torch.autograd.Function):
