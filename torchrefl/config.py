@@ -174,6 +174,7 @@ class PhotonConfig:
     linear_emitters: bool = opt(False, "keep the cached irradiance linear in the Pd of each photon's last emitter (exact last bounce between refreshes; about 3x slower fits)")
     reinitialise: bool = opt(False, "start every outer iteration from the closed forms on the images minus the cached indirect light")
     smoothing: float = opt(1.0, "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each texel's own photons)", low=0.0)
+    specular_smoothing: float = opt(0.0, "density estimation of the specular entries: each photon's entry is spread over the neighbouring texels (3 x 3, Gaussian of this std in texels, normal-tested like smoothing); 0 = per texel. Per-texel entries are so noisy that they bias Ps down when highlights are observed (errors in variables); 1.0 removes that bias at ~2-3x the photon level's fit time (about 9x the entries)", low=0.0)
     smoothing_normal: float = opt(0.1, "density estimation: a neighbour's weight also falls as exp(-|n - n'|^2 / (2 s^2)) with its normal's distance from the texel's (s ~ radians), so the kernel does not gather across folds and creases; 0 = plain Gaussian", low=0.0)
     min_bounces: int = opt(1, "scatterings before Russian roulette starts", low=0)
     max_bounces: int = opt(16, "cap on scatterings per photon", low=1)

@@ -10,7 +10,7 @@ from conftest import fold_surface, point_light_observations
 from torchrefl.rays import RayTracer
 from torchrefl.errors import ConfigError
 from torchrefl.transport.photon_level import (build_cache, indirect_radiance, indirect_radiance_reference,
-                                              light_sources, smooth_on_grid, texel_light_positions)
+                                              light_sources, smooth_on_grid, spread_on_grid, texel_light_positions)
 from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
 
 LIGHTS = np.array([[-40.0, 5.0, 50.0], [-20.0, -10.0, 70.0]])
@@ -34,13 +34,14 @@ def traced():
     return s, obs, pt, src, hits, pd, ps, sigma
 
 
-def cache_of(traced, theta_bin, sigma_max=10.0, linear=False, smoothing=0.0, smoothing_normal=0.0):
+def cache_of(traced, theta_bin, sigma_max=10.0, linear=False, smoothing=0.0, smoothing_normal=0.0, specular_smoothing=0.0):
     s, obs, pt, src, hits, pd, ps, sigma = traced
     keep = torch.ones(obs.valid.shape, dtype=torch.bool)
     return build_cache(hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow",
                        np.full(s.num_texels, 1.0), sigma_max, 0.02, theta_bin=theta_bin,
                        emitter_pd=pd.numpy() if linear else None, smoothing=smoothing,
-                       grid=(s.texel_index, s.grid_shape, s.normals), smoothing_normal=smoothing_normal)
+                       grid=(s.texel_index, s.grid_shape, s.normals), smoothing_normal=smoothing_normal,
+                       specular_smoothing=specular_smoothing)
 
 
 def test_the_linear_cache_is_exact_at_the_traced_pd(traced):
@@ -86,10 +87,12 @@ def test_the_cache_reproduces_the_per_photon_sum(traced):
     assert float((binned - ref).abs().max() / ref.abs().max()) < 0.02
 
 
-@pytest.mark.parametrize("linear,smoothing,smoothing_normal", [(False, 0.0, 0.0), (True, 1.0, 0.0), (True, 1.0, 0.1)])
-def test_gradcheck_float64(traced, linear, smoothing, smoothing_normal):
+@pytest.mark.parametrize("linear,smoothing,smoothing_normal,specular", [(False, 0.0, 0.0, 0.0), (True, 1.0, 0.0, 0.0),
+                                                                        (True, 1.0, 0.1, 1.0)])
+def test_gradcheck_float64(traced, linear, smoothing, smoothing_normal, specular):
     s, obs, pt, src, hits, pd, ps, sigma = traced
-    cache = cache_of(traced, 0.004, linear=linear, smoothing=smoothing, smoothing_normal=smoothing_normal)
+    cache = cache_of(traced, 0.004, linear=linear, smoothing=smoothing, smoothing_normal=smoothing_normal,
+                     specular_smoothing=specular)
     assert cache.entry_obs.numel() > 0
     f = lambda a, b, c: indirect_radiance(cache, obs.kappa, a, b, c)
     assert torch.autograd.gradcheck(f, (pd.clone().requires_grad_(), ps.clone().requires_grad_(),
@@ -183,3 +186,29 @@ def test_normal_aware_smoothing_needs_the_normals(traced):
     with pytest.raises(ConfigError, match="smoothing_normal"):
         build_cache(hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow", np.full(s.num_texels, 1.0),
                     10.0, 0.02, smoothing=1.0, grid=(s.texel_index, s.grid_shape), smoothing_normal=0.1)
+
+
+def test_spreading_keeps_a_constant_field_and_does_not_cross_the_fold():
+    """One unit entry per texel spread with the normalised kernel: every texel receives exactly 1 (interior and
+    border alike); with the normal test nothing crosses the fold; copies stay with their light."""
+    s = fold_surface(10, 20)
+    T = s.num_texels
+    for normals, ns in ((None, 0.0), (s.normals, 0.1)):
+        obs = np.concatenate([np.arange(T), T + np.arange(T)])          # lights 0 and 1
+        to, src, w = spread_on_grid(obs, T, s.texel_index, s.grid_shape, 1.0, normals, ns)
+        received = np.bincount(to, weights=w, minlength=2 * T)
+        np.testing.assert_allclose(received, 1.0, rtol=1e-12)
+        assert ((to // T) == (obs[src] // T)).all()
+    floor = (s.normals[:, 2] > 0.5).numpy()
+    to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)
+    assert floor[to[w > 1e-12]].all()
+    to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.texel_index, s.grid_shape, 1.0)
+    assert not floor[to[w > 1e-3]].all()                                 # the plain kernel does cross
+
+
+def test_specular_spreading_needs_the_grid(traced):
+    s, obs, pt, src, hits, pd, ps, sigma = traced
+    keep = torch.ones(obs.valid.shape, dtype=torch.bool)
+    with pytest.raises(ConfigError, match="specular_smoothing"):
+        build_cache(hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow", np.full(s.num_texels, 1.0),
+                    10.0, 0.02, specular_smoothing=1.0)

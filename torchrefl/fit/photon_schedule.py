@@ -52,6 +52,7 @@ class PhotonLevel:
     grid: tuple | None = None
     linear_emitters: bool = False
     smoothing_normal: float = 0.0
+    specular_smoothing: float = 0.0
 
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
@@ -70,7 +71,8 @@ class PhotonLevel:
         cache = build_cache(hits, self.sources, self.tracer.areas, self.tracer.normals, self.view_dirs, self.keep,
                             self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
                             self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
-                            emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal)
+                            emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal,
+                            specular_smoothing=self.specular_smoothing)
         return cache.to(self.dtype, self.device)
 
 

@@ -79,6 +79,7 @@ def _photon_setup(cfg: Config, surface, obs, keep, device, dtype):
     return PhotonLevel(ptracer, sources, view.double(), keep, pc.photons_per_light, rc.sigma_max, rc.min_cos_light,
                        cfg.seed, dtype, device, smoothing=pc.smoothing,
                        grid=(surface.texel_index, surface.grid_shape, surface.normals.double()), smoothing_normal=pc.smoothing_normal,
+                       specular_smoothing=pc.specular_smoothing,
                        linear_emitters=pc.linear_emitters)
 
 

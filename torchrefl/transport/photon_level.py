@@ -28,7 +28,9 @@ exp(-|n - n'|^2 / (2 s^2)) by how far its normal n' is from the texel's n (a joi
 guided by the normals, kornia.filters.joint_bilateral_blur; plain kornia.filters.gaussian_blur2d
 otherwise), so the kernel gathers along the surface and not across a fold or a crease, where the
 two sides receive different indirect light (a photon map's gather with a normal test). The
-specular entries stay per texel.
+specular entries stay per texel unless `specular_smoothing` > 0 spreads each photon's entry over
+its grid neighbours with the same kind of kernel (spread_on_grid): per-texel entries come from a few
+photons each, and that noise, multiplying Ps in the fit, biases Ps down (errors in variables).
 
 Moving lights. On the cylindrical rig the lights co-rotate with the scan, so each texel column sees
 light p from its own position L_pt = x_t + l_pt / sqrt(falloff_pt). `light_sources` places K
@@ -176,9 +178,51 @@ def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: 
     return out.reshape(-1, C, T).permute(0, 2, 1).reshape(*lead, T, C)
 
 
+def spread_on_grid(obs: np.ndarray, T: int, texel_index, grid_shape: tuple[int, int], sigma: float,
+                   normals=None, normal_sigma: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Spread point entries at flat observation indices obs = p T + t over the grid neighbours of t, with the
+    kernel of smooth_on_grid (Gaussian of std `sigma` texels, truncated at radius max(1, round(sigma)) to bound the
+    number of copies, times the normal test)
+    normalised at each receiving texel (normalised convolution: a constant field stays constant).
+    Returns (obs of the copies, index of the entry each copy comes from, weight of each copy)."""
+    H, W = grid_shape
+    index = np.asarray(texel_index, dtype=np.int64)
+    slot = np.full(H * W, -1, dtype=np.int64)
+    slot[index] = np.arange(len(index))
+    nrm = None if normals is None or normal_sigma <= 0 else np.asarray(normals, dtype=np.float64)
+    radius = max(1, int(round(sigma)))
+    offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
+
+    def kernel(t_from: np.ndarray):
+        """Per offset: (t_to, weight) of every texel in t_from's window (t_to = -1 outside the grid)."""
+        r, c = index[t_from] // W, index[t_from] % W
+        for dy, dx in offsets:
+            rr, cc = r + dy, c + dx
+            inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+            to = np.where(inside, slot[np.clip(rr, 0, H - 1) * W + np.clip(cc, 0, W - 1)], -1)
+            w = np.where(to >= 0, math.exp(-(dy * dy + dx * dx) / (2.0 * sigma * sigma)), 0.0)
+            if nrm is not None:
+                d = nrm[t_from] - nrm[np.maximum(to, 0)]
+                w = w * np.exp(-np.einsum("ni,ni->n", d, d) / (2.0 * normal_sigma ** 2))
+            yield to, w
+
+    mass = np.zeros(len(index))
+    for to, w in kernel(np.arange(len(index))):
+        np.add.at(mass, np.maximum(to, 0), np.where(to >= 0, w, 0.0))
+    t_e, p_e = obs % T, obs // T
+    out_obs, out_src, out_w = [], [], []
+    for to, w in kernel(t_e):
+        keep = np.flatnonzero((to >= 0) & (w > 0))
+        out_obs.append(p_e[keep] * T + to[keep])
+        out_src.append(keep)
+        out_w.append(w[keep] / mass[to[keep]])
+    return np.concatenate(out_obs), np.concatenate(out_src), np.concatenate(out_w)
+
+
 def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
                 sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
-                smoothing: float = 0.0, grid=None, emitter_pd=None, smoothing_normal: float = 0.0) -> PhotonCache:
+                smoothing: float = 0.0, grid=None, emitter_pd=None, smoothing_normal: float = 0.0,
+                specular_smoothing: float = 0.0) -> PhotonCache:
     """Reduce photon hits to the cache.
 
     hits: from PhotonTracer.trace over sources.positions.reshape(-1, 3) (source s = p * K + k);
@@ -186,7 +230,8 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     predicted (fitted or evaluated); sigma (T,) current roughness (prunes the specular entries);
     smoothing: std of the Gaussian density-estimation kernel in texels (needs grid = (texel_index, grid_shape)
     or (texel_index, grid_shape, normals (T, 3))); smoothing_normal: the kernel's normal-difference std (needs
-    the normals in grid; 0 = plain Gaussian);
+    the normals in grid; 0 = plain Gaussian); specular_smoothing: std (texels) of the kernel that spreads the
+    specular entries over grid neighbours (spread_on_grid; 0 = per texel);
     emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd.
     """
     P, K = sources.positions.shape[:2]
@@ -234,9 +279,16 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
         alive = alive.numpy()
         sel, theta_h = sel[alive], theta_h.numpy()[alive]
         weight = flux[sel] * geom.numpy()[alive][:, None]
-        if sel.size:
+        e_obs = obs_idx[sel]
+        if specular_smoothing > 0 and grid is None:
+            raise ConfigError("photon.specular_smoothing > 0 needs the texel grid (texel_index, grid_shape)")
+        if sel.size and specular_smoothing > 0:
+            index, shape, gnormals = _grid_parts(grid)
+            e_obs, src, k = spread_on_grid(e_obs, T, index, shape, specular_smoothing, gnormals, smoothing_normal)
+            theta_h, weight = theta_h[src], weight[src] * k[:, None]
+        if e_obs.size:
             bins = np.floor(theta_h / theta_bin).astype(np.int64)
-            key = obs_idx[sel] * (int(math.pi / 2 / theta_bin) + 2) + bins
+            key = e_obs * (int(math.pi / 2 / theta_bin) + 2) + bins
             uniq, inv = np.unique(key, return_inverse=True)
             m = weight.mean(-1)
             wsum = np.stack([np.bincount(inv, weights=weight[:, c], minlength=len(uniq)) for c in range(3)], -1)
@@ -246,7 +298,7 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
             first = np.zeros(len(uniq), dtype=np.int64)
             first[inv[::-1]] = np.arange(len(inv))[::-1]
             mean_theta = np.where(msum > 0, tsum / np.where(msum > 0, msum, 1.0), theta_h[first])
-            entry_obs = obs_idx[sel][first]
+            entry_obs = e_obs[first]
             empty = (torch.from_numpy(entry_obs), torch.from_numpy(mean_theta).to(dtype), torch.from_numpy(wsum).to(dtype))
             stats["specular_photons"] = int(cnt.sum())
     stats["specular_entries"] = int(empty[0].numel())
