@@ -235,7 +235,7 @@ class PhotonTracer:
         power = np.broadcast_to(intensity * (total / n_total), (n, 3)).copy()
         n_t = self.normals[texel]
         own = None
-        emitter = per_pd = None
+        emitter = per_pd = origin = d = None          # origin, d: the rays of the previous bounce
         rays = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
