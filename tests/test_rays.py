@@ -93,6 +93,20 @@ def test_closest_hit_matches_brute_force(scene):
     np.testing.assert_array_equal(hits.triangle[clear], best[clear].argmin(1))
 
 
+def test_first_hit_triangles_and_per_call_threads_agree_with_closest_hit(scene):
+    """The raw fast path (one Embree call, primitive ids) and a per-call thread count give closest_hit's triangles."""
+    vertices, faces, o, d, t, u, v, margin = scene
+    tracer = RayTracer(vertices, faces, threads=2)
+    ref = tracer.closest_hit(o, d)
+    tri = tracer.first_hit_triangles(np.ascontiguousarray(o, dtype=np.float32), np.ascontiguousarray(d, dtype=np.float32))
+    assert tri.dtype == np.int64
+    np.testing.assert_array_equal(tri, ref.triangle)
+    one = tracer.closest_hit(o, d, threads=1)
+    np.testing.assert_array_equal(one.triangle, ref.triangle)
+    np.testing.assert_array_equal(one.distance, ref.distance)
+    assert tracer.threads == 2                                       # the override is per call
+
+
 def test_closest_hit_with_max_distance(scene):
     vertices, faces, o, d, t, u, v, margin = scene
     far = np.random.default_rng(3).uniform(0.5, 5.0, size=len(o))

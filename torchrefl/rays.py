@@ -155,19 +155,31 @@ class RayTracer:
     def num_triangles(self) -> int:
         return int(len(self.faces))
 
-    def _map(self, fn: Callable[[int, int], None], n: int) -> None:
-        """Run fn(start, stop) over chunks of [0, n), on the thread pool when there is more than one chunk."""
-        size = min(self.chunk_size, _BLOCK, max(_MIN_SPLIT, math.ceil(n / self.threads)))
+    def _map(self, fn: Callable[[int, int], None], n: int, threads: int | None = None) -> None:
+        """Run fn(start, stop) over chunks of [0, n), on a thread pool of `threads` (default self.threads)
+        when there is more than one chunk."""
+        threads = self.threads if threads is None else max(1, int(threads))
+        size = min(self.chunk_size, _BLOCK, max(_MIN_SPLIT, math.ceil(n / threads)))
         bounds = [(s, min(s + size, n)) for s in range(0, n, size)]
-        if self.threads == 1 or len(bounds) == 1:
+        if threads == 1 or len(bounds) == 1:
             for b in bounds:
                 fn(*b)
             return
-        with ThreadPoolExecutor(min(self.threads, len(bounds))) as pool:
+        with ThreadPoolExecutor(min(threads, len(bounds))) as pool:
             list(pool.map(lambda b: fn(*b), bounds))
 
-    def closest_hit(self, origins, directions, max_distance=None) -> Hits:
+    def first_hit_triangles(self, origins32: np.ndarray, directions32: np.ndarray) -> np.ndarray:
+        """(N,) int64 index of the first triangle each ray hits (-1 for a miss), in one Embree call on the
+        calling thread: the fast path for callers that generate their own rays and thread over work units.
+
+        origins32, directions32: (N, 3) C-contiguous float32, finite, directions non-zero (not checked here:
+        use closest_hit for rays from outside)."""
+        return self.scene.run(origins32, directions32, query="INTERSECT").astype(np.int64)
+
+    def closest_hit(self, origins, directions, max_distance=None, threads: int | None = None) -> Hits:
         """Nearest hit of each ray at 0 <= t <= max_distance.
+
+        threads: worker threads for this call (default self.threads; 1 inside a caller's own thread pool).
 
         origins: (N, 3) float. directions: (N, 3) float, any nonzero length: they are normalised, and
         distances (and max_distance) are measured along the unit direction, i.e. Euclidean distances.
@@ -198,7 +210,7 @@ class RayTracer:
                 tri[a:b][miss] = -1
 
         if n:
-            self._map(work, n)
+            self._map(work, n, threads)
         return Hits(dist, tri, bary, tri >= 0)
 
     def occluded(self, origins, directions, max_distance) -> np.ndarray:

@@ -11,9 +11,10 @@ checks it: a missing file or key is a CaptureError naming the file and what was 
 Maps are on the texel grid (H, W); texels outside `mask` (no estimate) are 0 in the arrays and
 blank in the figure.
 
-`render` shades the estimated texels under one new light with the fitted BRDF (torchrefl.brdf),
-in the model the fitter uses, i = kappa * Y * falloff * g(n, l, v): local transport only (no cast
-shadows, no interreflection), a preview of the estimate under lighting that was never captured.
+`render` shades the estimated texels under one new light with the fitted BRDF, through the fitter's own
+observation model (torchrefl.transport.local.render_reference: i = kappa * Y * falloff * g(n, l, v)):
+local transport only (no cast shadows, no interreflection), a preview of the estimate under lighting
+that was never captured.
 """
 
 from __future__ import annotations
@@ -26,7 +27,9 @@ import numpy as np
 import torch
 
 from torchrefl import brdf as brdf_mod
+from torchrefl.capture.observations import Observations
 from torchrefl.errors import CaptureError
+from torchrefl.transport.local import render_reference
 
 PARAMS = "params.npz"
 METRICS = "metrics.json"
@@ -79,7 +82,7 @@ class RunResult:
         """(H, W, 3) predicted sensor values (fractions of full range) of the estimated texels under one light.
 
         The light: light_position (3,) a point light (falloff 1 / C^2) or light_direction (3,) a directional
-        light towards the light; intensity: its radiant intensity Y, a scalar or RGB (3,), in the capture's
+        light towards the light; intensity: its radiant intensity Y > 0, a scalar or RGB (3,), in the capture's
         units (metrics.json and the capture's light table). The camera: camera (3,) a pinhole position, or
         view_dir (3,) or (H, W, 3) the direction towards the camera (orthographic; photometric stereo: (0, 0, 1)).
         Texels outside `mask` or facing away from the light or the camera are 0.
@@ -113,10 +116,14 @@ class RunResult:
                 v = brdf_mod.safe_normalize(t(vd)[m])
             else:
                 raise CaptureError(f"RunResult.render: view_dir has shape {vd.shape}, expected (3,) or {self.grid_shape + (3,)}")
-        g = brdf_mod.cosine_weighted_brdf(self.brdf, n, l, v, t(self.pd)[m], t(self.ps)[m], t(self.sigma)[m],
-                                          self.minnaert_k)
-        seen = (brdf_mod.dot(n, v) > 0).to(dtype)
-        values = t(self.kappa) * Y * (falloff * seen)[:, None] * g
+        # one light as Observations, through the fitter's own observation model (transport.local)
+        T = len(x)
+        obs = Observations(intensity=torch.zeros(1, T, 3, dtype=dtype), valid=torch.ones(1, T, dtype=torch.bool),
+                           saturated=torch.zeros(1, T, dtype=torch.bool), shadowed=torch.zeros(1, T, dtype=torch.bool),
+                           light_dir=l[None], falloff=falloff[None], light_intensity=Y[None], view_dir=v,
+                           kappa=t(self.kappa), source=str(self.folder))
+        values = render_reference(self.brdf, n, obs, t(self.pd)[m], t(self.ps)[m], t(self.sigma)[m], self.minnaert_k)[0]
+        values = values * (brdf_mod.dot(n, v) > 0).to(dtype)[:, None]
         out = np.zeros(self.grid_shape + (3,))
         out[self.mask] = values.numpy()
         return out
@@ -162,8 +169,8 @@ def _vector(name: str, value, allow_scalar: bool = False, unit: bool = False) ->
     if a.shape != (3,) or not np.isfinite(a).all():
         raise CaptureError(f"RunResult.render: {name}={value!r}, expected 3 finite numbers"
                            + (" or one" if allow_scalar else ""))
-    if allow_scalar and (a < 0).any():
-        raise CaptureError(f"RunResult.render: {name}={value!r}, expected values >= 0")
+    if allow_scalar and (a <= 0).any():
+        raise CaptureError(f"RunResult.render: {name}={value!r}, expected values > 0")
     if unit and not np.linalg.norm(a) > 0:
         raise CaptureError(f"RunResult.render: {name}={value!r} is the zero vector, expected a direction")
     return torch.from_numpy(a)

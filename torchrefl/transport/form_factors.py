@@ -282,7 +282,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         r = np.sqrt(u1)
         local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(np.float32(1.0) - u1, 0))], 1)
         d = np.einsum("ni,nij->nj", local, frames[j])
-        tri = tracer.scene.run(cstart[j], d, query="INTERSECT").astype(np.int64)
+        tri = tracer.first_hit_triangles(cstart[j], np.ascontiguousarray(d))
         dst = np.where(tri >= 0, fp[np.maximum(tri, 0)], -1)
         if front is not None:
             hit = np.flatnonzero(dst >= 0)

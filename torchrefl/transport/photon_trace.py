@@ -25,7 +25,6 @@ Deterministic in `seed`: random numbers are keyed by (seed, refresh, source, chu
 
 from __future__ import annotations
 
-import copy
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -104,10 +103,6 @@ class PhotonTracer:
         if min_bounces < 0 or max_bounces < max(1, min_bounces):
             raise GeometryError(f"photon.min_bounces/max_bounces: need 0 <= min ({min_bounces}) <= max ({max_bounces}), max >= 1")
         self.tracer = tracer
-        # the work units of `trace` run on tracer.threads threads; inside a unit, rays go through Embree on
-        # that unit's thread (a second pool per bounce would oversubscribe the cores)
-        self._unit_tracer = copy.copy(tracer)
-        self._unit_tracer.threads = 1
         self.brdf = brdf
         self.lobe = LOBES[brdf]
         self.positions = np.ascontiguousarray(positions, dtype=np.float64)
@@ -239,7 +234,9 @@ class PhotonTracer:
         rays = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
-                hits = self._unit_tracer.closest_hit(origin, d)
+                # the work units of `trace` run on tracer.threads threads; inside a unit, rays go through Embree
+                # on that unit's thread (a second pool per bounce would oversubscribe the cores)
+                hits = self.tracer.closest_hit(origin, d, threads=1)
                 rays += len(origin)
                 keep = np.flatnonzero(hits.hit)
                 if not keep.size:
