@@ -94,13 +94,19 @@ def test_closest_hit_matches_brute_force(scene):
 
 
 def test_first_hit_triangles_and_per_call_threads_agree_with_closest_hit(scene):
-    """The raw fast path (one Embree call, primitive ids) and a per-call thread count give closest_hit's triangles."""
+    """The raw fast paths (one Embree call: primitive ids; Embree's hit records) and a per-call thread count give closest_hit's triangles."""
     vertices, faces, o, d, t, u, v, margin = scene
     tracer = RayTracer(vertices, faces, threads=2)
     ref = tracer.closest_hit(o, d)
     tri = tracer.first_hit_triangles(np.ascontiguousarray(o, dtype=np.float32), np.ascontiguousarray(d, dtype=np.float32))
     assert tri.dtype == np.int64
     np.testing.assert_array_equal(tri, ref.triangle)
+    unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+    prim, u, v, dist = tracer.first_hits(np.ascontiguousarray(o, dtype=np.float32), np.ascontiguousarray(unit, dtype=np.float32))
+    np.testing.assert_array_equal(prim.astype(np.int64), ref.triangle)
+    hit = prim >= 0
+    np.testing.assert_allclose(dist[hit], ref.distance[hit], rtol=1e-5)          # directions normalised in float64 here
+    np.testing.assert_allclose(np.stack([u, v], -1)[hit], ref.barycentric[hit], atol=1e-5)
     one = tracer.closest_hit(o, d, threads=1)
     np.testing.assert_array_equal(one.triangle, ref.triangle)
     np.testing.assert_array_equal(one.distance, ref.distance)

@@ -176,6 +176,15 @@ class RayTracer:
         use closest_hit for rays from outside)."""
         return self.scene.run(origins32, directions32, query="INTERSECT").astype(np.int64)
 
+    def first_hits(self, origins32: np.ndarray, directions32: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Closest hits in one Embree call on the calling thread, as Embree returns them: (triangle (N,) int32,
+        -1 on a miss; u, v (N,) float32 barycentrics; t (N,) float32 distance along the unit direction,
+        undefined on a miss). The photon tracer's fast path (it makes its own float32 rays and threads over work
+        units); same preconditions as first_hit_triangles, and directions32 must be unit vectors."""
+        res = self.scene.run(origins32, directions32, dists=np.full(len(origins32), _FAR, np.float32),
+                             query="INTERSECT", output=1)
+        return res["primID"], res["u"], res["v"], res["tfar"]
+
     def closest_hit(self, origins, directions, max_distance=None, threads: int | None = None) -> Hits:
         """Nearest hit of each ray at 0 <= t <= max_distance.
 

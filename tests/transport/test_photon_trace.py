@@ -1,5 +1,6 @@
-"""Photon tracing: energy balance in a closed sphere, convergence to the radiosity solution like
-1/sqrt(N) on a diffuse fold, agreement with the path tracer on a glossy fold, determinism."""
+"""Photon tracing: one scattering against the directional albedo by quadrature, energy balance in a
+closed sphere, convergence to the radiosity solution like 1/sqrt(N) on a diffuse fold, agreement with
+the path tracer on a glossy fold, determinism."""
 
 
 import numpy as np
@@ -14,7 +15,8 @@ from torchrefl.rays import RayTracer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.local import local_terms
 from torchrefl.transport.photon_level import build_cache, indirect_radiance, light_sources
-from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
+from torchrefl import brdf as brdf_mod
+from torchrefl.transport.photon_trace import PhotonTracer, ScatterTables, TexelMaterial
 from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance
 
 LIGHT = np.array([[-40.0, 5.0, 50.0]])
@@ -52,6 +54,58 @@ def away_from_fold(H, W, b=4):
     keep = np.ones((H // b, W // b), bool)
     keep[:, (W // 2 - 1) // b: W // 2 // b + 1] = False
     return torch.as_tensor(keep)
+
+
+def directional_albedo(model, n, wi, pd, ps, sigma, nc=1500, nphi=1500):
+    """The share of incident flux one scattering reflects: the integral of f(wi, wo) cos_o = g(n, l=wi, v=wo)
+    cos_o / cos_i over the hemisphere of wo (torchrefl.brdf, float64), by the midpoint rule in (cos_o, phi)."""
+    c = (np.arange(nc) + 0.5) / nc
+    ph = (np.arange(nphi) + 0.5) * 2 * np.pi / nphi
+    C, PH = np.meshgrid(c, ph, indexing="ij")
+    sn = np.sqrt(1 - C ** 2)
+    t1 = np.cross(n, [0.0, 1.0, 0.0]) if abs(n[1]) < 0.9 else np.cross(n, [1.0, 0.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(n, t1)
+    wo = (sn * np.cos(PH))[..., None] * t1 + (sn * np.sin(PH))[..., None] * t2 + C[..., None] * n
+    wo = torch.from_numpy(wo.reshape(-1, 3))
+    M = len(wo)
+    g = brdf_mod.cosine_weighted_brdf(model, torch.from_numpy(np.tile(n, (M, 1))), torch.from_numpy(np.tile(wi, (M, 1))), wo,
+                                      torch.full((M, 3), pd, dtype=torch.float64), torch.full((M, 3), ps, dtype=torch.float64),
+                                      torch.full((M,), sigma, dtype=torch.float64))[:, 0].numpy()
+    cos_i = float(np.dot(n, wi))
+    return float((g * C.reshape(-1)).sum() * (1 / nc) * (2 * np.pi / nphi) / cos_i)
+
+
+@pytest.mark.parametrize("model,ps,sigma", [("torrance_sparrow", 0.4, 0.2), ("torrance_sparrow", 0.4, 0.05),
+                                            ("ward", 0.4, 0.15), ("ward_normalised", 0.4, 0.15), ("lambertian", 0.0, 0.1)])
+@pytest.mark.parametrize("roulette", [False, True])
+def test_one_scattering_carries_the_directional_albedo(model, ps, sigma, roulette):
+    """The mean weight of one scattering (one-sample component selection, with or without Russian roulette)
+    is the directional albedo of the BRDF, by quadrature of torchrefl.brdf; the part linear in Pd is
+    exactly one per unit Pd; directions are unit and above the surface."""
+    s, _, pt = fold_setup(model)
+    T = s.num_texels
+    pd = 0.5
+    tables = ScatterTables.build(pt.lobe, TexelMaterial.from_tensors(*material(T, pd, ps, sigma)))
+    t0 = 5 * 48 + 10                                             # on the floor, normal +z, away from the fold
+    n = s.normals[t0].numpy()
+    wi = np.array([np.sin(0.6), 0.0, np.cos(0.6)])
+    N = 400_000
+    col = lambda v: np.repeat(np.asarray(v, dtype=np.float32)[:, None], N, 1)
+    u = np.random.default_rng(1).random((4, N), dtype=np.float32)
+    origin, d, power, per_pd, emitter = pt.scatter(np.full(N, t0, np.int32), col(s.positions[t0].numpy()), col(wi),
+                                                   col(n), np.full(N, np.dot(n, wi), np.float32), None,
+                                                   np.ones((3, N), np.float32), tables, u, roulette)
+    assert power.dtype == np.float32 and np.isfinite(power).all() and (emitter == t0).all()
+    np.testing.assert_allclose(np.linalg.norm(d, axis=0), 1, atol=1e-5)
+    w = np.zeros(N)
+    w[:power.shape[1]] = power[0]                                 # dead photons carry zero
+    expected = directional_albedo(model, n, wi, pd, ps, sigma)
+    err = w.std() / np.sqrt(N)
+    assert abs(w.mean() - expected) < 4 * err + 1e-3 * expected, (w.mean(), expected, err)
+    k = np.zeros(N)
+    k[:per_pd.shape[1]] = per_pd[0]
+    assert abs(k.mean() - 1.0) <= 4 * k.std() / np.sqrt(N) + 1e-6, k.mean()
 
 
 def test_closed_sphere_energy_balance():

@@ -130,11 +130,44 @@ def _combine(t, b, n, x, y, z) -> np.ndarray:
     return d
 
 
-def _lobe_theta(lobe: str, sigma: np.ndarray, u1: np.ndarray) -> np.ndarray:
-    """theta_h drawn from the lobe's half-vector distribution (see sample_lobe)."""
+def lobe_constants(lobe: str, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-roughness constants of the lobe sampler, for callers that draw many half vectors per texel:
+    (truncation, ratio_scale), each (N,) float64 for sigma (N,) (already >= brdf.SIGMA_EPS).
+
+    torrance_sparrow: truncation = 1 - exp(-(pi/2)^2 / (2 sigma^2)) (the share of the Gaussian in theta_h
+    below pi/2), ratio_scale = 2 pi Z(sigma); ward: truncation = 1 (unused), ratio_scale = 1/4.
+    """
+    sigma = np.asarray(sigma, dtype=np.float64)
     if lobe == "torrance_sparrow":
-        theta = sigma * np.sqrt(-2.0 * np.log1p(-u1 * -np.expm1(-(np.pi / 2) ** 2 / (2 * sigma * sigma))))
-        return np.minimum(theta, np.pi / 2)
+        trunc = -np.expm1(-(np.pi / 2) ** 2 / (2 * sigma * sigma))
+        return trunc, 2 * np.pi * sigma * sigma * trunc
+    if lobe == "ward":
+        return np.ones_like(sigma), np.full_like(sigma, 0.25)
+    raise GeometryError(f"synthetic.brdf: no lobe sampler for '{lobe}'")
+
+
+def lobe_over_pdf(lobe: str, theta: np.ndarray, cos_theta: np.ndarray, sin_theta: np.ndarray,
+                  ratio_scale: np.ndarray) -> np.ndarray:
+    """D(theta_h; sigma) / p_h(theta_h): brdf.specular_lobe over the solid-angle pdf of the half vectors
+    `half_vector_pdf` draws, in closed form (the exponentials cancel, so it stays finite in the far tail):
+    torrance_sparrow 2 pi Z sin(theta) / theta (2 pi Z at theta = 0), ward cos^3(theta) / 4, with
+    ratio_scale from lobe_constants. Any float dtype; the result has theta's."""
+    if lobe == "torrance_sparrow":
+        small = theta < 1e-4
+        return ratio_scale * np.where(small, 1.0, sin_theta / np.where(small, 1.0, theta)).astype(theta.dtype)
+    if lobe == "ward":
+        return ratio_scale * (cos_theta * cos_theta * cos_theta)
+    raise GeometryError(f"synthetic.brdf: no lobe sampler for '{lobe}'")
+
+
+def lobe_theta(lobe: str, sigma: np.ndarray, u1: np.ndarray, truncation: np.ndarray | None = None) -> np.ndarray:
+    """theta_h drawn from the lobe's half-vector distribution (see sample_lobe); truncation: lobe_constants'
+    (computed here when None)."""
+    if lobe == "torrance_sparrow":
+        if truncation is None:
+            truncation = -np.expm1(-(np.pi / 2) ** 2 / (2 * sigma * sigma))
+        theta = sigma * np.sqrt(-2.0 * np.log1p(-u1 * truncation))
+        return np.minimum(theta, np.float32(np.pi / 2) if theta.dtype == np.float32 else np.pi / 2)
     if lobe == "ward":
         return np.arctan(sigma * np.sqrt(-np.log(np.maximum(1.0 - u1, 1e-300))))
     raise GeometryError(f"synthetic.brdf: no lobe sampler for '{lobe}'")
@@ -163,7 +196,7 @@ def sample_mixture(lobe: str | None, n, v, pd, ps, sigma, u, frame=None, q=None,
     q = specular_probability(lobe, pd, ps) if q is None else q
     spec = u[:, 2] < q
     sig = np.maximum(sigma, brdf_mod.SIGMA_EPS)
-    theta = _lobe_theta(lobe, sig, u1)
+    theta = lobe_theta(lobe, sig, u1)
     st = np.where(spec, np.sin(theta), np.sqrt(u1))
     ct = np.where(spec, np.cos(theta), np.sqrt(np.maximum(1.0 - u1, 0.0)))
     d = _combine(t, b, n, st * cphi, st * sphi, ct)

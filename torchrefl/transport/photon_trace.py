@@ -9,18 +9,22 @@ which is exactly the density of a ray from L whose first hit is t, so every phot
 and no photon is wasted on directions that miss. The first hit is not stored (direct light is
 computed analytically by the local terms) and needs no ray: the photon starts at the texel with
 wi = l. Later hits are found with Embree; a hit's texel is the nearest mesh vertex (mesh vertices
-are texel grid points). From the first hit on, the photon is scattered by the current BRDF of the texel it hit: a direction wo from the mixture of the
-cosine-weighted and specular-lobe samplers (torchrefl.transport.lobe_sampling) with weight
-    w = f(wi -> wo) cos(n, wo) / pdf(wo) = g(n, l=wi, v=wo) cos(n, wo) / (cos(n, wi) pdf(wo))
-(g = f cos_l, torchrefl.brdf.cosine_weighted_brdf; non-reciprocal lobes are evaluated with the light
-on the incident side, the way the fitter and the renderer use them), then Russian roulette with
-survival q = min(0.95, max_c w) and Phi <- Phi w / q. Every later hit on the front side of the mesh
+are texel grid points). From the first hit on, the photon is scattered by the current BRDF of the
+texel it hit, g = f cos_l = g_diffuse + g_specular (torchrefl.brdf; non-reciprocal lobes are evaluated
+with the light on the incident side, the way the fitter and the renderer use them), by one-sample
+component selection: with probability q = mean(Ps) / (mean(Pd) + mean(Ps)) a direction wo from the
+specular lobe, otherwise a cosine-weighted one, each with the weight of its own component
+    w = g_c(n, l=wi, v=wo) cos(n, wo) / (cos(n, wi) P(c) pdf_c(wo))    (Pd / (1 - q) for the diffuse one),
+then Russian roulette with survival s = min(0.95, max_c w) and Phi <- Phi w / s (PhotonTracer.scatter).
+Every later hit on the front side of the mesh
 (face normal, oriented like the texel normals, towards wi) is stored with the texel, the incident direction wi (towards where the photon came from)
 and Phi; hits on the back of the scanned surface absorb the photon (the unscanned side is not modelled).
 Photons are scattered about the texel normal, or the face normal where the texel normal faces away
 from the photon (grazing arrival on a curved or folded mesh).
 
 Deterministic in `seed`: random numbers are keyed by (seed, refresh, source, chunk), never by thread.
+The paths are traced in float32 (positions, directions, flux), as Embree intersects them; the cache
+reductions (torchrefl.transport.photon_level) sum in float64.
 """
 
 from __future__ import annotations
@@ -34,10 +38,21 @@ import torch
 from torchrefl import brdf as brdf_mod
 from torchrefl.errors import GeometryError
 from torchrefl.rays import RayTracer
-from torchrefl.transport.lobe_sampling import LOBES, row_dot, sample_mixture, specular_probability, tangent_frame
+from torchrefl.transport.lobe_sampling import (LOBES, lobe_constants, lobe_over_pdf, lobe_theta, row_dot,
+                                               specular_probability, tangent_frame)
 
 CHUNK = 1 << 17          # photons per work unit
 COLLECT_COS = 0.9        # a face corner collects photons for its texel when their normals agree this well
+
+
+def _take3(a: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """Columns `index` of a component-major (3, N) array (np.take: several times faster than fancy indexing)."""
+    return np.take(a, index, axis=1)
+
+
+def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,) dot products of the columns of two (3, N) arrays."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 @dataclass
@@ -45,10 +60,10 @@ class PhotonHits:
     """Stored photon hits (second and later bounces) of all sources.
 
     source: (N,) int64 index of the emitting source; texel: (N,) int64 receiving texel;
-    direction: (N, 3) unit incident direction wi; power: (N, 3) flux Phi;
-    emitter: (N,) int64 texel of the photon's last scattering; diffuse_per_pd: (N, 3) the share of Phi
-    that is linear in the emitter's Pd, per unit Pd: Phi (cos_i / pi) / g at that scattering, so that
-    Phi(Pd') = Phi + diffuse_per_pd (Pd' - Pd) exactly for the last bounce.
+    direction: (N, 3) float32 unit incident direction wi; power: (N, 3) float32 flux Phi;
+    emitter: (N,) int64 texel of the photon's last scattering; diffuse_per_pd: (N, 3) float32 the share of Phi
+    that is linear in the emitter's Pd, per unit Pd (Phi_in / (1 - q) after a diffuse scattering, 0 after a
+    specular one), so that Phi(Pd') = Phi + diffuse_per_pd (Pd' - Pd) exactly for the last bounce.
     emitted: (S,) photons emitted per source; rays: closest-hit rays traced in all.
     """
 
@@ -73,7 +88,6 @@ class TexelMaterial:
     pd: np.ndarray
     ps: np.ndarray
     sigma: np.ndarray
-    q: np.ndarray | None = None          # specular sampling probability per texel (set by PhotonTracer.trace)
 
     @classmethod
     def from_tensors(cls, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> "TexelMaterial":
@@ -138,6 +152,13 @@ class PhotonTracer:
                          if faces.size else np.zeros((0, 3), dtype=bool))
         self.areas = np.bincount(corner_texel.ravel(), weights=(np.repeat(fa[:, None] / 3.0, 3, 1) * self.collects).ravel(),
                                  minlength=len(texel_index)) if faces.size else np.zeros(len(texel_index))
+        # float32 copies for the hot path (Embree works in float32 anyway)
+        f32 = lambda x: np.ascontiguousarray(np.asarray(x).T, dtype=np.float32)      # (3, N): component-major
+        self._pos3, self._n3 = f32(self.positions), f32(self.normals)
+        self._t3, self._b3, self._fn3 = f32(self.frame_t), f32(self.frame_b), f32(self.face_normals)
+        self._corner_texel = corner_texel.astype(np.int32).ravel()
+        self._corner_collects = self.collects.ravel()
+        self._offset32 = np.float32(self.offset)
 
     def landing(self, source: np.ndarray) -> np.ndarray:
         """(T,) a_t of the module docstring for one source position (cached per position)."""
@@ -157,125 +178,148 @@ class PhotonTracer:
 
     # ------------------------------------------------------------------ pieces
 
-    def hit_texels(self, triangle: np.ndarray, bary: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Texel of each hit (the face vertex with the largest barycentric weight) and whether the hit
-        counts in that texel's density (self.collects)."""
-        w = np.stack([1.0 - bary[:, 0] - bary[:, 1], bary[:, 0], bary[:, 1]], -1)
-        corner = np.argmax(w, axis=1)
-        return self.vertex_texel[self.faces[triangle, corner]], self.collects[triangle, corner]
+    def hit_texels(self, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) int32 texel of each hit (the corner of the hit face with the largest barycentric weight, the
+        first one on a tie) and (N,) bool whether the hit counts in that texel's density (self.collects)."""
+        w0 = 1 - u - v
+        corner = np.where(u >= v, np.where(u > w0, 1, 0), np.where(v > w0, 2, 0))
+        i = triangle.astype(np.int64) * 3 + corner
+        return np.take(self._corner_texel, i), np.take(self._corner_collects, i)
 
-    def shading_normals(self, texel: np.ndarray, triangle: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The texel's normal, or the hit face's where the texel normal faces away from wi (a photon arriving
-        at a grazing angle on a curved or folded mesh: the smooth normal would absorb it); and (N,) bool
-        True where it is the texel's own."""
-        n = self.normals[texel]
-        own = row_dot(n, wi) > 1e-6
-        if not own.all():
-            n[~own] = self.face_normals[triangle[~own]]
-        return n, own
+    def _frames(self, texel: np.ndarray, n: np.ndarray, own: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Tangents (t, b), each (3, N), of the scattering normals n (3, N): the texel's precomputed frame, a
+        fresh one where the face normal stands in (own False)."""
+        t, b = _take3(self._t3, texel), _take3(self._b3, texel)
+        if own is not None and not own.all():
+            bad = np.flatnonzero(~own)
+            tb = tangent_frame(n[:, bad].T.astype(np.float64))
+            t[:, bad], b[:, bad] = tb[0].T, tb[1].T
+        return t, b
 
-    def scatter(self, n, wi, texel, mat: TexelMaterial, u, own_normal=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Outgoing directions (N, 3), weights (N, 3) f cos_o / pdf for photons arriving along -wi, and the
-        part of the weight per unit Pd (N,) (cos_i / pi) cos_o / (cos_i pdf) = cos_o / (pi pdf).
-        own_normal (N,) bool: n is the texel's normal (its precomputed tangent frame is used)."""
-        pd, ps, sg = mat.pd[texel], mat.ps[texel], mat.sigma[texel]
-        if own_normal is None or own_normal.all():
-            frame = (self.frame_t[texel], self.frame_b[texel])
-        else:
-            frame = tangent_frame(n)
-        q = None if mat.q is None else mat.q[texel]
-        wo, pdf, cos_h = sample_mixture(self.lobe, n, wi, pd, ps, sg, u, frame=frame, q=q, with_cos_h=True)
-        cos_o = row_dot(n, wo)
-        cos_i = row_dot(n, wi)
-        ok = (pdf > 0) & (cos_o > 0)
-        w = np.zeros((len(n), 3))
-        w_pd = np.zeros(len(n))
-        if ok.any():
-            i = np.flatnonzero(ok)
-            # g(n, l=wi, v=wo) = Pd cos_i / pi + Ps D(theta_h) G(cos_i, cos_o): the decomposition of torchrefl.brdf
-            # that the local terms use, evaluated from the sampler's half vector
-            g = pd[i] * (np.maximum(cos_i[i], 0.0) / np.pi)[:, None]
-            if self.lobe is not None:
-                c = np.clip(cos_h[i], -1.0, 1.0)
-                t = lambda x: torch.from_numpy(np.ascontiguousarray(x))
-                theta_h = np.arctan2(np.sqrt(np.maximum(1.0 - c * c, 0.0)), c)
-                with torch.no_grad():
-                    spec = (brdf_mod.specular_lobe(self.brdf, t(theta_h), t(sg[i]))
-                            * brdf_mod.specular_geometry(self.brdf, t(cos_i[i]), t(cos_o[i]))).numpy()
-                g += ps[i] * spec[:, None]
-            scale = cos_o[i] / (cos_i[i] * pdf[i])
-            w[i] = g * scale[:, None]
-            w_pd[i] = np.where(cos_i[i] > 0, cos_i[i] / np.pi, 0.0) * scale
-        return wo, w, w_pd
+    def scatter(self, texel, y, wi, n, cos_i, own, power, tables: "ScatterTables", u: np.ndarray, roulette: bool):
+        """One scattering of N photons at texels `texel` (N,) int32, positions y (3, N), arriving along -wi
+        (3, N), about normals n (3, N) with cos_i = n.wi > 0, own (N,) bool or None (n is the texel's normal),
+        flux power (3, N), uniforms u (4, N) float32 (u[2] picks the component, u[3] plays the roulette).
+        Returns the survivors' (origin (3, M), direction (3, M), power (3, M), diffuse_per_pd (3, M), emitter
+        texel (M,)), float32 / int32 (vectors are stored component-major: numpy's fast layout for them).
+
+        One-sample component selection: with probability q_t the specular lobe, otherwise the cosine
+        distribution, each weighted by its own part of the BRDF over its own pdf (unbiased, since
+        g = g_diffuse + g_specular). Diffuse: w = Pd / (1 - q), and diffuse_per_pd = Phi / (1 - q) (all of it is
+        linear in the scattering texel's Pd); the direction is n plus a uniform point on the unit sphere,
+        normalised (cosine-distributed about n, no tangent frame needed). Specular: a half vector h from the
+        lobe, wo = reflect(wi, h), w = Ps D G cos_o / (cos_i q p(wo)) with p(wo) = p_h / (4 |wi.h|) and D / p_h
+        in closed form (lobe_sampling.lobe_over_pdf); diffuse_per_pd = 0. Russian roulette (when `roulette`):
+        survival s = min(0.95, max_c w), Phi <- Phi w / s; otherwise only photons with w = 0 stop."""
+        spec = u[2] < np.take(tables.q, texel)
+        surv, w_d, k_d = tables.diffuse(roulette)
+        parts = []
+        iD = np.flatnonzero(~spec & (u[3] < np.take(surv, texel)))
+        if iD.size:
+            tD, nD = np.take(texel, iD), _take3(n, iD)
+            z = 1 - 2 * np.take(u[0], iD)
+            r = np.sqrt(np.maximum(1 - z * z, 0))
+            phi = np.float32(2 * np.pi) * np.take(u[1], iD)
+            d = nD + np.stack([r * np.cos(phi), r * np.sin(phi), z])
+            d /= np.maximum(np.sqrt(_dot3(d, d)), np.float32(1e-12))
+            pw = _take3(power, iD)
+            parts.append((_take3(y, iD) + self._offset32 * nD, d, pw * _take3(w_d, tD), pw * np.take(k_d, tD), tD))
+        iS = np.flatnonzero(spec) if self.lobe is not None and spec.any() else np.zeros(0, np.int64)
+        if iS.size:
+            tS, nS, wiS = np.take(texel, iS), _take3(n, iS), _take3(wi, iS)
+            fa, fb = self._frames(tS, nS, None if own is None else np.take(own, iS))
+            theta = lobe_theta(self.lobe, np.take(tables.sigma, tS), np.take(u[0], iS), np.take(tables.truncation, tS))
+            st, ct = np.sin(theta), np.cos(theta)
+            phi = np.float32(2 * np.pi) * np.take(u[1], iS)
+            h = fa * (st * np.cos(phi))
+            h += fb * (st * np.sin(phi))
+            h += nS * ct
+            vh = _dot3(wiS, h)
+            wo = 2 * vh * h - wiS
+            ci = np.take(cos_i, iS)
+            cos_o = 2 * vh * ct - ci                              # n.wo, since n.h = cos(theta)
+            with torch.no_grad():
+                g_cos = (brdf_mod.specular_geometry(self.brdf, torch.from_numpy(ci), torch.from_numpy(cos_o))
+                         * torch.from_numpy(np.maximum(cos_o, 0))).numpy()
+            ws = lobe_over_pdf(self.lobe, theta, ct, st, np.take(tables.ratio_scale, tS)) * (4 * np.abs(vh)) * g_cos
+            ws /= np.maximum(ci, np.float32(1e-6)) * np.take(tables.q, tS)
+            top = np.take(tables.ps_max, tS) * ws
+            if roulette:
+                s = np.minimum(np.float32(0.95), top)
+                live = np.flatnonzero(np.take(u[3], iS) < s)
+            else:
+                s = np.ones_like(top)
+                live = np.flatnonzero(top > 0)
+            if live.size:
+                i, tl = np.take(iS, live), np.take(tS, live)
+                pw = _take3(power, i) * _take3(tables.ps, tl) * (np.take(ws, live) / np.take(s, live))
+                parts.append((_take3(y, i) + self._offset32 * _take3(nS, live), _take3(wo, live), pw, np.zeros_like(pw), tl))
+        if len(parts) == 1:
+            return parts[0]
+        if not parts:
+            empty = np.zeros((3, 0), np.float32)
+            return empty, empty, empty, empty, np.zeros(0, np.int32)
+        return tuple(np.concatenate([p[j] for p in parts], axis=-1) for j in range(5))
 
     # ------------------------------------------------------------------ paths
 
-    def trace_chunk(self, source: np.ndarray, intensity: np.ndarray, n: int, n_total: int, mat: TexelMaterial,
+    def trace_chunk(self, source: np.ndarray, intensity: np.ndarray, n: int, n_total: int, tables: "ScatterTables",
                     rng: np.random.Generator) -> tuple[list, int]:
-        """n photons of one source (out of n_total for that source); returns ([texel, wi, power] arrays, rays)."""
+        """n photons of one source (out of n_total for that source); returns ([(texel, wi (3, M), power (3, M),
+        emitter, diffuse_per_pd (3, M), collects) per bounce], rays), float32 / int32 arrays."""
         a = self.landing(source)
         total = float(a.sum())
-        out_t, out_d, out_p, out_e, out_k = [], [], [], [], []
+        stored: list = []
         if total <= 0:
-            return [out_t, out_d, out_p, out_e, out_k], 0
+            return stored, 0
         # systematic sampling: n stratified positions on the cdf (lower variance than independent draws, O(T + n),
         # and the photons come out ordered by texel, which keeps the rays coherent)
         edges = np.floor(np.concatenate([[0.0], np.cumsum(a / total)]) * n + rng.random())
-        counts = np.diff(edges).astype(np.int64)
-        texel = np.repeat(np.arange(len(a)), counts)
-        n = len(texel)
-        y = self.positions[texel]
-        wi = np.asarray(source, dtype=np.float64)[None] - y
-        wi /= np.linalg.norm(wi, axis=1, keepdims=True)
-        power = np.broadcast_to(intensity * (total / n_total), (n, 3)).copy()
-        n_t = self.normals[texel]
+        texel = np.repeat(np.arange(len(a), dtype=np.int32), np.diff(edges).astype(np.int64))
+        y = _take3(self._pos3, texel)
+        wi = np.asarray(source, dtype=np.float32)[:, None] - y
+        wi /= np.sqrt(_dot3(wi, wi))
+        power = np.repeat((intensity * (total / n_total)).astype(np.float32)[:, None], len(texel), 1)
+        n_s = _take3(self._n3, texel)
+        cos_i = _dot3(n_s, wi)
         own = None
-        emitter = per_pd = origin = d = None          # origin, d: the rays of the previous bounce
+        origin = d = per_pd = emitter = None          # the rays of the previous bounce and their photons
         rays = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
                 # the work units of `trace` run on tracer.threads threads; inside a unit, rays go through Embree
-                # on that unit's thread (a second pool per bounce would oversubscribe the cores)
-                hits = self.tracer.closest_hit(origin, d, threads=1)
-                rays += len(origin)
-                keep = np.flatnonzero(hits.hit)
-                if not keep.size:
+                # on that unit's thread
+                prim, bu, bv, dist = self.tracer.first_hits(np.stack(tuple(origin), -1), np.stack(tuple(d), -1))
+                rays += origin.shape[1]
+                # hits on the front (towards the photon) of the mesh only: the back of the scanned surface absorbs
+                front = (prim >= 0) & (_dot3(_take3(self._fn3, np.maximum(prim, 0)), d) < 0)
+                k = np.flatnonzero(front)
+                if not k.size:
                     break
-                y = origin[keep] + hits.distance[keep, None] * d[keep]
-                texel, collect = self.hit_texels(hits.triangle[keep], hits.barycentric[keep])
-                wi = -d[keep]
-                power, emitter, per_pd = power[keep], emitter[keep], per_pd[keep]
-                n_t, own = self.shading_normals(texel, hits.triangle[keep], wi)
-                front = row_dot(self.face_normals[hits.triangle[keep]], wi) > 0
-                if not front.all():
-                    y, texel, wi, power, n_t, own = y[front], texel[front], wi[front], power[front], n_t[front], own[front]
-                    emitter, per_pd, collect = emitter[front], per_pd[front], collect[front]
-            if depth > 0 and len(texel):
-                c = slice(None) if collect.all() else collect
-                out_t.append(texel[c])
-                out_d.append(wi[c])
-                out_p.append(power[c])
-                out_e.append(emitter[c])
-                out_k.append(per_pd[c])
-            if depth == self.max_bounces or not len(texel):
+                prim = np.take(prim, k)
+                texel, collects = self.hit_texels(prim, np.take(bu, k), np.take(bv, k))
+                dk = _take3(d, k)
+                y = _take3(origin, k) + np.take(dist, k) * dk
+                wi = -dk
+                power, per_pd, emitter = _take3(power, k), _take3(per_pd, k), np.take(emitter, k)
+                stored.append((texel, wi, power, emitter, per_pd, collects))
+                # the texel's normal, or the hit face's where the texel normal faces away from wi (a photon
+                # arriving at a grazing angle on a curved or folded mesh: the smooth normal would absorb it)
+                n_s = _take3(self._n3, texel)
+                cos_i = _dot3(n_s, wi)
+                own = cos_i > 1e-6
+                if not own.all():
+                    bad = np.flatnonzero(~own)
+                    n_s[:, bad] = _take3(self._fn3, np.take(prim, bad))
+                    cos_i[bad] = _dot3(n_s[:, bad], wi[:, bad])
+            if depth == self.max_bounces:
                 break
-            wo, w, w_pd = self.scatter(n_t, wi, texel, mat, rng.random((len(texel), 3)), own_normal=own)
-            per_pd = power * w_pd[:, None]
-            power = power * w
-            if depth + 1 > self.min_bounces:
-                q = np.minimum(0.95, w.max(-1))
-                live = rng.random(len(q)) < q
-                power = power[live] / q[live, None]
-                per_pd = per_pd[live] / q[live, None]
-            else:
-                live = w.max(-1) > 0
-                power, per_pd = power[live], per_pd[live]
-            emitter = texel[live]
-            origin = y[live] + self.offset * n_t[live]
-            d = wo[live]
-            if not len(d):
+            u = rng.random((4, len(texel)), dtype=np.float32)
+            origin, d, power, per_pd, emitter = self.scatter(texel, y, wi, n_s, cos_i, own, power, tables, u,
+                                                             roulette=depth + 1 > self.min_bounces)
+            if not d.shape[1]:
                 break
-        return [out_t, out_d, out_p, out_e, out_k], rays
+        return stored, rays
 
     def trace(self, sources: np.ndarray, intensities: np.ndarray, photons_per_source: int, mat: TexelMaterial,
               seed: int, refresh: int = 0, progress=None) -> PhotonHits:
@@ -288,13 +332,12 @@ class PhotonTracer:
         done = [0]
         for s in range(S):                 # shadow rays of the landing densities, before the threads start
             self.landing(sources[s])
-        if mat.q is None and self.lobe is not None:
-            mat.q = specular_probability(self.lobe, mat.pd, mat.ps)
+        tables = ScatterTables.build(self.lobe, mat)
 
         def work(k: int) -> None:
             s, a, b = units[k]
             rng = np.random.default_rng([int(seed), 0x50, int(refresh), s, a // CHUNK])
-            results[k] = self.trace_chunk(sources[s], intensities[s], b - a, N, mat, rng)
+            results[k] = self.trace_chunk(sources[s], intensities[s], b - a, N, tables, rng)
             done[0] += b - a
             if progress is not None:
                 progress(done[0], S * N)
@@ -305,18 +348,53 @@ class PhotonTracer:
         else:
             for k in range(len(units)):
                 work(k)
-        src, tex, dirs, pw, em, kk = [], [], [], [], [], []
-        rays = 0
-        for (s, _, _), ((t, d, p, e, k), r) in zip(units, results):
-            rays += r
-            for a, b, c, f, g in zip(t, d, p, e, k):
-                src.append(np.full(len(a), s, dtype=np.int64))
-                tex.append(a)
-                dirs.append(b)
-                pw.append(c)
-                em.append(f)
-                kk.append(g)
-        cat = lambda x, shape, dt: np.concatenate(x) if x else np.zeros(shape, dtype=dt)
-        return PhotonHits(cat(src, (0,), np.int64), cat(tex, (0,), np.int64), cat(dirs, (0, 3), np.float64),
-                          cat(pw, (0, 3), np.float64), np.full(S, N, dtype=np.int64), rays,
-                          cat(em, (0,), np.int64), cat(kk, (0, 3), np.float64))
+        rays = sum(r for _, r in results)
+        batches = [(s, b) for (s, _, _), (stored, _) in zip(units, results) for b in stored]
+        if not batches:
+            return PhotonHits(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
+                              np.zeros((0, 3), np.float32), np.full(S, N, dtype=np.int64), rays,
+                              np.zeros(0, np.int64), np.zeros((0, 3), np.float32))
+        keep = np.flatnonzero(np.concatenate([b[5] for _, b in batches]))
+        ints = lambda j: np.take(np.concatenate([b[j] for _, b in batches]), keep).astype(np.int64)
+        vecs = lambda j: np.take(np.concatenate([b[j] for _, b in batches], axis=1), keep, axis=1).T   # (N, 3) views
+        source = np.take(np.concatenate([np.full(len(b[0]), s, dtype=np.int64) for s, b in batches]), keep)
+        return PhotonHits(source, ints(0), vecs(1), vecs(2), np.full(S, N, dtype=np.int64), rays, ints(3), vecs(4))
+
+
+@dataclass
+class ScatterTables:
+    """Per-texel float32 tables of one trace, from a TexelMaterial (vectors component-major, (3, T)):
+    q (T,) specular sampling probability; ps (3, T), ps_max (T,); sigma (T,) (>= brdf.SIGMA_EPS), truncation,
+    ratio_scale (T,) (lobe_constants); for the diffuse branch with and without roulette, (survival (T,),
+    weight Pd / (1 - q) / survival (3, T), per-unit-Pd weight 1 / (1 - q) / survival (T,)), the weights zero
+    where the survival is (a texel that reflects nothing diffusely)."""
+
+    q: np.ndarray
+    ps: np.ndarray
+    ps_max: np.ndarray
+    sigma: np.ndarray
+    truncation: np.ndarray
+    ratio_scale: np.ndarray
+    diffuse_roulette: tuple
+    diffuse_first: tuple
+
+    @classmethod
+    def build(cls, lobe: str | None, mat: TexelMaterial) -> "ScatterTables":
+        f32 = lambda x: np.ascontiguousarray(x, dtype=np.float32)
+        q = specular_probability(lobe, mat.pd, mat.ps)
+        rest = 1.0 - q
+        k = np.where(rest > 0, 1.0 / np.where(rest > 0, rest, 1.0), 0.0)
+        w = mat.pd * k[:, None]
+        top = w.max(-1)
+
+        def branch(survival):
+            inv = np.where(survival > 0, 1.0 / np.where(survival > 0, survival, 1.0), 0.0)
+            return f32(survival), f32((w * inv[:, None]).T), f32(k * inv)
+
+        sigma = np.maximum(mat.sigma, brdf_mod.SIGMA_EPS)
+        trunc, ratio = lobe_constants(lobe, sigma) if lobe is not None else (np.ones_like(sigma), np.zeros_like(sigma))
+        return cls(f32(q), f32(mat.ps.T), f32(mat.ps.max(-1)), f32(sigma), f32(trunc), f32(ratio),
+                   branch(np.minimum(0.95, top)), branch((top > 0).astype(np.float64)))
+
+    def diffuse(self, roulette: bool) -> tuple:
+        return self.diffuse_roulette if roulette else self.diffuse_first
