@@ -6,8 +6,11 @@
    would add minutes of scene simulation), then `fit.model: photon` runs; the time of the
    precompute, initialise and fit stages is the photon level's end-to-end time.
 2. Embree efficiency, in the same run: photon tracing and form-factor rays/s (rays traced / wall
-   time of the whole stage, sampling and bookkeeping included) over bare embreex closest-hit rays/s
-   on rays aimed at the same mesh, on one thread and split over the same number of threads.
+   time of the whole stage, sampling and bookkeeping included; for the photons both the tracing alone
+   and the whole refresh, tracing + reduction to the cache) over bare embreex closest-hit rays/s on the
+   same number of threads, (a) on exactly the rays the photon tracer sent to Embree, replayed (the
+   strict reference: same rays, nothing around them) and (b) on rays aimed at the same mesh from
+   outside (coherent and cheaper per ray than bounce rays that start on the surface).
 3. Scaling: the time of one cache refresh against photons per light, lights and texels.
 
     python scripts/bench_photon.py [--threads 2] [--photons 2000000] [--outer 1] [--no-scaling] [--out DIR]
@@ -47,6 +50,22 @@ def bare_intersect_rate(vertices, faces, n_rays: int, threads: int) -> float:
     return n_rays / (time.perf_counter() - start)
 
 
+def bare_replay_rate(tracer, record: list, threads: int) -> float:
+    """Bare embreex closest-hit rays/s on exactly the rays a photon trace sent to Embree (`record`: its
+    (origins, directions) batches), the batches split over `threads` threads: the same work as the trace's
+    Embree calls with everything around them removed."""
+    far = [np.full(len(o), 1e37, np.float32) for o, _ in record]
+    run = lambda i: tracer.scene.run(record[i][0], record[i][1], dists=far[i], query="INTERSECT", output=1)
+    start = time.perf_counter()
+    if threads == 1:
+        for i in range(len(record)):
+            run(i)
+    else:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(run, range(len(record))))
+    return sum(len(o) for o, _ in record) / (time.perf_counter() - start)
+
+
 def overrides(out: Path, args, columns=512, rows=450, angle=0.7, height=0.56, lights=12) -> list[str]:
     return [f"output.dir={out}", "output.progress=false", "output.map_lights=0", f"threads={args.threads}",
             "synthetic.indirect_samples=0", "synthetic.supersample=1", f"synthetic.columns={columns}",
@@ -55,8 +74,9 @@ def overrides(out: Path, args, columns=512, rows=450, angle=0.7, height=0.56, li
             f"photon.outer_iterations={args.outer}"]
 
 
-def refresh_time(cfg, out: Path, photons: int, lights: int | None = None) -> tuple[float, dict]:
-    """Seconds of one cache refresh (photon tracing + cache reduction) with the capture's initial parameters."""
+def refresh_time(cfg, out: Path, photons: int, lights: int | None = None, record: list | None = None) -> tuple[float, dict]:
+    """Seconds of one cache refresh (photon tracing + cache reduction) with fixed parameters (Object E's truth);
+    with `record`, the rays of a second, identical refresh are appended to it."""
     from torchrefl.fit.pipeline import _photon_setup
     from torchrefl.report.stages import Stages
 
@@ -73,7 +93,16 @@ def refresh_time(cfg, out: Path, photons: int, lights: int | None = None) -> tup
     level.cache(pd, ps, sigma, refresh=0)                   # landing densities (shadow rays), BVH warm-up
     start = time.perf_counter()
     cache = level.cache(pd, ps, sigma, refresh=1)
-    return time.perf_counter() - start, {"texels": T, "lights": obs.num_lights, **cache.stats}
+    seconds = time.perf_counter() - start
+    stats = {"texels": T, "lights": obs.num_lights, **cache.stats}
+    if record is not None:                                   # the rays of one more identical refresh, for the replay
+        rt = level.tracer.tracer
+        plain = rt.first_hits
+        rt.first_hits = lambda o, d: (record.append((o, d)), plain(o, d))[1]
+        level.cache(pd, ps, sigma, refresh=1)
+        rt.first_hits = plain
+        stats["tracer"] = rt
+    return seconds, stats
 
 
 def main() -> None:
@@ -101,16 +130,26 @@ def main() -> None:
     # 2. rays/s against bare Embree, same run
     capture = out / "e2e" / "capture"
     base = load_config(config, overrides(out / "rate", args) + ["capture.kind=cylindrical_scan", f"capture.path={capture}"])
-    seconds, stats = refresh_time(base, out / "rate", args.photons)
+    record: list = []
+    seconds, stats = refresh_time(base, out / "rate", args.photons, record=record)
+    tracer_of_run = stats.pop("tracer")
+    replay = bare_replay_rate(tracer_of_run, record, args.threads)
+    del record
     ours = stats["rays"] / seconds
+    tracing = stats["rays"] / stats["trace_s"]
     from torchrefl.capture.cylindrical_scan import load_scan_geometry
     geom = load_scan_geometry(capture)
     V, F = geom.surface.mesh_vertices, geom.surface.mesh_faces
     bare1 = bare_intersect_rate(V, F, 2_000_000, 1)
     bareN = bare_intersect_rate(V, F, 2_000_000, args.threads)
-    report["photon_tracing"] = {"refresh_s": round(seconds, 2), "rays": stats["rays"], "rays_per_s": round(ours),
-                                "bare_rays_per_s_1_thread": round(bare1), f"bare_rays_per_s_{args.threads}_threads": round(bareN),
-                                "ratio_to_bare_same_threads": round(ours / bareN, 3), "stats": stats}
+    report["photon_tracing"] = {
+        "refresh_s": round(seconds, 2), "trace_s": stats["trace_s"], "reduce_s": stats["reduce_s"], "rays": stats["rays"],
+        "tracing_rays_per_s": round(tracing), "refresh_rays_per_s": round(ours),
+        f"bare_replay_rays_per_s_{args.threads}_threads": round(replay),
+        "bare_aimed_rays_per_s_1_thread": round(bare1), f"bare_aimed_rays_per_s_{args.threads}_threads": round(bareN),
+        "tracing_ratio_to_bare_replay": round(tracing / replay, 3), "refresh_ratio_to_bare_replay": round(ours / replay, 3),
+        "tracing_ratio_to_bare_aimed": round(tracing / bareN, 3), "refresh_ratio_to_bare_aimed": round(ours / bareN, 3),
+        "stats": stats}
     from torchrefl.rays import RayTracer
     from torchrefl.transport.form_factors import form_factors_for_surface
     tracer = RayTracer(V, F, threads=args.threads)

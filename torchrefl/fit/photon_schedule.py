@@ -17,6 +17,7 @@ init is scored at refresh 0, the result of outer iteration k at refresh k + 1.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -66,13 +67,17 @@ class PhotonLevel:
                 pb.update(done - last[0])
                 last[0] = done
 
+            start = time.perf_counter()
             hits = self.tracer.trace(self.sources.positions.reshape(-1, 3), np.repeat(self.sources.intensity, K, 0),
                                      per_map, mat, seed=self.seed, refresh=refresh, progress=tick)
+            traced = time.perf_counter()
         cache = build_cache(hits, self.sources, self.tracer.areas, self.tracer.normals, self.view_dirs, self.keep,
                             self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
                             self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
                             emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal,
                             specular_smoothing=self.specular_smoothing)
+        cache.stats["trace_s"] = round(traced - start, 3)
+        cache.stats["reduce_s"] = round(time.perf_counter() - traced, 3)
         return cache.to(self.dtype, self.device)
 
 

@@ -22,6 +22,11 @@ def row_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("ni,ni->n", a, b)
 
 
+def column_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,) dot products of the columns of two component-major (3, N) arrays (the fast layout for numpy)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
 def tangent_frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Orthonormal tangents t, b (N, 3) with t x b = n for unit normals n (N, 3) (Duff et al. 2017)."""
     sign = np.where(n[:, 2] >= 0, 1.0, -1.0)

@@ -38,7 +38,7 @@ import torch
 from torchrefl import brdf as brdf_mod
 from torchrefl.errors import GeometryError
 from torchrefl.rays import RayTracer
-from torchrefl.transport.lobe_sampling import (LOBES, lobe_constants, lobe_over_pdf, lobe_theta, row_dot,
+from torchrefl.transport.lobe_sampling import (LOBES, column_dot, lobe_constants, lobe_over_pdf, lobe_theta, row_dot,
                                                specular_probability, tangent_frame)
 
 CHUNK = 1 << 17          # photons per work unit
@@ -48,11 +48,6 @@ COLLECT_COS = 0.9        # a face corner collects photons for its texel when the
 def _take3(a: np.ndarray, index: np.ndarray) -> np.ndarray:
     """Columns `index` of a component-major (3, N) array (np.take: several times faster than fancy indexing)."""
     return np.take(a, index, axis=1)
-
-
-def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N,) dot products of the columns of two (3, N) arrays."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 @dataclass
@@ -221,7 +216,7 @@ class PhotonTracer:
             r = np.sqrt(np.maximum(1 - z * z, 0))
             phi = np.float32(2 * np.pi) * np.take(u[1], iD)
             d = nD + np.stack([r * np.cos(phi), r * np.sin(phi), z])
-            d /= np.maximum(np.sqrt(_dot3(d, d)), np.float32(1e-12))
+            d /= np.maximum(np.sqrt(column_dot(d, d)), np.float32(1e-12))
             pw = _take3(power, iD)
             parts.append((_take3(y, iD) + self._offset32 * nD, d, pw * _take3(w_d, tD), pw * np.take(k_d, tD), tD))
         iS = np.flatnonzero(spec) if self.lobe is not None and spec.any() else np.zeros(0, np.int64)
@@ -234,7 +229,7 @@ class PhotonTracer:
             h = fa * (st * np.cos(phi))
             h += fb * (st * np.sin(phi))
             h += nS * ct
-            vh = _dot3(wiS, h)
+            vh = column_dot(wiS, h)
             wo = 2 * vh * h - wiS
             ci = np.take(cos_i, iS)
             cos_o = 2 * vh * ct - ci                              # n.wo, since n.h = cos(theta)
@@ -278,10 +273,10 @@ class PhotonTracer:
         texel = np.repeat(np.arange(len(a), dtype=np.int32), np.diff(edges).astype(np.int64))
         y = _take3(self._pos3, texel)
         wi = np.asarray(source, dtype=np.float32)[:, None] - y
-        wi /= np.sqrt(_dot3(wi, wi))
+        wi /= np.sqrt(column_dot(wi, wi))
         power = np.repeat((intensity * (total / n_total)).astype(np.float32)[:, None], len(texel), 1)
         n_s = _take3(self._n3, texel)
-        cos_i = _dot3(n_s, wi)
+        cos_i = column_dot(n_s, wi)
         own = None
         origin = d = per_pd = emitter = None          # the rays of the previous bounce and their photons
         rays = 0
@@ -292,7 +287,7 @@ class PhotonTracer:
                 prim, bu, bv, dist = self.tracer.first_hits(np.stack(tuple(origin), -1), np.stack(tuple(d), -1))
                 rays += origin.shape[1]
                 # hits on the front (towards the photon) of the mesh only: the back of the scanned surface absorbs
-                front = (prim >= 0) & (_dot3(_take3(self._fn3, np.maximum(prim, 0)), d) < 0)
+                front = (prim >= 0) & (column_dot(_take3(self._fn3, np.maximum(prim, 0)), d) < 0)
                 k = np.flatnonzero(front)
                 if not k.size:
                     break
@@ -306,12 +301,12 @@ class PhotonTracer:
                 # the texel's normal, or the hit face's where the texel normal faces away from wi (a photon
                 # arriving at a grazing angle on a curved or folded mesh: the smooth normal would absorb it)
                 n_s = _take3(self._n3, texel)
-                cos_i = _dot3(n_s, wi)
+                cos_i = column_dot(n_s, wi)
                 own = cos_i > 1e-6
                 if not own.all():
                     bad = np.flatnonzero(~own)
                     n_s[:, bad] = _take3(self._fn3, np.take(prim, bad))
-                    cos_i[bad] = _dot3(n_s[:, bad], wi[:, bad])
+                    cos_i[bad] = column_dot(n_s[:, bad], wi[:, bad])
             if depth == self.max_bounces:
                 break
             u = rng.random((4, len(texel)), dtype=np.float32)
