@@ -108,6 +108,26 @@ def test_one_scattering_carries_the_directional_albedo(model, ps, sigma, roulett
     assert abs(k.mean() - 1.0) <= 4 * k.std() / np.sqrt(N) + 1e-6, k.mean()
 
 
+def test_component_probabilities_at_the_extremes_stay_finite():
+    """A texel with a vanishing but positive Ps is still sampled specularly with a probability the float32
+    uniforms can realise (>= 2^-24, never a denormal): even the smallest uniform (0) gives a finite weight;
+    Pd = 0 or Ps = 0 texels scatter finitely too."""
+    s, _, pt = fold_setup("torrance_sparrow")
+    T = s.num_texels
+    t0 = 5 * 48 + 10
+    n, wi = s.normals[t0].numpy(), np.array([np.sin(0.6), 0.0, np.cos(0.6)])
+    N = 1000
+    col = lambda v: np.repeat(np.asarray(v, dtype=np.float32)[:, None], N, 1)
+    for pd, ps in ((0.5, 1e-40), (0.5, 1e-30), (1e-12, 0.5), (0.0, 0.5), (0.5, 0.0), (0.0, 0.0)):
+        tables = ScatterTables.build(pt.lobe, TexelMaterial.from_tensors(*material(T, pd, ps, 0.1)))
+        assert np.float64(tables.q[t0]) * 2 ** 24 == np.ceil(np.float64(tables.q[t0]) * 2 ** 24)   # on the uniforms' grid
+        u = np.random.default_rng(0).random((4, N), dtype=np.float32)
+        u[2] = 0.0                                              # the smallest uniform: specular wherever q > 0
+        out = pt.scatter(np.full(N, t0, np.int32), col(s.positions[t0].numpy()), col(wi), col(n),
+                         np.full(N, np.dot(n, wi), np.float32), None, np.ones((3, N), np.float32), tables, u, True)
+        assert all(np.isfinite(x).all() for x in out[:4]), (pd, ps)
+
+
 def test_closed_sphere_energy_balance():
     """Inside a closed diffuse sphere every photon is eventually absorbed: the stored indirect flux is
     rho / (1 - rho) times the direct flux, with Russian roulette and for rho near 1."""

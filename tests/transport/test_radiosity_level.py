@@ -7,6 +7,7 @@ import torch
 
 from conftest import dome_scene, point_light_observations
 from torchrefl.transport.local import local_terms, predict
+from torchrefl.transport.radiosity import solve_radiosity
 from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance, inverse_radiosity, predict_radiosity
 
 
@@ -76,3 +77,90 @@ def test_patch_means_are_area_weighted():
     x = torch.tensor([[1.0], [5.0], [7.0]], dtype=torch.float64)
     torch.testing.assert_close(pm.mean(x), torch.tensor([[4.0], [7.0]], dtype=torch.float64))
     torch.testing.assert_close(pm.scatter(pm.mean(x)), torch.tensor([[4.0], [4.0], [7.0]], dtype=torch.float64))
+
+
+def moving_light_fold(H=4, W=10):
+    """The fold lit by one light that moves with the column (a co-rotating rig): texel t's image saw the
+    light at L_col(t). Returns surface, observations, per-texel light positions (T, 3)."""
+    from conftest import fold_surface
+
+    s = fold_surface(H, W)
+    col = s.texel_index % W
+    angle = (col.double() - W / 2) * 0.08
+    L = torch.stack([-60 * torch.sin(angle) - 30, torch.zeros_like(angle), 60 * torch.cos(angle)], -1)
+    obs = point_light_observations(s.normals, s.positions, torch.zeros(1, 3), torch.tensor([-150.0, 0.0, 150.0]))
+    to = L[None] - s.positions[None]
+    dist = to.norm(dim=-1)
+    obs.light_dir, obs.falloff = to / dist[..., None], 1.0 / dist ** 2
+    obs.valid = (s.normals[None] * obs.light_dir).sum(-1) > 0
+    return s, obs, L
+
+
+def fold_form_factors(s):
+    from torchrefl.rays import RayTracer
+    from torchrefl.transport.form_factors import form_factors_for_surface
+
+    patches, F = form_factors_for_surface(s, RayTracer(s.mesh_vertices, s.mesh_faces), patch_size=1,
+                                          samples_per_patch=256, seed=0)
+    return PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches), F.double()
+
+
+def test_emitter_maps_give_each_texel_the_radiosity_lit_from_its_own_column():
+    """With one map per column, the maps' E in a texel's own column is the local direct irradiance, and H at
+    every texel equals a brute-force solve with all emitters lit from that texel's column light."""
+    from torchrefl.rays import RayTracer
+    from torchrefl.transport.photon_level import light_sources
+    from torchrefl.transport.radiosity_level import direct_irradiance, emitter_maps
+
+    s, obs, L = moving_light_fold()
+    H, W = s.grid_shape
+    terms = local_terms("lambertian", s.normals, obs)
+    pm, F = fold_form_factors(s)
+    src = light_sources(s, obs, W)
+    maps = emitter_maps(src, s.positions, s.normals, RayTracer(s.mesh_vertices, s.mesh_faces), 0.05)
+    col = (s.texel_index % W).numpy()
+    own = maps.irradiance[0, col, torch.arange(s.num_texels)]
+    torch.testing.assert_close(own, direct_irradiance(terms, obs.kappa)[0], rtol=1e-9, atol=1e-12)
+    pd = 0.3 + 0.5 * torch.rand(s.num_texels, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    got = indirect_irradiance(terms, obs.kappa, pd, pm, F, maps)[0]
+    ref = torch.zeros_like(got)
+    x, n = s.positions, s.normals
+    for c in range(W):                                   # all emitters lit from column c's light, no shadows here
+        to = L[col == c][0][None] - x
+        d2 = (to * to).sum(-1)
+        E = (n * to).sum(-1).clamp_min(0) / d2.sqrt() / d2
+        E = E[:, None] * obs.light_intensity[0][None]
+        B = solve_radiosity(pm.mean(pd[None])[0], pm.mean(E[None]), F)[0]
+        Hc = pm.scatter(F @ B)
+        ref[col == c] = Hc[col == c]
+    torch.testing.assert_close(got, ref, rtol=1e-9, atol=1e-12)
+    # lit as in each emitter's own column instead (no maps), H differs: the maps matter on a moving rig
+    plain = indirect_irradiance(terms, obs.kappa, pd, pm, F)[0]
+    assert float((plain - ref).abs().max() / ref.abs().max()) > 0.02
+
+
+def test_one_emitter_map_of_static_lights_is_the_plain_level_and_gradcheck_with_maps():
+    from torchrefl.rays import RayTracer
+    from torchrefl.transport.photon_level import light_sources
+    from torchrefl.transport.radiosity_level import emitter_maps
+
+    s, obs, L = moving_light_fold(3, 6)
+    light = L[0]
+    to = light[None, None] - s.positions[None]
+    dist = to.norm(dim=-1)
+    obs.light_dir, obs.falloff = to / dist[..., None], 1.0 / dist ** 2          # a static light now
+    obs.light_positions = light[None]
+    terms = local_terms("lambertian", s.normals, obs)
+    pm, F = fold_form_factors(s)
+    src = light_sources(s, obs, 8)
+    assert src.num_maps == 1
+    maps = emitter_maps(src, s.positions, s.normals, RayTracer(s.mesh_vertices, s.mesh_faces), 0.05)
+    pd = torch.full((s.num_texels, 3), 0.6, dtype=torch.float64)
+    torch.testing.assert_close(indirect_irradiance(terms, obs.kappa, pd, pm, F, maps),
+                               indirect_irradiance(terms, obs.kappa, pd, pm, F), rtol=1e-9, atol=1e-12)
+    s2, obs2, _ = moving_light_fold(2, 4)
+    terms2 = local_terms("lambertian", s2.normals, obs2)
+    pm2, F2 = fold_form_factors(s2)
+    maps2 = emitter_maps(light_sources(s2, obs2, 3), s2.positions, s2.normals, RayTracer(s2.mesh_vertices, s2.mesh_faces), 0.05)
+    f = lambda p: indirect_irradiance(terms2, obs2.kappa, p, pm2, F2, maps2)
+    assert torch.autograd.gradcheck(f, (torch.full((s2.num_texels, 3), 0.5, dtype=torch.float64, requires_grad=True),))

@@ -75,7 +75,7 @@ class PhotonLevel:
                             self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
                             self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
                             emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal,
-                            specular_smoothing=self.specular_smoothing)
+                            specular_smoothing=self.specular_smoothing, threads=self.tracer.tracer.threads)
         cache.stats["trace_s"] = round(traced - start, 3)
         cache.stats["reduce_s"] = round(time.perf_counter() - traced, 3)
         return cache.to(self.dtype, self.device)

@@ -43,7 +43,8 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     """Form factors, patch map and the Method II closed form; returns (patches, F, predict_indirect, note)."""
     from torchrefl.rays import RayTracer
     from torchrefl.transport.form_factors import form_factors_for_surface
-    from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance, inverse_radiosity
+    from torchrefl.transport.photon_level import light_sources
+    from torchrefl.transport.radiosity_level import PatchMap, emitter_maps, indirect_irradiance, inverse_radiosity
 
     rc = cfg.radiosity
     tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
@@ -54,10 +55,16 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     solver = {"method": rc.solver, "tol": rc.tolerance, "max_iter": rc.max_iterations, "direct_max": rc.direct_max}
     rho, det = inverse_radiosity(terms, obs.kappa, obs.intensity, (cls == T_DIFF) & fit_mask, pmap, F)
     nnz = int(F._nnz()) if F.is_sparse else int((F != 0).sum())
+    maps = None
+    if obs.light_positions is not None and rc.light_maps > 1:
+        sources = light_sources(surface, obs, rc.light_maps)
+        if sources.num_maps > 1:                                       # the lights move with the scan
+            maps = emitter_maps(sources, surface.positions, surface.normals, tracer, cfg.geometry.shadow_offset_mm)
     note = (f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels, "
-            f"{rc.hemisphere_samples} hemisphere rays each, {nnz} non-zero form factors; inverse radiosity (eq. 4.7) "
-            f"determined {int(det.sum())} patches")
-    indirect = lambda pd: indirect_irradiance(terms, obs.kappa, pd, pmap, F, **solver)
+            f"{rc.hemisphere_samples} hemisphere rays each, {nnz} non-zero form factors"
+            + (f", {maps.weights.shape[0]} emitter maps per light" if maps is not None else "")
+            + f"; inverse radiosity (eq. 4.7) determined {int(det.sum())} patches")
+    indirect = lambda pd: indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, **solver)
     return pmap, F, solver, rho, det, indirect, note
 
 

@@ -156,7 +156,7 @@ def lobe_over_pdf(lobe: str, theta: np.ndarray, cos_theta: np.ndarray, sin_theta
     """D(theta_h; sigma) / p_h(theta_h): brdf.specular_lobe over the solid-angle pdf of the half vectors
     `half_vector_pdf` draws, in closed form (the exponentials cancel, so it stays finite in the far tail):
     torrance_sparrow 2 pi Z sin(theta) / theta (2 pi Z at theta = 0), ward cos^3(theta) / 4, with
-    ratio_scale from lobe_constants. Any float dtype; the result has theta's."""
+    ratio_scale from lobe_constants. Any float dtype (float32 in, float32 out when ratio_scale is float32 too)."""
     if lobe == "torrance_sparrow":
         small = theta < 1e-4
         return ratio_scale * np.where(small, 1.0, sin_theta / np.where(small, 1.0, theta)).astype(theta.dtype)
@@ -183,7 +183,8 @@ def sample_mixture(lobe: str | None, n, v, pd, ps, sigma, u, frame=None, q=None,
     uniforms u (N, 3) (u[:, 2] picks the component).
 
     The same distribution as sample_cosine / sample_lobe chosen by u[:, 2] < q with the pdf of
-    mixture_pdf, fused into one pass (one tangent frame, one half vector): the photon tracer's hot path.
+    mixture_pdf, fused into one pass (one tangent frame, one half vector): the path tracer's sampler
+    (torchrefl.capture.synthetic_gi; the photon tracer selects one component per sample instead).
     frame: precomputed tangent_frame(n); q: precomputed specular_probability(lobe, pd, ps) (then pd and ps
     are not read); with_cos_h: also return n.h (N,) of the half vector h = normalize(l + v).
     """

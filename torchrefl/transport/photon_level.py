@@ -239,7 +239,7 @@ def _half_angle3(n: np.ndarray, l: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
                 sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
-                bin_per_sigma: float = BIN_PER_SIGMA,
+                bin_per_sigma: float = BIN_PER_SIGMA, threads: int = 2,
                 smoothing: float = 0.0, grid=None, emitter_pd=None, smoothing_normal: float = 0.0,
                 specular_smoothing: float = 0.0) -> PhotonCache:
     """Reduce photon hits to the cache.
@@ -250,7 +250,8 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     smoothing: std of the Gaussian density-estimation kernel in texels (needs grid = (texel_index, grid_shape)
     or (texel_index, grid_shape, normals (T, 3))); smoothing_normal: the kernel's normal-difference std (needs
     the normals in grid; 0 = plain Gaussian); specular_smoothing: std (texels) of the kernel that spreads the
-    specular entries over grid neighbours (spread_on_grid; 0 = per texel);
+    specular entries over grid neighbours (spread_on_grid; 0 = per texel); theta_bin, bin_per_sigma: merged
+    photons' theta_h bins are max(theta_bin, bin_per_sigma * sigma_t) wide; threads: worker threads;
     emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd.
     """
     P, K = sources.positions.shape[:2]
@@ -305,8 +306,11 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
 
         # blocks of 2^17 hits keep the temporaries in cache; numpy releases the GIL, so two threads share them
         blocks = [sel[i:i + (1 << 17)] for i in range(0, sel.size, 1 << 17)]
-        with ThreadPoolExecutor(2) as pool:
-            parts = list(pool.map(block, blocks))
+        if threads > 1 and len(blocks) > 1:
+            with ThreadPoolExecutor(threads) as pool:
+                parts = list(pool.map(block, blocks))
+        else:
+            parts = [block(b) for b in blocks]
         sel = np.concatenate([x[0] for x in parts])
         theta_h = np.concatenate([x[1] for x in parts])
         weight = np.take(flux, sel, axis=1) * np.concatenate([x[2] for x in parts])                 # (3, M)

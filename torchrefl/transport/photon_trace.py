@@ -57,8 +57,9 @@ class PhotonHits:
     source: (N,) int64 index of the emitting source; texel: (N,) int64 receiving texel;
     direction: (N, 3) float32 unit incident direction wi; power: (N, 3) float32 flux Phi;
     emitter: (N,) int64 texel of the photon's last scattering; diffuse_per_pd: (N, 3) float32 the share of Phi
-    that is linear in the emitter's Pd, per unit Pd (Phi_in / (1 - q) after a diffuse scattering, 0 after a
-    specular one), so that Phi(Pd') = Phi + diffuse_per_pd (Pd' - Pd) exactly for the last bounce.
+    that is linear in the emitter's Pd, per unit Pd (Phi_in / ((1 - q) s) after a diffuse scattering with
+    roulette survival s, 0 after a specular one), so that Phi(Pd') = Phi + diffuse_per_pd (Pd' - Pd) for the
+    last bounce, exactly per photon and unbiased over photons (ScatterTables for where q rounds to 1).
     emitted: (S,) photons emitted per source; rays: closest-hit rays traced in all.
     """
 
@@ -237,6 +238,7 @@ class PhotonTracer:
                 g_cos = (brdf_mod.specular_geometry(self.brdf, torch.from_numpy(ci), torch.from_numpy(cos_o))
                          * torch.from_numpy(np.maximum(cos_o, 0))).numpy()
             ws = lobe_over_pdf(self.lobe, theta, ct, st, np.take(tables.ratio_scale, tS)) * (4 * np.abs(vh)) * g_cos
+            # cos_i > 0 here; the floor only bounds the weight of photons grazing a face whose normal stood in
             ws /= np.maximum(ci, np.float32(1e-6)) * np.take(tables.q, tS)
             top = np.take(tables.ps_max, tS) * ws
             if roulette:
@@ -362,7 +364,13 @@ class ScatterTables:
     q (T,) specular sampling probability; ps (3, T), ps_max (T,); sigma (T,) (>= brdf.SIGMA_EPS), truncation,
     ratio_scale (T,) (lobe_constants); for the diffuse branch with and without roulette, (survival (T,),
     weight Pd / (1 - q) / survival (3, T), per-unit-Pd weight 1 / (1 - q) / survival (T,)), the weights zero
-    where the survival is (a texel that reflects nothing diffusely)."""
+    where the survival is zero (a texel that reflects nothing diffusely).
+
+    q is rounded up to the grid of the float32 uniforms (multiples of 2^-24) that choose the component, so
+    that P(u < q) is exactly q and every weight divides by the probability actually used: a texel whose Ps is
+    tiny but positive is sampled specularly with probability >= 2^-24 (never a denormal q: no overflow),
+    and one whose Pd is below ~6e-8 of its Ps is never sampled diffusely (its diffuse part, and its
+    per-unit-Pd weight, are then dropped: at most that fraction of its reflection)."""
 
     q: np.ndarray
     ps: np.ndarray
@@ -376,7 +384,7 @@ class ScatterTables:
     @classmethod
     def build(cls, lobe: str | None, mat: TexelMaterial) -> "ScatterTables":
         f32 = lambda x: np.ascontiguousarray(x, dtype=np.float32)
-        q = specular_probability(lobe, mat.pd, mat.ps)
+        q = np.ceil(specular_probability(lobe, mat.pd, mat.ps) * 2.0 ** 24) / 2.0 ** 24
         rest = 1.0 - q
         k = np.where(rest > 0, 1.0 / np.where(rest > 0, rest, 1.0), 0.0)
         w = mat.pd * k[:, None]

@@ -7,6 +7,13 @@ For light p, texel t in patch u(t), channel c:
     B        = solve_radiosity(rho, E, F)                   (torchrefl.transport.radiosity)
     H_t      = sum_v F_{u(t) v} B_v                         indirect irradiance at the texel
     i_pt     = local(t) + kappa Pd_t / pi * H_t
+Moving lights. On a co-rotating rig texel t's image was taken with light p at its own position L_pt, and
+then the whole object was lit from there: the emitters' E must come from L_pt too, not from the positions
+their own columns saw. EmitterMaps holds E under K source positions per light (those of
+photon_level.light_sources: evenly spaced columns, tent weights); B is solved for all P x K of them at
+once (one factorisation, more right-hand sides) and H_t interpolates between the two maps nearest to
+t's column. Static lights need no maps (E from the local terms, with the capture's visibility).
+
 RHO_MAX = 0.99 is the one clamp here: an uncalibrated or not yet converged Pd above 1 would make
 I - rho F singular in closed geometry; Pd itself is not clamped (the direct term still sees it).
 The specular reflection of direct light does not feed the interreflection and indirect light is
@@ -22,6 +29,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from torchrefl.transport.local import LocalTerms, predict
@@ -62,19 +70,60 @@ def direct_irradiance(terms: LocalTerms, kappa: torch.Tensor) -> torch.Tensor:
     return terms.diffuse * (math.pi / kappa)
 
 
-def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: PatchMap, F: torch.Tensor, **solver) -> torch.Tensor:
-    """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3)."""
-    E = patches.mean(direct_irradiance(terms, kappa))                  # (P, Q, 3)
+@dataclass
+class EmitterMaps:
+    """irradiance (P, K, T, 3): Y_p max(n_t.l, 0) vis / d^2 at every texel with light p at map k's source
+    position; weights (K, T): each texel's tent weights over the maps (columns sum to one)."""
+
+    irradiance: torch.Tensor
+    weights: torch.Tensor
+
+
+def emitter_maps(sources, positions: torch.Tensor, normals: torch.Tensor, tracer, offset: float) -> EmitterMaps:
+    """EmitterMaps for photon_level.LightSources `sources` (positions (P, K, 3), weights (K, T), intensity
+    (P, 3)); visibility by Embree shadow rays (tracer: a RayTracer of the texel mesh; offset: origin offset
+    along the normal, like the capture's shadow test)."""
+    x = positions.double().numpy()
+    n = normals.double().numpy()
+    P, K = sources.positions.shape[:2]
+    T = len(x)
+    E = np.zeros((P, K, T, 3))
+    for p in range(P):
+        for k in range(K):
+            to = sources.positions[p, k][None] - x
+            d2 = np.einsum("ti,ti->t", to, to)
+            cos = np.einsum("ti,ti->t", n, to) / np.sqrt(np.maximum(d2, 1e-300))
+            lit = np.flatnonzero(cos > 0)
+            if lit.size:
+                vis = tracer.visible(x[lit], n[lit], x[lit] + to[lit], offset=offset)
+                lit = lit[vis]
+                E[p, k, lit] = (cos[lit] / d2[lit])[:, None] * sources.intensity[p][None]
+    return EmitterMaps(torch.from_numpy(E), torch.as_tensor(np.asarray(sources.weights, dtype=np.float64)))
+
+
+def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: PatchMap, F: torch.Tensor,
+                        maps: EmitterMaps | None = None, **solver) -> torch.Tensor:
+    """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3); with maps, the
+    emitters are lit from each map's source and H interpolates between maps (module doc)."""
     rho = patches.mean(pd[None])[0].clamp(max=RHO_MAX)                 # (Q, 3)
-    B = solve_radiosity(rho, E, F, **solver)                           # (P, Q, 3)
-    P, Q, C = B.shape
-    H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, P * C)).reshape(Q, P, C).permute(1, 0, 2)
-    return patches.scatter(H)
+    if maps is None:
+        E = patches.mean(direct_irradiance(terms, kappa))              # (P, Q, 3)
+    else:
+        P, K, T, C = maps.irradiance.shape
+        E = patches.mean(maps.irradiance.to(pd.dtype).reshape(P * K, T, C))   # (P K, Q, 3)
+    B = solve_radiosity(rho, E, F, **solver)                           # (P or P K, Q, 3)
+    R, Q, C = B.shape
+    H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, R * C)).reshape(Q, R, C).permute(1, 0, 2)
+    H = patches.scatter(H)                                             # (R, T, 3)
+    if maps is None:
+        return H
+    return (H.reshape(P, K, T, C) * maps.weights.to(H.dtype)[None, :, :, None]).sum(1)
 
 
-def predict_radiosity(terms: LocalTerms, kappa, pd, ps, sigma, patches: PatchMap, F, **solver) -> torch.Tensor:
+def predict_radiosity(terms: LocalTerms, kappa, pd, ps, sigma, patches: PatchMap, F, maps: EmitterMaps | None = None,
+                      **solver) -> torch.Tensor:
     """(P, T, 3) local prediction plus the diffusely reflected interreflection."""
-    H = indirect_irradiance(terms, kappa, pd, patches, F, **solver)
+    H = indirect_irradiance(terms, kappa, pd, patches, F, maps, **solver)
     return predict(terms, pd, ps, sigma) + (kappa / math.pi) * pd[None] * H
 
 
