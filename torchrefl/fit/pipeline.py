@@ -43,7 +43,7 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     """Form factors, patch map and the Method II closed form; returns (patches, F, predict_indirect, note)."""
     from torchrefl.rays import RayTracer
     from torchrefl.transport.form_factors import form_factors_for_surface
-    from torchrefl.transport.photon_level import light_sources
+    from torchrefl.transport.photon_level import apply_on_grid, light_sources, smoothing_matrix
     from torchrefl.transport.radiosity_level import PatchMap, emitter_maps, indirect_irradiance, inverse_radiosity
 
     rc = cfg.radiosity
@@ -64,7 +64,14 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
             f"{rc.hemisphere_samples} hemisphere rays each, {nnz} non-zero form factors"
             + (f", {maps.weights.shape[0]} emitter maps per light" if maps is not None else "")
             + f"; inverse radiosity (eq. 4.7) determined {int(det.sum())} patches")
-    indirect = lambda pd: indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, **solver)
+    smooth = rc.smoothing if rc.smoothing is not None else (rc.patch_size / 2.0 if rc.patch_size > 1 else 0.0)
+    if smooth > 0:
+        note += f"; patch irradiance spread over the texels (std {smooth:g} texels)"
+        M = smoothing_matrix(surface.texel_index.numpy(), surface.grid_shape, smooth, surface.normals.numpy(),
+                             cfg.photon.smoothing_normal)
+        indirect = lambda pd: apply_on_grid(M, indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, **solver))
+    else:
+        indirect = lambda pd: indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, **solver)
     return pmap, F, solver, rho, det, indirect, note
 
 

@@ -183,23 +183,20 @@ def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: 
     return out.reshape(-1, C, T).permute(0, 2, 1).reshape(*lead, T, C)
 
 
-def spread_on_grid(obs: np.ndarray, T: int, texel_index, grid_shape: tuple[int, int], sigma: float,
-                   normals=None, normal_sigma: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Spread point entries at flat observation indices obs = p T + t over the grid neighbours of t, with the
-    kernel of smooth_on_grid (Gaussian of std `sigma` texels, truncated at radius max(1, round(sigma)) to bound the
-    number of copies, times the normal test)
-    normalised at each receiving texel (normalised convolution: a constant field stays constant).
-    Returns (obs of the copies, index of the entry each copy comes from, weight of each copy)."""
+def _grid_neighbours(texel_index, grid_shape: tuple[int, int], sigma: float, radius: int, normals=None,
+                     normal_sigma: float = 0.0):
+    """The kernel shared by spread_on_grid and smoothing_matrix: a function of t_from (M,) that yields, per grid
+    offset within `radius`, (t_to (M,), weight (M,)): the texel at that offset (-1 outside the grid or the
+    texel set) and exp(-|offset|^2 / (2 sigma^2)) times, with normals (T, 3) and normal_sigma > 0,
+    exp(-|n - n'|^2 / (2 normal_sigma^2)) (kornia's joint bilateral weights with the normals as guide)."""
     H, W = grid_shape
     index = np.asarray(texel_index, dtype=np.int64)
     slot = np.full(H * W, -1, dtype=np.int64)
     slot[index] = np.arange(len(index))
     nrm = None if normals is None or normal_sigma <= 0 else np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
-    radius = max(1, int(round(sigma)))
     offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
 
     def kernel(t_from: np.ndarray):
-        """Per offset: (t_to, weight) of every texel in t_from's window (t_to = -1 outside the grid)."""
         g = np.take(index, t_from)
         r, c = g // W, g % W
         n_from = None if nrm is None else np.take(nrm, t_from, axis=1)
@@ -213,6 +210,46 @@ def spread_on_grid(obs: np.ndarray, T: int, texel_index, grid_shape: tuple[int, 
                 w *= np.exp(-column_dot(d, d) / (2.0 * normal_sigma ** 2))
             yield to, w
 
+    return kernel
+
+
+def smoothing_matrix(texel_index, grid_shape: tuple[int, int], sigma: float, normals=None,
+                     normal_sigma: float = 0.0) -> torch.Tensor:
+    """smooth_on_grid as a sparse (T, T) float64 operator (rows sum to one): for smoothing the same grid many
+    times (the radiosity level's irradiance at every fit evaluation), where building the bilateral weights once
+    pays. The kernel is smooth_on_grid's (radius ceil(3 sigma), normalised over the texels present)."""
+    T = len(np.asarray(texel_index))
+    kernel = _grid_neighbours(texel_index, grid_shape, sigma, int(math.ceil(3 * sigma)), normals, normal_sigma)
+    rows, cols, vals = [], [], []
+    t = np.arange(T)
+    for to, w in kernel(t):
+        keep = np.flatnonzero((to >= 0) & (w > 0))
+        rows.append(keep)
+        cols.append(np.take(to, keep))
+        vals.append(np.take(w, keep))
+    rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+    vals = vals / np.bincount(rows, weights=vals, minlength=T)[rows]
+    return torch.sparse_coo_tensor(torch.from_numpy(np.stack([rows, cols])), torch.from_numpy(vals), (T, T),
+                                   check_invariants=False).coalesce()
+
+
+def apply_on_grid(matrix: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """A (T, T) sparse operator (smoothing_matrix) applied to per-texel values (..., T, C); differentiable."""
+    lead, (T, C) = values.shape[:-2], values.shape[-2:]
+    flat = values.reshape(-1, T, C).permute(1, 0, 2).reshape(T, -1)
+    out = torch.sparse.mm(matrix.to(values.dtype), flat)
+    return out.reshape(T, -1, C).permute(1, 0, 2).reshape(*lead, T, C)
+
+
+def spread_on_grid(obs: np.ndarray, T: int, texel_index, grid_shape: tuple[int, int], sigma: float,
+                   normals=None, normal_sigma: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Spread point entries at flat observation indices obs = p T + t over the grid neighbours of t, with the
+    kernel of smooth_on_grid (Gaussian of std `sigma` texels, truncated at radius max(1, round(sigma)) to bound the
+    number of copies, times the normal test)
+    normalised at each receiving texel (normalised convolution: a constant field stays constant).
+    Returns (obs of the copies, index of the entry each copy comes from, weight of each copy)."""
+    index = np.asarray(texel_index, dtype=np.int64)
+    kernel = _grid_neighbours(texel_index, grid_shape, sigma, max(1, int(round(sigma))), normals, normal_sigma)
     mass = np.zeros(len(index))
     for to, w in kernel(np.arange(len(index))):
         mass += np.bincount(np.maximum(to, 0), weights=np.where(to >= 0, w, 0.0), minlength=len(index))
