@@ -223,3 +223,31 @@ def test_a_mesh_that_is_not_the_texel_grid_is_refused():
     with pytest.raises(Exception, match="not a mesh vertex|not texels"):
         PhotonTracer(RayTracer(verts, faces), s.texel_index.numpy()[:60], s.positions.numpy()[:60],
                      s.normals.numpy()[:60], "lambertian")
+
+
+def test_rays_that_reach_the_back_of_the_scanned_surface_are_counted():
+    """Two parallel sheets scanned from above (normals +z), lit between them: photons scattered up from the
+    lower sheet meet the underside of the upper one, which the scan never saw: absorbed and counted in
+    back_hits. On the open fold (every surface seen from the front) none are."""
+    from torchrefl.geometry.range_mesh import grid_triangulation, texel_areas
+
+    H, W = 20, 20
+    x = np.linspace(-30, 30, W)
+    y = np.tile(np.linspace(-30, 30, H // 2), 2)
+    X, Y = np.meshgrid(x, y)
+    Z = np.where(np.arange(H)[:, None] < H // 2, 0.0, 10.0) * np.ones((1, W))
+    pts = np.stack([X, Y, Z], -1)
+    valid = np.ones((H, W), bool)
+    verts, faces = grid_triangulation(pts, valid)
+    nrm = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (H * W, 3)).copy()
+    s = Surface((H, W), torch.arange(H * W), torch.tensor(pts.reshape(-1, 3)), torch.tensor(nrm),
+                torch.tensor(texel_areas(pts, valid).reshape(-1)), verts, faces)
+    pt = PhotonTracer(RayTracer(s.mesh_vertices, s.mesh_faces), s.texel_index.numpy(), s.positions.numpy(),
+                      s.normals.numpy(), "lambertian", offset=1e-3)
+    mat = TexelMaterial.from_tensors(*material(s.num_texels, 0.8))
+    hits = pt.trace(np.array([[0.0, 0.0, 5.0]]), np.ones((1, 3)), 50_000, mat, seed=0)
+    assert hits.back_hits > 0.5 * hits.rays
+    s2, obs, pt2 = fold_setup()
+    src = light_sources(s2, obs, 1)
+    open_hits = pt2.trace(src.positions.reshape(-1, 3), src.intensity, 50_000, TexelMaterial.from_tensors(*material(s2.num_texels, 0.8)), seed=0)
+    assert open_hits.back_hits < 0.01 * open_hits.rays and open_hits.rays > 10_000

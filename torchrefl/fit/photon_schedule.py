@@ -81,6 +81,9 @@ class PhotonLevel:
         return cache.to(self.dtype, self.device)
 
 
+BACK_HIT_WARNING = 0.03      # share of photon rays ending on the back of the scanned surface that draws a warning
+
+
 def image_score(pred: torch.Tensor, intensity: torch.Tensor, mask: torch.Tensor) -> float:
     """Mean absolute difference in 8-bit DN over the masked observations."""
     return float(((pred - intensity).abs() * 255.0)[mask].mean())
@@ -122,6 +125,11 @@ def run_schedule(params: TexelParams, level: PhotonLevel, local_predict: Callabl
         scores.append(score)
         log(f"photon refresh {k}: {cache.stats['photons_emitted']} photons, {cache.stats['stored_hits']} stored hits, "
             f"{cache.stats['specular_entries']} specular entries; image difference {score:.4f} DN")
+        back = cache.stats.get("back_side_hits", 0) / max(cache.stats.get("rays", 0), 1)
+        if k == 0 and back > BACK_HIT_WARNING:
+            log(f"warning: {back:.0%} of the photon rays hit the back of the scanned surface: light reaches parts of the "
+                "object the scan does not cover (holes, unscanned sides) and their interreflection is not modelled, so "
+                "the fit attributes the missing indirect light to Pd (see metrics.json photon.cache.back_side_hits)")
         if score < best[0]:
             best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, cache)
         if k == outer:

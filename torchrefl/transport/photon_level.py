@@ -313,7 +313,8 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
         cols = np.concatenate([c * T + e for c in range(3)])
         linear = torch.sparse_coo_tensor(torch.from_numpy(np.stack([rows, cols])), torch.from_numpy(lin.reshape(-1)),
                                          (3 * P * T, 3 * T), check_invariants=False).coalesce().to(dtype)
-    stats = {"stored_hits": hits.count, "rays": hits.rays, "photons_emitted": int(hits.emitted.sum()),
+    stats = {"stored_hits": hits.count, "rays": hits.rays, "back_side_hits": int(hits.back_hits),
+             "photons_emitted": int(hits.emitted.sum()),
              "maps_per_light": K}
     empty = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=dtype), torch.zeros(0, 3, dtype=dtype))
     lobe = brdf != "lambertian"

@@ -60,7 +60,9 @@ class PhotonHits:
     that is linear in the emitter's Pd, per unit Pd (Phi_in / ((1 - q) s) after a diffuse scattering with
     roulette survival s, 0 after a specular one), so that Phi(Pd') = Phi + diffuse_per_pd (Pd' - Pd) for the
     last bounce, exactly per photon and unbiased over photons (ScatterTables for where q rounds to 1).
-    emitted: (S,) photons emitted per source; rays: closest-hit rays traced in all.
+    emitted: (S,) photons emitted per source; rays: closest-hit rays traced in all; back_hits: rays that hit
+    the back of the scanned surface (absorbed: they passed a hole or an unscanned side of the object, whose
+    interreflection is not modelled).
     """
 
     source: np.ndarray
@@ -71,6 +73,7 @@ class PhotonHits:
     rays: int
     emitter: np.ndarray | None = None
     diffuse_per_pd: np.ndarray | None = None
+    back_hits: int = 0
 
     @property
     def count(self) -> int:
@@ -263,12 +266,12 @@ class PhotonTracer:
     def trace_chunk(self, source: np.ndarray, intensity: np.ndarray, n: int, n_total: int, tables: "ScatterTables",
                     rng: np.random.Generator) -> tuple[list, int]:
         """n photons of one source (out of n_total for that source); returns ([(texel, wi (3, M), power (3, M),
-        emitter, diffuse_per_pd (3, M), collects) per bounce], rays), float32 / int32 arrays."""
+        emitter, diffuse_per_pd (3, M), collects) per bounce], rays, back-side hits), float32 / int32 arrays."""
         a = self.landing(source)
         total = float(a.sum())
         stored: list = []
         if total <= 0:
-            return stored, 0
+            return stored, 0, 0
         # systematic sampling: n stratified positions on the cdf (lower variance than independent draws, O(T + n),
         # and the photons come out ordered by texel, which keeps the rays coherent)
         edges = np.floor(np.concatenate([[0.0], np.cumsum(a / total)]) * n + rng.random())
@@ -281,7 +284,7 @@ class PhotonTracer:
         cos_i = column_dot(n_s, wi)
         own = None
         origin = d = per_pd = emitter = None          # the rays of the previous bounce and their photons
-        rays = 0
+        rays = back = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
                 # the work units of `trace` run on tracer.threads threads; inside a unit, rays go through Embree
@@ -291,6 +294,7 @@ class PhotonTracer:
                 # hits on the front (towards the photon) of the mesh only: the back of the scanned surface absorbs
                 front = (prim >= 0) & (column_dot(_take3(self._fn3, np.maximum(prim, 0)), d) < 0)
                 k = np.flatnonzero(front)
+                back += int(np.count_nonzero(prim >= 0)) - k.size
                 if not k.size:
                     break
                 prim = np.take(prim, k)
@@ -316,7 +320,7 @@ class PhotonTracer:
                                                              roulette=depth + 1 > self.min_bounces)
             if not d.shape[1]:
                 break
-        return stored, rays
+        return stored, rays, back
 
     def trace(self, sources: np.ndarray, intensities: np.ndarray, photons_per_source: int, mat: TexelMaterial,
               seed: int, refresh: int = 0, progress=None) -> PhotonHits:
@@ -345,17 +349,19 @@ class PhotonTracer:
         else:
             for k in range(len(units)):
                 work(k)
-        rays = sum(r for _, r in results)
-        batches = [(s, b) for (s, _, _), (stored, _) in zip(units, results) for b in stored]
+        rays = sum(r[1] for r in results)
+        back = sum(r[2] for r in results)
+        batches = [(s, b) for (s, _, _), (stored, _, _) in zip(units, results) for b in stored]
         if not batches:
             return PhotonHits(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
                               np.zeros((0, 3), np.float32), np.full(S, N, dtype=np.int64), rays,
-                              np.zeros(0, np.int64), np.zeros((0, 3), np.float32))
+                              np.zeros(0, np.int64), np.zeros((0, 3), np.float32), back_hits=back)
         keep = np.flatnonzero(np.concatenate([b[5] for _, b in batches]))
         ints = lambda j: np.take(np.concatenate([b[j] for _, b in batches]), keep).astype(np.int64)
         vecs = lambda j: np.take(np.concatenate([b[j] for _, b in batches], axis=1), keep, axis=1).T   # (N, 3) views
         source = np.take(np.concatenate([np.full(len(b[0]), s, dtype=np.int64) for s, b in batches]), keep)
-        return PhotonHits(source, ints(0), vecs(1), vecs(2), np.full(S, N, dtype=np.int64), rays, ints(3), vecs(4))
+        return PhotonHits(source, ints(0), vecs(1), vecs(2), np.full(S, N, dtype=np.int64), rays, ints(3), vecs(4),
+                          back_hits=back)
 
 
 @dataclass
