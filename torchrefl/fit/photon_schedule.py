@@ -29,7 +29,7 @@ from torchrefl.fit.classify import T_DIFF, T_NONE, T_SPEC
 from torchrefl.fit.params import TexelParams, inverse_softplus_b
 from torchrefl.fit.refine import refine
 from torchrefl.report.stages import bar
-from torchrefl.transport.photon_level import LightSources, PhotonCache, build_cache, indirect_radiance
+from torchrefl.transport.photon_level import LightSources, PhotonCache, build_cache, indirect_radiance, smoothing_matrix
 from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
 
 SCHEDULES = ("joint", "seed")
@@ -55,6 +55,18 @@ class PhotonLevel:
     smoothing_normal: float = 0.0
     specular_smoothing: float = 0.0
 
+    def smoother(self) -> torch.Tensor | None:
+        """The density-estimation kernel as a sparse operator, built on first use and kept for every refresh."""
+        if self.smoothing <= 0 or self.grid is None:
+            return None
+        if getattr(self, "_smoother", None) is None:
+            index, shape = self.grid[0], self.grid[1]
+            normals = self.grid[2] if len(self.grid) > 2 else None
+            self._smoother = smoothing_matrix(np.asarray(index), shape, self.smoothing,
+                                              None if normals is None else np.asarray(normals, dtype=np.float64),
+                                              self.smoothing_normal)
+        return self._smoother
+
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
         P, K = self.sources.positions.shape[:2]
@@ -75,7 +87,8 @@ class PhotonLevel:
                             self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
                             self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
                             emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal,
-                            specular_smoothing=self.specular_smoothing, threads=self.tracer.tracer.threads)
+                            specular_smoothing=self.specular_smoothing, threads=self.tracer.tracer.threads,
+                            smoother=self.smoother())
         cache.stats["trace_s"] = round(traced - start, 3)
         cache.stats["reduce_s"] = round(time.perf_counter() - traced, 3)
         return cache.to(self.dtype, self.device)

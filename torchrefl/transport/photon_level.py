@@ -27,9 +27,10 @@ with `smoothing` > 0 (texels) H is a Gaussian-weighted mean over neighbouring te
 (normalised convolution over valid texels): the photon-map gather radius, trading noise for blur
 where the indirect light changes fast. With `smoothing_normal` s > 0 a neighbour also weighs
 exp(-|n - n'|^2 / (2 s^2)) by how far its normal n' is from the texel's n (a joint bilateral filter
-guided by the normals, kornia.filters.joint_bilateral_blur; plain kornia.filters.gaussian_blur2d
-otherwise), so the kernel gathers along the surface and not across a fold or a crease, where the
-two sides receive different indirect light (a photon map's gather with a normal test). The
+guided by the normals: kornia.filters.joint_bilateral_blur, plain gaussian_blur2d otherwise, in
+smooth_on_grid; the cache applies the same kernel as a sparse operator built once, smoothing_matrix,
+tested equal to kornia's), so the kernel gathers along the surface and not across a fold or a crease,
+where the two sides receive different indirect light (a photon map's gather with a normal test). The
 specular entries stay per texel unless `specular_smoothing` > 0 spreads each photon's entry over
 its grid neighbours with the same kind of kernel (spread_on_grid): per-texel entries come from a few
 photons each, and that noise, multiplying Ps in the fit, biases Ps down (errors in variables).
@@ -130,12 +131,14 @@ class PhotonCache:
     smoothing: float = 0.0
     grid: tuple | None = None
     smoothing_normal: float = 0.0
+    smoother: torch.Tensor | None = None        # the density-estimation kernel as a sparse (T, T) operator
 
     def to(self, dtype: torch.dtype, device=None) -> "PhotonCache":
         mv = lambda x: x.to(device=device, dtype=dtype if x.is_floating_point() else x.dtype)
         return PhotonCache(self.brdf, mv(self.irradiance), mv(self.entry_obs), mv(self.entry_theta_h),
                            mv(self.entry_weight), dict(self.stats), None if self.linear is None else mv(self.linear),
-                           self.smoothing, self.grid, self.smoothing_normal)
+                           self.smoothing, self.grid, self.smoothing_normal,
+                           None if self.smoother is None else mv(self.smoother))
 
     def irradiance_at(self, pd: torch.Tensor) -> torch.Tensor:
         """(P, T, 3) H(Pd) for texel Pd (T, 3)."""
@@ -145,8 +148,7 @@ class PhotonCache:
         lin = torch.sparse.mm(self.linear, pd.t().reshape(-1, 1).to(self.irradiance.dtype))
         lin = lin.reshape(3, P, T).permute(1, 2, 0)
         if self.smoothing > 0:
-            index, shape, normals = _grid_parts(self.grid)
-            lin = smooth_on_grid(lin, index, shape, self.smoothing, normals, self.smoothing_normal)
+            lin = apply_on_grid(self.smoother, lin)
         return self.irradiance + lin
 
 
@@ -276,7 +278,7 @@ def _half_angle3(n: np.ndarray, l: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
                 sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
-                bin_per_sigma: float = BIN_PER_SIGMA, threads: int = 2,
+                bin_per_sigma: float = BIN_PER_SIGMA, threads: int = 2, smoother: torch.Tensor | None = None,
                 smoothing: float = 0.0, grid=None, emitter_pd=None, smoothing_normal: float = 0.0,
                 specular_smoothing: float = 0.0) -> PhotonCache:
     """Reduce photon hits to the cache.
@@ -289,6 +291,8 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     the normals in grid; 0 = plain Gaussian); specular_smoothing: std (texels) of the kernel that spreads the
     specular entries over grid neighbours (spread_on_grid; 0 = per texel); theta_bin, bin_per_sigma: merged
     photons' theta_h bins are max(theta_bin, bin_per_sigma * sigma_t) wide; threads: worker threads;
+    smoother: smoothing_matrix(texel_index, grid_shape, smoothing, normals, smoothing_normal) built by the caller
+    once for many caches (built here when None);
     emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd.
     """
     P, K = sources.positions.shape[:2]
@@ -385,11 +389,14 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
         if smoothing_normal > 0 and _grid_parts(grid)[2] is None:
             raise ConfigError("photon.smoothing_normal > 0 needs the texel normals in the grid (texel_index, grid_shape, normals)")
         index, shape, normals = _grid_parts(grid)
-        irradiance = smooth_on_grid(irradiance, index, shape, smoothing, normals, smoothing_normal)
+        if smoother is None:
+            smoother = smoothing_matrix(np.asarray(index), shape, smoothing,
+                                        None if normals is None else np.asarray(normals, dtype=np.float64), smoothing_normal)
+        irradiance = apply_on_grid(smoother, irradiance)
     if linear is not None:
         stats["linear_entries"] = int(linear._nnz())
     return PhotonCache(brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoothing=smoothing, grid=grid,
-                       smoothing_normal=smoothing_normal)
+                       smoothing_normal=smoothing_normal, smoother=smoother if smoothing > 0 else None)
 
 
 def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor, ps: torch.Tensor,
