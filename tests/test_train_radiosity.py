@@ -33,6 +33,7 @@ def runs(tmp_path_factory):
                      f"capture.path={capture}", "--quiet"]) == 0
     for level in ("local", "radiosity", "auto"):
         out[level] = json.loads((tmp / level / "metrics.json").read_text())
+    out["paths"] = (tmp, cfg, capture)
     return out
 
 
@@ -71,3 +72,19 @@ def test_auto_picks_the_photon_level_for_glossy_interreflection(glossy):
     assert "auto chose photon" in m["model_reason"]
     p = m["photon"]
     assert len(p["image_difference_per_refresh"]) == 2 and p["cache"]["stored_hits"] > 0
+
+
+def test_more_start_passes_leave_less_interreflection_in_the_start(runs):
+    """Method II's start (no refinement: fit.optimizer=none): the local closed forms on the intensities minus
+    the interreflection predicted from the previous pass's Pd. A second and third pass bring the start's Pd
+    closer to the truth than the single pass from eq. 4.7's Pd."""
+    tmp, cfg, capture = runs["paths"]
+    start = {}
+    for passes in (1, 3):
+        out = tmp / f"start{passes}"
+        assert main([str(cfg), f"output.dir={out}", "fit.model=radiosity", "fit.optimizer=none", "fit.specular=shared",
+                     f"radiosity.init_passes={passes}", "capture.kind=cylindrical_scan", f"capture.path={capture}",
+                     "--quiet"]) == 0
+        m = json.loads((out / "metrics.json").read_text())
+        start[passes] = m["ground_truth"]["pd_rmse"]
+    assert start[3] < 0.8 * start[1], start

@@ -164,10 +164,14 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             # Method II: Pd of the patches from inverse radiosity where determined, the local closed
             # forms on the intensities without the predicted diffuse interreflection (eq. 4.9-4.11)
             pd0 = torch.where(rho_det[pmap.texel_patch][:, None], rho_patch[pmap.texel_patch].to(init.pd.dtype), init.pd)
-            with torch.no_grad():
-                H = indirect(pd0.to(obs.intensity.dtype))
-                direct_only = obs.intensity - (obs.kappa / math.pi) * pd0[None].to(H.dtype) * H
-            init = initialise_local(terms, direct_only, cls, counts["T_spec"], fit_mask, surface, **init_kw)
+            for _ in range(cfg.radiosity.init_passes):
+                # then again from the closed forms' own Pd: each pass starts from a Pd with less interreflection in it
+                # (at full size one pass left a start that the fit needed ~180 iterations to undo)
+                with torch.no_grad():
+                    H = indirect(pd0.to(obs.intensity.dtype))
+                    direct_only = obs.intensity - (obs.kappa / math.pi) * pd0[None].to(H.dtype) * H
+                init = initialise_local(terms, direct_only, cls, counts["T_spec"], fit_mask, surface, **init_kw)
+                pd0 = init.pd
     log(init.note)
     log(f"transport level: {level} ({reason})")
     with stages.stage("fit"):
