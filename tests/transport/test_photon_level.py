@@ -224,17 +224,6 @@ def test_specular_spreading_needs_the_grid(traced):
                     10.0, 0.02, specular_smoothing=1.0)
 
 
-def test_component_major_half_angle_is_brdf_half_angle():
-    from torchrefl import brdf
-    from torchrefl.transport.photon_level import _half_angle3
-
-    rng = np.random.default_rng(0)
-    unit = lambda x: x / np.linalg.norm(x, axis=1, keepdims=True)
-    n, l, v = (unit(rng.normal(size=(1000, 3))) for _ in range(3))
-    n[0] = l[0] = v[0] = [0.0, 0.0, 1.0]                      # the specular peak: theta_h = 0
-    ref = brdf.half_angle(*(torch.from_numpy(x) for x in (n, l, v))).numpy()
-    np.testing.assert_allclose(_half_angle3(n.T.copy(), l.T.copy(), v.T.copy()), ref, atol=1e-12)
-
 
 @pytest.mark.parametrize("sigma,normal_sigma", [(1.0, 0.0), (1.0, 0.1), (0.7, 0.3), (2.0, 0.1)])
 def test_the_sparse_smoothing_operator_is_kornias_filter(sigma, normal_sigma):

@@ -59,7 +59,8 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     if obs.light_positions is not None and rc.light_maps > 1:
         sources = light_sources(surface, obs, rc.light_maps)
         if sources.num_maps > 1:                                       # the lights move with the scan
-            maps = emitter_maps(sources, surface.positions, surface.normals, tracer, cfg.geometry.shadow_offset_mm)
+            maps = emitter_maps(sources, surface.positions, surface.normals, tracer, cfg.geometry.shadow_offset_mm,
+                                obs.kappa)
     note = (f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels, "
             f"{rc.hemisphere_samples} hemisphere rays each, {nnz} non-zero form factors"
             + (f", {maps.weights.shape[0]} emitter maps per light" if maps is not None else "")

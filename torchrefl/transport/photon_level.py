@@ -118,8 +118,8 @@ def light_sources(surface, obs, max_maps: int) -> LightSources:
 @dataclass
 class PhotonCache:
     """irradiance (P, T, 3) H0 (smoothed); entry_obs (E,) flat p*T + t; entry_theta_h (E,); entry_weight (E, 3);
-    linear: sparse (3 P T, 3 T) L, rows c P T + p T + t, columns c T + e, or None; smoothing, grid,
-    smoothing_normal: the density-estimation kernel applied to L Pd (H0 is stored smoothed)."""
+    linear: sparse (3 P T, 3 T) L, rows c P T + p T + t, columns c T + e, or None; smoother: the
+    density-estimation kernel (smoothing_matrix) applied to L Pd, or None (H0 is stored smoothed)."""
 
     brdf: str
     irradiance: torch.Tensor
@@ -128,16 +128,12 @@ class PhotonCache:
     entry_weight: torch.Tensor
     stats: dict = field(default_factory=dict)
     linear: torch.Tensor | None = None
-    smoothing: float = 0.0
-    grid: tuple | None = None
-    smoothing_normal: float = 0.0
-    smoother: torch.Tensor | None = None        # the density-estimation kernel as a sparse (T, T) operator
+    smoother: torch.Tensor | None = None
 
     def to(self, dtype: torch.dtype, device=None) -> "PhotonCache":
         mv = lambda x: x.to(device=device, dtype=dtype if x.is_floating_point() else x.dtype)
         return PhotonCache(self.brdf, mv(self.irradiance), mv(self.entry_obs), mv(self.entry_theta_h),
                            mv(self.entry_weight), dict(self.stats), None if self.linear is None else mv(self.linear),
-                           self.smoothing, self.grid, self.smoothing_normal,
                            None if self.smoother is None else mv(self.smoother))
 
     def irradiance_at(self, pd: torch.Tensor) -> torch.Tensor:
@@ -147,7 +143,7 @@ class PhotonCache:
         P, T, _ = self.irradiance.shape
         lin = torch.sparse.mm(self.linear, pd.t().reshape(-1, 1).to(self.irradiance.dtype))
         lin = lin.reshape(3, P, T).permute(1, 2, 0)
-        if self.smoothing > 0:
+        if self.smoother is not None:
             lin = apply_on_grid(self.smoother, lin)
         return self.irradiance + lin
 
@@ -161,7 +157,10 @@ def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: 
                    normals: torch.Tensor | None = None, normal_sigma: float = 0.0) -> torch.Tensor:
     """Normalised Gaussian smoothing (std `sigma` texels) of per-texel values (..., T, C) over the grid;
     with normals (T, 3) and normal_sigma > 0 each neighbour's weight also has the factor
-    exp(-|n - n'|^2 / (2 normal_sigma^2)) (joint bilateral filter guided by the normals)."""
+    exp(-|n - n'|^2 / (2 normal_sigma^2)) (joint bilateral filter guided by the normals).
+
+    kornia's filters on the grid image: the reference that smoothing_matrix (the operator the levels apply,
+    built once) is tested against."""
     if sigma <= 0:
         return values
     from kornia.filters import gaussian_blur2d, joint_bilateral_blur
@@ -266,16 +265,6 @@ def spread_on_grid(obs: np.ndarray, T: int, texel_index, grid_shape: tuple[int, 
     return np.concatenate(out_obs), np.concatenate(out_src), np.concatenate(out_w)
 
 
-def _half_angle3(n: np.ndarray, l: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """brdf.half_angle for component-major (3, N) float64 arrays: atan2(|n x h|, n.h), h = (l + v) / |l + v|."""
-    h = l + v
-    h /= np.sqrt(column_dot(h, h) + 1e-24)
-    cx = n[1] * h[2] - n[2] * h[1]
-    cy = n[2] * h[0] - n[0] * h[2]
-    cz = n[0] * h[1] - n[1] * h[0]
-    return np.arctan2(np.sqrt(cx * cx + cy * cy + cz * cz + 1e-30), column_dot(n, h))
-
-
 def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
                 sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
                 bin_per_sigma: float = BIN_PER_SIGMA, threads: int = 2, smoother: torch.Tensor | None = None,
@@ -339,8 +328,8 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
             v = np.take(v_3, np.take(obs_idx, sb) if per_light_view else ts, axis=1)
             wi = np.take(wi_3, sb, axis=1).astype(np.float64)
             cos_i, cos_v = column_dot(n, wi), column_dot(n, v)
-            th = _half_angle3(n, wi, v)
             with torch.no_grad():
+                th = brdf_mod.half_angle(tt(n.T), tt(wi.T), tt(v.T)).numpy()     # (M, 3) views of the (3, M) arrays
                 geom = (brdf_mod.specular_geometry(brdf, tt(cos_i), tt(cos_v)) / tt(cos_i).clamp_min(min_cos_light)).numpy()
                 lobe_at = brdf_mod.specular_lobe(brdf, tt(th), tt(np.take(sigma_cap, ts))).numpy()
             alive = np.flatnonzero((cos_i > min_cos_light) & (cos_v > 0) & (lobe_at > LOBE_CUTOFF))
@@ -395,8 +384,8 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
         irradiance = apply_on_grid(smoother, irradiance)
     if linear is not None:
         stats["linear_entries"] = int(linear._nnz())
-    return PhotonCache(brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoothing=smoothing, grid=grid,
-                       smoothing_normal=smoothing_normal, smoother=smoother if smoothing > 0 else None)
+    return PhotonCache(brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear,
+                       smoother=smoother if smoothing > 0 else None)
 
 
 def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor, ps: torch.Tensor,

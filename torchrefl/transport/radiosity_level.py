@@ -32,7 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from torchrefl.transport.local import LocalTerms, predict
+from torchrefl.capture.observations import Observations
+from torchrefl.transport.local import LocalTerms, local_terms, predict
 from torchrefl.transport.radiosity import _matmul, solve_radiosity
 
 
@@ -79,26 +80,36 @@ class EmitterMaps:
     weights: torch.Tensor
 
 
-def emitter_maps(sources, positions: torch.Tensor, normals: torch.Tensor, tracer, offset: float) -> EmitterMaps:
+def emitter_maps(sources, positions: torch.Tensor, normals: torch.Tensor, tracer, offset: float,
+                 kappa: torch.Tensor) -> EmitterMaps:
     """EmitterMaps for photon_level.LightSources `sources` (positions (P, K, 3), weights (K, T), intensity
-    (P, 3)); visibility by Embree shadow rays (tracer: a RayTracer of the texel mesh; offset: origin offset
-    along the normal, like the capture's shadow test)."""
-    x = positions.double().numpy()
-    n = normals.double().numpy()
+    (P, 3)): the K maps of each light become point-light Observations (cast shadows by Embree shadow rays:
+    tracer, a RayTracer of the texel mesh; offset, the origin offset along the normal, like the capture's
+    shadow test), and E is direct_irradiance of their local terms, the observation model every level uses."""
+    x = positions.double()
+    n = normals.double()
     P, K = sources.positions.shape[:2]
-    T = len(x)
-    E = np.zeros((P, K, T, 3))
+    T = x.shape[0]
+    E = torch.zeros(P, K, T, 3, dtype=torch.float64)
     for p in range(P):
+        L = torch.as_tensor(sources.positions[p], dtype=torch.float64)                  # (K, 3)
+        to = L[:, None, :] - x[None]                                                    # (K, T, 3)
+        dist = to.norm(dim=-1)
+        light_dir = to / dist[..., None]
+        lit = (light_dir * n[None]).sum(-1) > 0
+        shadowed = torch.zeros(K, T, dtype=torch.bool)
         for k in range(K):
-            to = sources.positions[p, k][None] - x
-            d2 = np.einsum("ti,ti->t", to, to)
-            cos = np.einsum("ti,ti->t", n, to) / np.sqrt(np.maximum(d2, 1e-300))
-            lit = np.flatnonzero(cos > 0)
-            if lit.size:
-                vis = tracer.visible(x[lit], n[lit], x[lit] + to[lit], offset=offset)
-                lit = lit[vis]
-                E[p, k, lit] = (cos[lit] / d2[lit])[:, None] * sources.intensity[p][None]
-    return EmitterMaps(torch.from_numpy(E), torch.as_tensor(np.asarray(sources.weights, dtype=np.float64)))
+            i = torch.nonzero(lit[k]).flatten().numpy()
+            if i.size:
+                vis = tracer.visible(x[i].numpy(), n[i].numpy(), L[k][None].expand(len(i), 3).numpy(), offset=offset)
+                shadowed[k, i[~vis]] = True
+        maps = Observations(intensity=torch.zeros(K, T, 3, dtype=torch.float64), valid=lit & ~shadowed,
+                            saturated=torch.zeros(K, T, dtype=torch.bool), shadowed=shadowed, light_dir=light_dir,
+                            falloff=1.0 / dist ** 2,
+                            light_intensity=torch.as_tensor(sources.intensity[p], dtype=torch.float64).expand(K, 3),
+                            view_dir=n, kappa=kappa.double(), light_positions=L, source="radiosity emitter maps")
+        E[p] = direct_irradiance(local_terms("lambertian", n, maps), maps.kappa)
+    return EmitterMaps(E, torch.as_tensor(np.asarray(sources.weights, dtype=np.float64)))
 
 
 def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: PatchMap, F: torch.Tensor,
