@@ -13,7 +13,7 @@
    outside (coherent and cheaper per ray than bounce rays that start on the surface).
 3. Scaling: the time of one cache refresh against photons per light, lights and texels.
 
-    python scripts/bench_photon.py [--threads 2] [--photons 2000000] [--outer 3] [--specular-smoothing 0] [--no-scaling] [--out DIR]
+    python scripts/bench_photon.py [--threads 2] [--photons 2000000] [--outer 3] [--specular-smoothing 0] [--smoothing 1] [--no-scaling] [--out DIR]
 """
 
 from __future__ import annotations
@@ -71,7 +71,8 @@ def overrides(out: Path, args, columns=512, rows=450, angle=0.7, height=0.56, li
             "synthetic.indirect_samples=0", "synthetic.supersample=1", f"synthetic.columns={columns}",
             f"synthetic.rows={rows}", f"synthetic.angle_step_deg={angle}", f"synthetic.height_step_mm={height}",
             f"selection.num_lights={lights}", "fit.model=photon", f"photon.photons_per_light={args.photons}",
-            f"photon.outer_iterations={args.outer}", f"photon.specular_smoothing={args.specular_smoothing}"]
+            f"photon.outer_iterations={args.outer}", f"photon.specular_smoothing={args.specular_smoothing}",
+            f"photon.smoothing={args.smoothing}"]
 
 
 def refresh_time(cfg, out: Path, photons: int, lights: int | None = None, record: list | None = None) -> tuple[float, dict]:
@@ -112,6 +113,8 @@ def main() -> None:
     ap.add_argument("--outer", type=int, default=3, help="photon.outer_iterations of the end-to-end run (3: the library default)")
     ap.add_argument("--specular-smoothing", type=float, default=0.0,
                     help="photon.specular_smoothing (0: the library default; the glossy Object E config uses 1.0, ~2.5x the fit time)")
+    ap.add_argument("--smoothing", type=float, default=1.0,
+                    help="photon.smoothing (1: the library default; the Object E configs use 2.0 at this size)")
     ap.add_argument("--no-scaling", action="store_true")
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
@@ -120,7 +123,7 @@ def main() -> None:
     config = ROOT / "configs" / "object_e_setup2.yaml"
     report: dict = {"machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, {args.threads} Embree threads",
                     "photons_per_light": args.photons, "outer_iterations": args.outer,
-                    "specular_smoothing": args.specular_smoothing}
+                    "specular_smoothing": args.specular_smoothing, "smoothing": args.smoothing}
 
     # 1. end to end
     cfg = load_config(config, overrides(out / "e2e", args))

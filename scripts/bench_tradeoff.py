@@ -36,7 +36,7 @@ from torchrefl.train import run
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = ["synthetic.columns=256", "synthetic.rows=225", "synthetic.angle_step_deg=1.4",
-         "synthetic.height_step_mm=1.12", "synthetic.indirect_samples=64", "synthetic.supersample=2"]
+         "synthetic.height_step_mm=1.12", "synthetic.indirect_samples=64", "synthetic.supersample=2", "photon.smoothing=1"]
 COMMON = ["output.progress=false", "output.map_lights=0", "selection.num_lights=14", "fit.holdout=[3,10]"]
 PHOTON_BASE = ["fit.model=photon", "photon.photons_per_light=400000", "photon.outer_iterations=2"]
 RADIOSITY_BASE = ["fit.model=radiosity", "radiosity.patch_size=2", "radiosity.hemisphere_samples=256"]

@@ -42,7 +42,7 @@ from torchrefl.train import run
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = [("I", "local"), ("II", "radiosity"), ("III", "photon")]
 QUICK = ["synthetic.columns=256", "synthetic.rows=225", "synthetic.angle_step_deg=1.4", "synthetic.height_step_mm=1.12",
-         "synthetic.indirect_samples=48", "synthetic.supersample=2"]
+         "synthetic.indirect_samples=48", "synthetic.supersample=2", "photon.smoothing=1"]
 
 
 def inside_grid(params_path: Path, capture: Path, info: dict) -> tuple[np.ndarray, np.ndarray]:
