@@ -85,7 +85,10 @@ class Objective:
             i, j = self.neighbours[:, 0], self.neighbours[:, 1]
             lp = torch.log(ps + _LOG_EPS)
             ls = torch.log(sigma)
-            total = total + self.smoothness * (((lp[i] - lp[j]) ** 2).sum(-1) + (ls[i] - ls[j]) ** 2).mean()
+            # index_select: a deterministic backward (see transport.photon_level.indirect_radiance)
+            dp = lp.index_select(0, i) - lp.index_select(0, j)
+            ds = ls.index_select(0, i) - ls.index_select(0, j)
+            total = total + self.smoothness * ((dp ** 2).sum(-1) + ds ** 2).mean()
         return total
 
 

@@ -397,7 +397,9 @@ def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor,
     out = (pd[None] / math.pi) * H
     if cache.entry_obs.numel():
         t = cache.entry_obs % T
-        D = brdf_mod.specular_lobe(cache.brdf, cache.entry_theta_h, sigma[t])
+        # index_select, not sigma[t]: the backward of advanced indexing (index_put_ with accumulate) sums the
+        # entries' gradients in a thread-dependent order on CPU, which made fits differ from run to run
+        D = brdf_mod.specular_lobe(cache.brdf, cache.entry_theta_h, sigma.index_select(0, t))
         S = torch.zeros(P * T, 3, dtype=H.dtype, device=H.device).index_add(0, cache.entry_obs, D[:, None] * cache.entry_weight)
         out = out + ps[None] * S.view(P, T, 3)
     return kappa * out
