@@ -50,7 +50,7 @@ class LightGridConfig:
 class SyntheticConfig:
     """A synthetic object scanned by the seed's cylindrical rig (capture.kind: synthetic_cylindrical)."""
 
-    object: str = opt("ellipsoid", "synthetic object shape: analytic ellipsoid/sphere/blob, or a mesh object with interreflection: object_e (the seed's Object E, two plates at 90 deg, setup 1: white diffuse paper), object_e_glossy (Object E, setup 2: glossy paper), bowl (concave, non-uniform inside); see torchrefl/capture/synthetic_objects.py", choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl"))
+    object: str = opt("ellipsoid", "synthetic object shape: analytic ellipsoid/sphere/blob, or a mesh object with interreflection: object_e (the seed's Object E, two plates at 90 deg, setup 1: white diffuse paper), object_e_glossy (Object E, setup 2: glossy paper), bowl (concave, non-uniform inside, a third of which the scanner sees), vase (a solid of revolution with a deep concave neck, non-uniform, scanned whole); see torchrefl/capture/synthetic_objects.py", choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl", "vase"))
     size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
     materials: str = opt("regions", "ground-truth material layout", choices=("regions", "uniform"))
     brdf: str = opt("torrance_sparrow", "BRDF used to render the synthetic images", choices=("torrance_sparrow", "ward", "ward_normalised"))
@@ -177,6 +177,7 @@ class PhotonConfig:
     linear_emitters: bool = opt(False, "keep the cached irradiance linear in the Pd of each photon's last emitter (exact last bounce between refreshes; about 3x slower fits)")
     reinitialise: bool = opt(False, "start every outer iteration from the closed forms on the images minus the cached indirect light")
     smoothing: float = opt(1.0, "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each texel's own photons)", low=0.0)
+    diffuse_paths: str = opt("photons", "where the indirect irradiance of the all-diffuse light paths comes from: photons (every path traced), or radiosity (the radiosity level's solution at the current Pd, recomputed at every refresh, noise-free; the photons then carry only the paths with a specular scattering, and still give the receiving texel's specular reflection of all indirect light). radiosity removes most photon noise where the interreflection is mostly diffuse (the vase: README)", choices=("photons", "radiosity"))
     specular_smoothing: float = opt(0.0, "density estimation of the specular entries: each photon's entry is spread over the neighbouring texels (3 x 3, Gaussian of this std in texels, normal-tested like smoothing); 0 = per texel. Per-texel entries are so noisy that they bias Ps down when highlights are observed (errors in variables); 1.0 removes most of that bias at ~2.5x the photon level's fit time (4-7x the entries)", low=0.0)
     smoothing_normal: float = opt(0.1, "density estimation: a neighbour's weight also falls as exp(-|n - n'|^2 / (2 s^2)) with its normal's distance from the texel's (s ~ radians), so the kernel does not gather across folds and creases; 0 = plain Gaussian", low=0.0)
     min_bounces: int = opt(1, "scatterings before Russian roulette starts", low=0)

@@ -21,6 +21,15 @@ inside of the bowl) are placed in front of the axis, facing outwards, towards sc
   towards the scanner (tilted 10 degrees upwards, turned 20 degrees about the vertical), its centre
   62 mm in front of the axis, so the scanner looks into it; the inside carries non-uniform
   materials (synthetic_materials.BowlMaterials), the outside and the rim a uniform matte paint.
+  A cylindrical scanner sees only about a third of that inside (its lines of sight converge on the
+  axis), so most of the surface that lights the scanned part is missing from the scan.
+- vase: a solid of revolution about the rotation axis (a vase shape: a cylindrical body, a deep
+  concave neck whose profile is a circular arc, flared shoulders, flat ends). Every point of a
+  surface of revolution about the axis faces outwards along the scanner's line of sight, so the
+  scan captures all of the concave neck and every surface that lights it: the fitter sees the whole
+  interreflecting geometry. Its materials are texel-aligned region maps of the scan grid
+  (synthetic_materials.region_materials, as the analytic ellipsoid's), given by the scanner
+  (material None here): every texel has one true value.
 """
 
 from __future__ import annotations
@@ -34,13 +43,14 @@ import trimesh
 from torchrefl.capture.synthetic_materials import PAPER_GLOSSY, PAPER_WHITE, BowlMaterials, uniform_material
 from torchrefl.errors import GeometryError
 
-MESH_OBJECTS = ("object_e", "object_e_glossy", "bowl")
+MESH_OBJECTS = ("object_e", "object_e_glossy", "bowl", "vase")
 
 
 @dataclass
 class MeshObject:
     """vertices (V, 3) float64 mm, faces (F, 3) int; normal(points (N,3), triangles (N,)) -> (N, 3) unit
-    outward normals; material(points, triangles) -> {'pd': (N,3), 'ps': (N,3), 'sigma': (N,), 'region': (N,)};
+    outward normals; material(points, triangles) -> {'pd': (N,3), 'ps': (N,3), 'sigma': (N,), 'region': (N,)},
+    or None for objects whose materials are texel maps of the scan grid (the scanner supplies them);
     extent_y: (min, max) world height; info: the object's defining geometry in world coordinates (Object E:
     fold_start (3,), fold_dir (3,) unit along the fold, plate_dirs (2, 3) unit directions of the plates from
     the fold (upper, lower), inside_normals (2, 3), length, width; bowl: centre, axis, radius, wall)."""
@@ -49,7 +59,7 @@ class MeshObject:
     vertices: np.ndarray
     faces: np.ndarray
     normal: Callable[[np.ndarray, np.ndarray], np.ndarray]
-    material: Callable[[np.ndarray, np.ndarray], dict]
+    material: Callable[[np.ndarray, np.ndarray], dict] | None
     extent_y: tuple
     info: dict
 
@@ -174,6 +184,78 @@ def bowl(seed: int = 0, uniform: bool = False, *, radius: float = 45.0, wall: fl
     return MeshObject("bowl", verts, faces, normal, material, (float(verts[:, 1].min()), float(verts[:, 1].max())), info)
 
 
+class VaseProfile:
+    """The vase's profile r(y) (mm from the axis at height y) and its slope dr/dy, symmetric about y = 0.
+
+    |y| <= y_edge: the neck, a circular arc of radius `groove_radius` bulging towards the axis (its
+    centre at radius core + groove_radius, height 0), core radius at y = 0, slopes +-tan(flank_deg) at
+    its edges; then a convex arc of radius `shoulder_radius`, tangent to the neck, up to the vertical;
+    then a cylinder up to |y| = half_height. C1 everywhere; analytic."""
+
+    def __init__(self, core: float, groove_radius: float, flank_deg: float, shoulder_radius: float, half_height: float):
+        self.core, self.rho, self.rho2, self.half_height = core, groove_radius, shoulder_radius, half_height
+        a = np.radians(flank_deg)
+        self.rc = core + groove_radius                                   # neck arc centre radius
+        self.y_edge = groove_radius * np.sin(a)
+        self.r_edge = self.rc - groove_radius * np.cos(a)
+        # convex shoulder: centre inside the solid, tangent at the neck's edge; its normal turns from
+        # (cos a, -sin a) (the neck arc's at the edge, in (r, y)) to (1, 0)
+        self.c2 = (self.r_edge - shoulder_radius * np.cos(a), self.y_edge + shoulder_radius * np.sin(a))
+        self.r_max = self.c2[0] + shoulder_radius
+        if self.c2[1] >= half_height:
+            raise GeometryError("vase: the shoulders do not fit in the half height")
+
+    def radius(self, y: np.ndarray) -> np.ndarray:
+        ay = np.abs(y)
+        neck = self.rc - np.sqrt(np.maximum(self.rho ** 2 - ay ** 2, 0.0))
+        sh = self.c2[0] + np.sqrt(np.maximum(self.rho2 ** 2 - (ay - self.c2[1]) ** 2, 0.0))
+        return np.where(ay <= self.y_edge, neck, np.where(ay <= self.c2[1], sh, self.r_max))
+
+    def slope(self, y: np.ndarray) -> np.ndarray:
+        """dr/dy."""
+        ay = np.abs(y)
+        neck = ay / np.sqrt(np.maximum(self.rho ** 2 - ay ** 2, 1e-12))
+        dy = ay - self.c2[1]
+        sh = -dy / np.sqrt(np.maximum(self.rho2 ** 2 - dy ** 2, 1e-12))
+        return np.sign(y) * np.where(ay <= self.y_edge, neck, np.where(ay <= self.c2[1], sh, 0.0))
+
+
+def vase(*, core: float = 45.0, groove_radius: float = 40.0, flank_deg: float = 60.0, shoulder_radius: float = 20.0,
+         half_height: float = 56.0, step_mm: float = 0.25, segments: int = 1440) -> MeshObject:
+    """The vase (see the module doc): a solid of revolution about the world y axis with a concave neck.
+    Parts: side (region of the texel maps), flat top and bottom ends. Normals are the exact surface's."""
+    prof = VaseProfile(core, groove_radius, flank_deg, shoulder_radius, half_height)
+    ys = np.linspace(-half_height, half_height, int(round(2 * half_height / step_mm)) + 1)
+    rs = prof.radius(ys)
+    phi = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    side = np.stack([rs[:, None] * np.sin(phi)[None, :], np.broadcast_to(ys[:, None], (len(ys), segments)),
+                     rs[:, None] * np.cos(phi)[None, :]], -1).reshape(-1, 3)
+    f_side = _grid_faces(len(ys) - 1, segments, 0, flip=False)
+    nv = len(side)
+    centres = np.array([[0.0, -half_height, 0.0], [0.0, half_height, 0.0]])
+    ring_lo = np.arange(segments)
+    ring_hi = (len(ys) - 1) * segments + np.arange(segments)
+    nxt = np.roll(np.arange(segments), -1)
+    f_bottom = np.stack([np.full(segments, nv), ring_lo[nxt], ring_lo], -1)
+    f_top = np.stack([np.full(segments, nv + 1), ring_hi, ring_hi[nxt]], -1)
+    verts = np.concatenate([side, centres])
+    faces = np.concatenate([f_side, f_bottom, f_top])
+    n_side = len(f_side)
+
+    def normal(points, tri):
+        tri = np.asarray(tri)
+        y = points[:, 1]
+        r = np.maximum(np.hypot(points[:, 0], points[:, 2]), 1e-12)
+        n = np.stack([points[:, 0] / r, -prof.slope(y), points[:, 2] / r], -1)
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        ends = np.stack([np.zeros_like(y), np.sign(y), np.zeros_like(y)], -1)
+        return np.where((tri >= n_side)[:, None], ends, n)
+
+    info = {"profile": prof, "core": core, "groove_radius": groove_radius, "y_edge": float(prof.y_edge),
+            "r_max": float(prof.r_max), "half_height": half_height}
+    return MeshObject("vase", verts, faces, normal, None, (-half_height, half_height), info)
+
+
 def make_object(name: str, seed: int = 0, materials: str = "regions") -> MeshObject:
     """The mesh object `name` (one of MESH_OBJECTS); materials 'uniform' makes the bowl one matte paint."""
     if name == "object_e":
@@ -182,4 +264,6 @@ def make_object(name: str, seed: int = 0, materials: str = "regions") -> MeshObj
         return object_e(glossy=True)
     if name == "bowl":
         return bowl(seed, uniform=materials == "uniform")
+    if name == "vase":
+        return vase()
     raise GeometryError(f"synthetic.object: unknown mesh object '{name}', expected one of {', '.join(MESH_OBJECTS)}")

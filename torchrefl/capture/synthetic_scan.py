@@ -74,6 +74,9 @@ class SyntheticScan:
                     f"+-{height / 2:.1f} mm (synthetic.rows x synthetic.height_step_mm)")
             self.mesh = trimesh.Trimesh(self.object.vertices, self.object.faces, process=False)
             self.tracer = RayTracer(self.object.vertices, self.object.faces, threads=threads)
+            # objects without a material function (the vase) carry the texel-aligned region maps of the scan grid
+            self._maps = None if self.object.material is not None else region_materials(
+                cfg.rows, cfg.columns, seed=seed, uniform=cfg.materials == "uniform")
             self.truth = self._mesh_truth()
             self._samples = None
             self._gi = None
@@ -86,7 +89,7 @@ class SyntheticScan:
         mesh.apply_scale(self.axes)
         self.mesh = mesh
         self.tracer = RayTracer(mesh.vertices, mesh.faces, threads=threads)
-        self.truth = region_materials(cfg.rows, cfg.columns, seed=seed, uniform=cfg.materials == "uniform")
+        self._maps = self.truth = region_materials(cfg.rows, cfg.columns, seed=seed, uniform=cfg.materials == "uniform")
         self._samples = None
         self._gi = None
 
@@ -144,7 +147,7 @@ class SyntheticScan:
         region = np.full(H * W, -1, dtype=np.int64)
         idx = np.flatnonzero(hit)
         if idx.size:
-            m = self.object.material(p[idx], tri[idx])
+            m = self._material_at(p[idx], tri[idx])
             pd[idx], ps[idx], sigma[idx], region[idx] = m["pd"], m["ps"], m["sigma"], m["region"]
         return {"pd": pd.reshape(H, W, 3), "ps": ps.reshape(H, W, 3), "sigma": sigma.reshape(H, W),
                 "region": region.reshape(H, W), "texel_hit": hit.reshape(H, W)}
@@ -216,7 +219,7 @@ class SyntheticScan:
             flat = {k: self.truth[k].reshape((H * W,) + self.truth[k].shape[2:])[texel] for k in ("pd", "ps", "sigma")}
             own = np.flatnonzero(~self.truth["texel_hit"].ravel()[texel])
             if own.size:
-                m = self.object.material(p[keep][own], tri[keep][own])
+                m = self._material_at(p[keep][own], tri[keep][own])
                 for k in flat:
                     flat[k][own] = m[k]
             self._samples.update(flat)
@@ -267,15 +270,15 @@ class SyntheticScan:
 
     def _material_at(self, points: np.ndarray, tri: np.ndarray) -> dict:
         """Material at arbitrary surface points: the mesh object's function, or for the analytic objects
-        the texel map of the column and row the point is scanned at."""
-        if self.object is not None:
+        and the vase the texel map of the column and row the point is scanned at."""
+        if self.object is not None and self.object.material is not None:
             return self.object.material(points, tri)
         rig = self.rig
         s = np.arctan2(-points[:, 0], -points[:, 2])
         col = np.mod(np.round((s - rig.angle0) / rig.angle_step), round(2 * math.pi / rig.angle_step)).astype(np.int64)
         col = np.clip(col, 0, rig.columns - 1)
         row = np.clip(np.round((-points[:, 1] - rig.height0) / rig.height_step).astype(np.int64), 0, rig.rows - 1)
-        return {k: self.truth[k][row, col] for k in ("pd", "ps", "sigma")}
+        return {k: self._maps[k][row, col] for k in ("pd", "ps", "sigma", "region")}
 
     def indirect_renderer(self) -> IndirectRenderer:
         if self._gi is None:

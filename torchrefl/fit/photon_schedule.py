@@ -54,6 +54,9 @@ class PhotonLevel:
     linear_emitters: bool = False
     smoothing_normal: float = 0.0
     specular_smoothing: float = 0.0
+    # photon.diffuse_paths 'radiosity': H(pd) -> (P, T, 3) the all-diffuse paths' irradiance from the radiosity
+    # level (noise-free; the photons then carry only paths with a specular scattering into H)
+    radiosity_irradiance: Callable | None = None
 
     def smoother(self) -> torch.Tensor | None:
         """The density-estimation kernel as a sparse operator, built on first use and kept for every refresh."""
@@ -88,7 +91,13 @@ class PhotonLevel:
                             self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
                             emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal,
                             specular_smoothing=self.specular_smoothing, threads=self.tracer.tracer.threads,
-                            smoother=self.smoother())
+                            smoother=self.smoother(), diffuse_paths=self.radiosity_irradiance is None)
+        if self.radiosity_irradiance is not None:
+            with torch.no_grad():
+                H_rad = self.radiosity_irradiance(pd.detach().cpu().to(cache.irradiance.dtype))
+            cache.stats["radiosity_irradiance_mean"] = float(H_rad.mean())
+            cache.stats["photon_irradiance_mean"] = float(cache.irradiance.mean())
+            cache.irradiance = cache.irradiance + H_rad.to(cache.irradiance.dtype)
         cache.stats["trace_s"] = round(traced - start, 3)
         cache.stats["reduce_s"] = round(time.perf_counter() - traced, 3)
         return cache.to(self.dtype, self.device)

@@ -76,8 +76,9 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     return pmap, F, solver, rho, det, indirect, note
 
 
-def _photon_setup(cfg: Config, surface, obs, keep, device, dtype):
-    """The PhotonLevel of this capture (tracer over the texel mesh, light sources)."""
+def _photon_setup(cfg: Config, surface, obs, keep, device, dtype, radiosity_irradiance=None):
+    """The PhotonLevel of this capture (tracer over the texel mesh, light sources); radiosity_irradiance: the
+    radiosity level's H(pd) when photon.diffuse_paths is 'radiosity'."""
     from torchrefl.fit.photon_schedule import PhotonLevel
     from torchrefl.rays import RayTracer
     from torchrefl.transport.photon_level import light_sources
@@ -95,7 +96,7 @@ def _photon_setup(cfg: Config, surface, obs, keep, device, dtype):
                        cfg.seed, dtype, device, smoothing=pc.smoothing,
                        grid=(surface.texel_index, surface.grid_shape, surface.normals.double()), smoothing_normal=pc.smoothing_normal,
                        specular_smoothing=pc.specular_smoothing,
-                       linear_emitters=pc.linear_emitters)
+                       linear_emitters=pc.linear_emitters, radiosity_irradiance=radiosity_irradiance)
 
 
 def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
@@ -142,7 +143,8 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
         if fc.model == "auto" and not surface.has_mesh:
             choice = choose_level(False, None, None, None, fc.noise_floor_dn)
             level, reason = choice.level, choice.reason
-        if level in ("radiosity", "auto") or (level == "photon" and cfg.photon.start == "radiosity"):
+        hybrid = cfg.photon.diffuse_paths == "radiosity"
+        if level in ("radiosity", "auto") or (level == "photon" and (cfg.photon.start == "radiosity" or hybrid)):
             pmap, F, solver, rho_patch, rho_det, indirect, note = _radiosity_setup(cfg, surface, obs, terms, cls, fit_mask, log)
             log(note)
             if level == "photon":
@@ -161,7 +163,7 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             reason = f"auto chose {level}: {choice.reason}"
             if level == "local":
                 indirect = None
-        if indirect is not None:
+        if indirect is not None and not (level == "photon" and cfg.photon.start == "local"):
             # Method II: Pd of the patches from inverse radiosity where determined, the local closed
             # forms on the intensities without the predicted diffuse interreflection (eq. 4.9-4.11)
             pd0 = torch.where(rho_det[pmap.texel_patch][:, None], rho_patch[pmap.texel_patch].to(init.pd.dtype), init.pd)
@@ -205,9 +207,12 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
         if level == "photon":
             from torchrefl.fit.photon_schedule import run_schedule
             pc = cfg.photon
-            plevel = _photon_setup(cfg, surface, obs, fit_mask | eval_mask, device, dt)
+            plevel = _photon_setup(cfg, surface, obs, fit_mask | eval_mask, device, dt,
+                                   radiosity_irradiance=indirect if pc.diffuse_paths == "radiosity" else None)
             log(f"photon level: {plevel.sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
-                f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}")
+                f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}, "
+                + ("all-diffuse paths from the radiosity level, photons for the paths with a specular scattering"
+                   if pc.diffuse_paths == "radiosity" else "every path from photons"))
 
             def reinitialise(direct_only):
                 fresh = initialise_local(terms, direct_only.cpu().to(obs.intensity.dtype), cls, counts["T_spec"],

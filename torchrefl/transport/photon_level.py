@@ -269,7 +269,7 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
                 sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
                 bin_per_sigma: float = BIN_PER_SIGMA, threads: int = 2, smoother: torch.Tensor | None = None,
                 smoothing: float = 0.0, grid=None, emitter_pd=None, smoothing_normal: float = 0.0,
-                specular_smoothing: float = 0.0) -> PhotonCache:
+                specular_smoothing: float = 0.0, diffuse_paths: bool = True) -> PhotonCache:
     """Reduce photon hits to the cache.
 
     hits: from PhotonTracer.trace over sources.positions.reshape(-1, 3) (source s = p * K + k);
@@ -282,7 +282,10 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     photons' theta_h bins are max(theta_bin, bin_per_sigma * sigma_t) wide; threads: worker threads;
     smoother: smoothing_matrix(texel_index, grid_shape, smoothing, normals, smoothing_normal) built by the caller
     once for many caches (built here when None);
-    emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd.
+    emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd;
+    diffuse_paths: False leaves the photons whose paths were diffuse at every scattering (hits.specular_path
+    False) out of H, for a caller that adds those paths' irradiance from the radiosity level (their
+    expectation); the specular entries keep every photon.
     """
     P, K = sources.positions.shape[:2]
     T = int(areas.shape[0])
@@ -294,10 +297,14 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     scale = np.take(np.asarray(sources.weights, dtype=np.float64).reshape(-1), (hits.source % K) * T + t) / np.take(A, t)
     flux = np.asarray(hits.power, dtype=np.float64).T * scale                                     # (3, N)
     obs_idx = p * T + t
-    H = np.stack([np.bincount(obs_idx, weights=flux[c], minlength=P * T) for c in range(3)], -1)
+    if not diffuse_paths and hits.specular_path is None:
+        raise ValueError("build_cache: diffuse_paths=False needs hits.specular_path (PhotonTracer.trace records it)")
+    in_H = None if diffuse_paths else np.asarray(hits.specular_path, dtype=np.float64)      # (N,) 1 = counted in H
+    flux_H = flux if in_H is None else flux * in_H
+    H = np.stack([np.bincount(obs_idx, weights=flux_H[c], minlength=P * T) for c in range(3)], -1)
     linear = None
     if emitter_pd is not None and hits.emitter is not None and hits.count:
-        lin = np.asarray(hits.diffuse_per_pd, dtype=np.float64).T * scale                       # (3, N) per unit Pd
+        lin = np.asarray(hits.diffuse_per_pd, dtype=np.float64).T * (scale if in_H is None else scale * in_H)  # per unit Pd
         e = hits.emitter
         pd_ref = np.asarray(emitter_pd, dtype=np.float64)
         for c in range(3):

@@ -56,7 +56,9 @@ class PhotonHits:
 
     source: (N,) int64 index of the emitting source; texel: (N,) int64 receiving texel;
     direction: (N, 3) float32 unit incident direction wi; power: (N, 3) float32 flux Phi;
-    emitter: (N,) int64 texel of the photon's last scattering; diffuse_per_pd: (N, 3) float32 the share of Phi
+    emitter: (N,) int64 texel of the photon's last scattering; specular_path: (N,) bool whether any scattering on
+    the photon's path so far took the specular lobe (the rest, all-diffuse paths, is what the radiosity level
+    computes); diffuse_per_pd: (N, 3) float32 the share of Phi
     that is linear in the emitter's Pd, per unit Pd (Phi_in / ((1 - q) s) after a diffuse scattering with
     roulette survival s, 0 after a specular one), so that Phi(Pd') = Phi + diffuse_per_pd (Pd' - Pd) for the
     last bounce, exactly per photon and unbiased over photons (ScatterTables for where q rounds to 1).
@@ -74,6 +76,7 @@ class PhotonHits:
     emitter: np.ndarray | None = None
     diffuse_per_pd: np.ndarray | None = None
     back_hits: int = 0
+    specular_path: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -195,12 +198,15 @@ class PhotonTracer:
             t[:, bad], b[:, bad] = tb[0].T, tb[1].T
         return t, b
 
-    def scatter(self, texel, y, wi, n, cos_i, own, power, tables: "ScatterTables", u: np.ndarray, roulette: bool):
+    def scatter(self, texel, y, wi, n, cos_i, own, power, tables: "ScatterTables", u: np.ndarray, roulette: bool,
+                path: np.ndarray | None = None):
         """One scattering of N photons at texels `texel` (N,) int32, positions y (3, N), arriving along -wi
         (3, N), about normals n (3, N) with cos_i = n.wi > 0, own (N,) bool or None (n is the texel's normal),
         flux power (3, N), uniforms u (4, N) float32 (u[2] picks the component, u[3] plays the roulette).
         Returns the survivors' (origin (3, M), direction (3, M), power (3, M), diffuse_per_pd (3, M), emitter
-        texel (M,)), float32 / int32 (vectors are stored component-major: numpy's fast layout for them).
+        texel (M,)), float32 / int32 (vectors are stored component-major: numpy's fast layout for them); with
+        `path` (N,) bool (the photons' specular_path flags) a sixth element, the survivors' flags after this
+        scattering (path or specular).
 
         One-sample component selection: with probability q_t the specular lobe, otherwise the cosine
         distribution, each weighted by its own part of the BRDF over its own pdf (unbiased, since
@@ -222,7 +228,8 @@ class PhotonTracer:
             d = nD + np.stack([r * np.cos(phi), r * np.sin(phi), z])
             d /= np.maximum(np.sqrt(column_dot(d, d)), np.float32(1e-12))
             pw = _take3(power, iD)
-            parts.append((_take3(y, iD) + self._offset32 * nD, d, pw * _take3(w_d, tD), pw * np.take(k_d, tD), tD))
+            parts.append((_take3(y, iD) + self._offset32 * nD, d, pw * _take3(w_d, tD), pw * np.take(k_d, tD), tD)
+                         + (() if path is None else (np.take(path, iD),)))
         iS = np.flatnonzero(spec) if self.lobe is not None and spec.any() else np.zeros(0, np.int64)
         if iS.size:
             tS, nS, wiS = np.take(texel, iS), _take3(n, iS), _take3(wi, iS)
@@ -253,20 +260,22 @@ class PhotonTracer:
             if live.size:
                 i, tl = np.take(iS, live), np.take(tS, live)
                 pw = _take3(power, i) * _take3(tables.ps, tl) * (np.take(ws, live) / np.take(s, live))
-                parts.append((_take3(y, i) + self._offset32 * _take3(nS, live), _take3(wo, live), pw, np.zeros_like(pw), tl))
+                parts.append((_take3(y, i) + self._offset32 * _take3(nS, live), _take3(wo, live), pw, np.zeros_like(pw), tl)
+                             + (() if path is None else (np.ones(live.size, dtype=bool),)))
         if len(parts) == 1:
             return parts[0]
         if not parts:
             empty = np.zeros((3, 0), np.float32)
-            return empty, empty, empty, empty, np.zeros(0, np.int32)
-        return tuple(np.concatenate([p[j] for p in parts], axis=-1) for j in range(5))
+            return (empty, empty, empty, empty, np.zeros(0, np.int32)) + (() if path is None else (np.zeros(0, bool),))
+        return tuple(np.concatenate([p[j] for p in parts], axis=-1) for j in range(len(parts[0])))
 
     # ------------------------------------------------------------------ paths
 
     def trace_chunk(self, source: np.ndarray, intensity: np.ndarray, n: int, n_total: int, tables: "ScatterTables",
                     rng: np.random.Generator) -> tuple[list, int]:
         """n photons of one source (out of n_total for that source); returns ([(texel, wi (3, M), power (3, M),
-        emitter, diffuse_per_pd (3, M), collects) per bounce], rays, back-side hits), float32 / int32 arrays."""
+        emitter, diffuse_per_pd (3, M), collects, specular_path) per bounce], rays, back-side hits), float32 / int32
+        arrays."""
         a = self.landing(source)
         total = float(a.sum())
         stored: list = []
@@ -284,6 +293,7 @@ class PhotonTracer:
         cos_i = column_dot(n_s, wi)
         own = None
         origin = d = per_pd = emitter = None          # the rays of the previous bounce and their photons
+        path = np.zeros(len(texel), dtype=bool)       # no scattering yet: the first hit is the direct light
         rays = back = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
@@ -302,8 +312,8 @@ class PhotonTracer:
                 dk = _take3(d, k)
                 y = _take3(origin, k) + np.take(dist, k) * dk
                 wi = -dk
-                power, per_pd, emitter = _take3(power, k), _take3(per_pd, k), np.take(emitter, k)
-                stored.append((texel, wi, power, emitter, per_pd, collects))
+                power, per_pd, emitter, path = _take3(power, k), _take3(per_pd, k), np.take(emitter, k), np.take(path, k)
+                stored.append((texel, wi, power, emitter, per_pd, collects, path))
                 # the texel's normal, or the hit face's where the texel normal faces away from wi (a photon
                 # arriving at a grazing angle on a curved or folded mesh: the smooth normal would absorb it)
                 n_s = _take3(self._n3, texel)
@@ -316,8 +326,8 @@ class PhotonTracer:
             if depth == self.max_bounces:
                 break
             u = rng.random((4, len(texel)), dtype=np.float32)
-            origin, d, power, per_pd, emitter = self.scatter(texel, y, wi, n_s, cos_i, own, power, tables, u,
-                                                             roulette=depth + 1 > self.min_bounces)
+            origin, d, power, per_pd, emitter, path = self.scatter(texel, y, wi, n_s, cos_i, own, power, tables, u,
+                                                                   roulette=depth + 1 > self.min_bounces, path=path)
             if not d.shape[1]:
                 break
         return stored, rays, back
@@ -355,13 +365,15 @@ class PhotonTracer:
         if not batches:
             return PhotonHits(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
                               np.zeros((0, 3), np.float32), np.full(S, N, dtype=np.int64), rays,
-                              np.zeros(0, np.int64), np.zeros((0, 3), np.float32), back_hits=back)
+                              np.zeros(0, np.int64), np.zeros((0, 3), np.float32), back_hits=back,
+                              specular_path=np.zeros(0, dtype=bool))
         keep = np.flatnonzero(np.concatenate([b[5] for _, b in batches]))
         ints = lambda j: np.take(np.concatenate([b[j] for _, b in batches]), keep).astype(np.int64)
         vecs = lambda j: np.take(np.concatenate([b[j] for _, b in batches], axis=1), keep, axis=1).T   # (N, 3) views
         source = np.take(np.concatenate([np.full(len(b[0]), s, dtype=np.int64) for s, b in batches]), keep)
+        path = np.take(np.concatenate([b[6] for _, b in batches]), keep)
         return PhotonHits(source, ints(0), vecs(1), vecs(2), np.full(S, N, dtype=np.int64), rays, ints(3), vecs(4),
-                          back_hits=back)
+                          back_hits=back, specular_path=path)
 
 
 @dataclass
