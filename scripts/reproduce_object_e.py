@@ -20,7 +20,10 @@ capture floor: the share of texels an exact fitter could bring within 2 % of the
 capture, and the std of the capture's own relative error near the fold and elsewhere. Read the
 per-texel columns against it.
 
-    python scripts/reproduce_object_e.py [--out outputs/object_e] [--setups 1 2] [--quick] [--no-floor]
+    python scripts/reproduce_object_e.py [--out outputs/object_e] [--setups 1 2] [--quick] [--no-floor] [--set KEY=VALUE ...]
+
+--set passes config overrides (dotted keys, as on the train command line) to every method's run, e.g.
+--set photon.diffuse_paths=radiosity.
 
 --quick renders a 256 x 225 grid with fewer paths (about 8 minutes instead of 18, the capture floor included).
 """
@@ -140,9 +143,11 @@ def main():
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--no-floor", action="store_true",
                     help="skip the capture floor (a second render of each setup with another path-tracer seed)")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="config overrides for every method's run (dotted keys)")
     args = ap.parse_args()
     out = Path(args.out).resolve()
-    extra = QUICK if args.quick else []
+    extra = (QUICK if args.quick else []) + list(args.set)
     rows, floors = [], {}
     import matplotlib
 

@@ -268,3 +268,33 @@ def test_indirect_radiance_gradients_are_bitwise_repeatable_on_two_threads():
     for other in grads[1:]:
         for a, b in zip(grads[0], other):
             assert torch.equal(a, b)
+
+
+def test_leaving_out_the_all_diffuse_paths_keeps_exactly_the_flagged_photons(traced):
+    """build_cache(diffuse_paths=False) (photon.diffuse_paths: radiosity): H sums only the photons whose path had a
+    specular scattering, by the per-photon reference restricted to them; the specular entries keep every photon."""
+    import dataclasses
+
+    s, obs, pt, src, hits, pd, ps, sigma = traced
+    flagged = hits.specular_path
+    assert 0 < flagged.sum() < hits.count
+    keep = torch.ones(obs.valid.shape, dtype=torch.bool)
+    build = lambda h, **kw: build_cache(h, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow",
+                                        np.full(s.num_texels, 1.0), 10.0, 0.02, theta_bin=1e-12, bin_per_sigma=0.0, **kw)
+    left_out = build(hits, diffuse_paths=False)
+    sub = lambda a: a[flagged]
+    only_flagged = dataclasses.replace(hits, source=sub(hits.source), texel=sub(hits.texel), direction=sub(hits.direction),
+                                       power=sub(hits.power), emitter=sub(hits.emitter),
+                                       diffuse_per_pd=sub(hits.diffuse_per_pd), specular_path=sub(flagged))
+    zero = torch.zeros_like(pd)
+    ref = indirect_radiance_reference(only_flagged, src, pt.areas, s.normals, obs.view_dir, "torrance_sparrow",
+                                      obs.kappa, pd, zero[:, :1].expand(-1, 3), sigma, 0.02)
+    torch.testing.assert_close(indirect_radiance(left_out, obs.kappa, pd, zero, sigma), ref, rtol=1e-9, atol=1e-12)
+    full = build(hits)
+    torch.testing.assert_close(left_out.entry_weight, full.entry_weight)
+    assert float(left_out.irradiance.sum()) < float(full.irradiance.sum())
+    # linear emitters: the Pd-linear part is restricted the same way, exact at the traced Pd
+    lin = build(hits, diffuse_paths=False, emitter_pd=pd.numpy())
+    torch.testing.assert_close(lin.irradiance_at(pd), left_out.irradiance, rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match="specular_path"):
+        build(dataclasses.replace(hits, specular_path=None), diffuse_paths=False)

@@ -251,3 +251,48 @@ def test_rays_that_reach_the_back_of_the_scanned_surface_are_counted():
     src = light_sources(s2, obs, 1)
     open_hits = pt2.trace(src.positions.reshape(-1, 3), src.intensity, 50_000, TexelMaterial.from_tensors(*material(s2.num_texels, 0.8)), seed=0)
     assert open_hits.back_hits < 0.01 * open_hits.rays and open_hits.rays > 10_000
+
+
+def test_paths_are_flagged_specular_exactly_when_a_scattering_took_the_lobe():
+    """PhotonHits.specular_path: never on a Lambertian surface, always where there is no diffuse part,
+    both on a surface with both (one-sample component selection)."""
+    s, obs, pt = fold_setup("lambertian")
+    _, hits = photon_irradiance(s, obs, pt, 20_000)
+    assert hits.count > 0 and not hits.specular_path.any()
+    s, obs, pt = fold_setup("torrance_sparrow")
+    _, hits = photon_irradiance(s, obs, pt, 20_000, brdf="torrance_sparrow", pd=0.0, ps=0.8, sigma=0.2)
+    assert hits.count > 0 and hits.specular_path.all()
+    _, hits = photon_irradiance(s, obs, pt, 20_000, brdf="torrance_sparrow", pd=0.5, ps=0.4, sigma=0.15)
+    assert 0.05 < hits.specular_path.mean() < 0.95
+    assert len(hits.specular_path) == hits.count
+
+
+def test_all_diffuse_paths_of_a_glossy_surface_converge_to_the_radiosity_solution():
+    """The premise of photon.diffuse_paths=radiosity: on a glossy fold the photons whose every scattering was
+    diffuse carry, in expectation, exactly the radiosity level's irradiance for rho = Pd (the diffuse choice
+    weighs Pd / (1 - q) with probability 1 - q), so the radiosity solution may replace them; the paths with a
+    specular scattering are what remains for the photons."""
+    brdf = "torrance_sparrow"
+    s, obs, pt = fold_setup(brdf)
+    H, W = s.grid_shape
+    T = s.num_texels
+    pd = torch.full((T, 3), 0.5, dtype=torch.float64)
+    tracer = RayTracer(s.mesh_vertices, s.mesh_faces)
+    patches, F = form_factors_for_surface(s, tracer, patch_size=1, samples_per_patch=4096, seed=3)
+    pm = PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches)
+    H_rad = indirect_irradiance(local_terms("lambertian", s.normals, obs), obs.kappa, pd, pm, F.double())[0, :, 0]
+    cache, hits = photon_irradiance(s, obs, pt, 1_500_000, seed=7, brdf=brdf, pd=0.5, ps=0.4, sigma=0.15)
+    src = light_sources(s, obs, 8)
+    spec_only = build_cache(hits, src, pt.areas, s.normals, obs.view_dir, obs.valid, brdf, np.full(T, 0.15), 0.6,
+                            0.02, diffuse_paths=False)
+    H_all = cache.irradiance[0, :, 0]
+    H_spec = spec_only.irradiance[0, :, 0]
+    H_diffuse_paths = H_all - H_spec
+    keep = away_from_fold(H, W)
+    rel = lambda a, b: float((blocks(a, H, W) - blocks(b, H, W))[keep].norm() / blocks(b, H, W)[keep].norm())
+    assert float(H_spec.sum() / H_all.sum()) > 0.1            # the glossy fold has specular paths to leave to photons
+    assert rel(H_diffuse_paths, H_rad) < 0.04
+    # the hybrid total is the photon total (up to the photons' own noise)
+    assert rel(H_spec + H_rad, H_all) < 0.04
+    # and the specular entries (the receiver's lobe) still come from every photon
+    torch.testing.assert_close(spec_only.entry_weight, cache.entry_weight)
