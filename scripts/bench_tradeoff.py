@@ -1,6 +1,6 @@
 """The speed-versus-accuracy trade of the interreflection levels, measured.
 
-For each scene (glossy Object E, configs/object_e_setup2.yaml, and the concave bowl, configs/concave.yaml)
+For each scene (glossy Object E, configs/object_e_setup2.yaml, and the concave vase, configs/concave.yaml)
 the capture is rendered once (path-traced interreflection, noise, 8 bit) with two lights held out, then
 fitted at many settings, one knob at a time around a base point:
 
@@ -10,6 +10,7 @@ fitted at many settings, one knob at a time around a base point:
     photon     photons per light   photon.photons_per_light in 100k, 400k, 1.6M
                outer iterations    photon.outer_iterations in 1, 2, 3
                precision           dtype float32, float64
+               diffuse paths       photon.diffuse_paths photons, radiosity (one of them is the scene's own)
 
 For every point: the wall time of the fit (precompute + initialise + fit stages), the ground-truth
 errors (pd_rmse, ps_median_rel_err, sigma_median_rel_err) and the held-out image error
@@ -53,6 +54,8 @@ POINTS = [
     ("photon", "outer=1", PHOTON_BASE + ["photon.outer_iterations=1"]),
     ("photon", "outer=3", PHOTON_BASE + ["photon.outer_iterations=3"]),
     ("photon", "float64", PHOTON_BASE + ["dtype=float64"]),
+    ("photon", "diffuse_paths=photons", PHOTON_BASE + ["photon.diffuse_paths=photons"]),
+    ("photon", "diffuse_paths=radiosity", PHOTON_BASE + ["photon.diffuse_paths=radiosity"]),
 ]
 
 
