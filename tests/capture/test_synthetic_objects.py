@@ -6,7 +6,7 @@ import pytest
 import trimesh
 
 from torchrefl.capture.synthetic_materials import region_materials
-from torchrefl.capture.synthetic_objects import bowl, vase
+from torchrefl.capture.synthetic_objects import vase
 from torchrefl.capture.synthetic_scan import SyntheticScan
 from torchrefl.config import SyntheticConfig
 

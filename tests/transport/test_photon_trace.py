@@ -45,6 +45,16 @@ def photon_irradiance(s, obs, pt, n, seed=0, brdf="lambertian", pd=0.6, ps=0.0, 
                        np.full(T, sigma), 0.6, 0.02), hits
 
 
+def radiosity_irradiance(s, obs, pd: float):
+    """(T,) the radiosity level's indirect irradiance (first light, red) for a uniform Pd, with form factors from
+    4096 rays per texel (one texel per patch)."""
+    pdt = torch.full((s.num_texels, 3), pd, dtype=torch.float64)
+    patches, F = form_factors_for_surface(s, RayTracer(s.mesh_vertices, s.mesh_faces), patch_size=1,
+                                          samples_per_patch=4096, seed=3)
+    pm = PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches)
+    return indirect_irradiance(local_terms("lambertian", s.normals, obs), obs.kappa, pdt, pm, F.double())[0, :, 0]
+
+
 def blocks(x, H, W, b=4):
     """(H*W,) -> block means (H/b, W/b) over the grid."""
     return x.reshape(H // b, b, W // b, b).mean((1, 3))
@@ -153,12 +163,7 @@ def test_closed_sphere_energy_balance():
 def test_converges_to_the_radiosity_solution_like_one_over_sqrt_n():
     s, obs, pt = fold_setup()
     H, W = s.grid_shape
-    T = s.num_texels
-    pd = torch.full((T, 3), 0.6, dtype=torch.float64)
-    tracer = RayTracer(s.mesh_vertices, s.mesh_faces)
-    patches, F = form_factors_for_surface(s, tracer, patch_size=1, samples_per_patch=4096, seed=3)
-    pm = PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches)
-    H_rad = indirect_irradiance(local_terms("lambertian", s.normals, obs), obs.kappa, pd, pm, F.double())[0, :, 0]
+    H_rad = radiosity_irradiance(s, obs, 0.6)
     H_ref = photon_irradiance(s, obs, pt, 2_560_000, seed=99)[0].irradiance[0, :, 0]
     keep = away_from_fold(H, W)
     rel = lambda a, b: float((blocks(a, H, W) - blocks(b, H, W))[keep].norm() / blocks(b, H, W)[keep].norm())
@@ -276,11 +281,7 @@ def test_all_diffuse_paths_of_a_glossy_surface_converge_to_the_radiosity_solutio
     s, obs, pt = fold_setup(brdf)
     H, W = s.grid_shape
     T = s.num_texels
-    pd = torch.full((T, 3), 0.5, dtype=torch.float64)
-    tracer = RayTracer(s.mesh_vertices, s.mesh_faces)
-    patches, F = form_factors_for_surface(s, tracer, patch_size=1, samples_per_patch=4096, seed=3)
-    pm = PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches)
-    H_rad = indirect_irradiance(local_terms("lambertian", s.normals, obs), obs.kappa, pd, pm, F.double())[0, :, 0]
+    H_rad = radiosity_irradiance(s, obs, 0.5)
     cache, hits = photon_irradiance(s, obs, pt, 1_500_000, seed=7, brdf=brdf, pd=0.5, ps=0.4, sigma=0.15)
     src = light_sources(s, obs, 8)
     spec_only = build_cache(hits, src, pt.areas, s.normals, obs.view_dir, obs.valid, brdf, np.full(T, 0.15), 0.6,
