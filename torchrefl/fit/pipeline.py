@@ -148,7 +148,8 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             pmap, F, solver, rho_patch, rho_det, indirect, note = _radiosity_setup(cfg, surface, obs, terms, cls, fit_mask, log)
             log(note)
             if level == "photon":
-                reason += "; started from Method II (" + note + ")"
+                reason += ("; started from Method II" if cfg.photon.start == "radiosity" else "; started from Method I") + (
+                    "; all-diffuse paths from the radiosity solution" if hybrid else "") + " (" + note + ")"
             else:
                 reason = "fit.model is 'radiosity': direct light plus diffuse interreflection (" + note + ")"
     init_kw = dict(ps_channels=rc.ps_channels, sigma_min=rc.sigma_min, sigma_max=rc.sigma_max, ps_max=rc.ps_max,
