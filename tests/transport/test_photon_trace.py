@@ -103,10 +103,12 @@ def test_one_scattering_carries_the_directional_albedo(model, ps, sigma, roulett
     N = 400_000
     col = lambda v: np.repeat(np.asarray(v, dtype=np.float32)[:, None], N, 1)
     u = np.random.default_rng(1).random((4, N), dtype=np.float32)
-    origin, d, power, per_pd, emitter = pt.scatter(np.full(N, t0, np.int32), col(s.positions[t0].numpy()), col(wi),
-                                                   col(n), np.full(N, np.dot(n, wi), np.float32), None,
-                                                   np.ones((3, N), np.float32), tables, u, roulette)
+    origin, d, power, per_pd, emitter, path = pt.scatter(np.full(N, t0, np.int32), col(s.positions[t0].numpy()),
+                                                         col(wi), col(n), np.full(N, np.dot(n, wi), np.float32), None,
+                                                         np.ones((3, N), np.float32), tables, u, roulette)
     assert power.dtype == np.float32 and np.isfinite(power).all() and (emitter == t0).all()
+    # a survivor is flagged exactly when it took the lobe (the lobe's photons carry no Pd-linear flux)
+    assert np.array_equal(path, (per_pd == 0).all(0)) and (path.any() == (ps > 0))
     np.testing.assert_allclose(np.linalg.norm(d, axis=0), 1, atol=1e-5)
     w = np.zeros(N)
     w[:power.shape[1]] = power[0]                                 # dead photons carry zero

@@ -24,7 +24,7 @@ inside of the bowl) are placed in front of the axis, facing outwards, towards sc
   A cylindrical scanner sees only about a third of that inside (its lines of sight converge on the
   axis), so most of the surface that lights the scanned part is missing from the scan.
 - vase: a solid of revolution about the rotation axis (a vase shape: a cylindrical body, a deep
-  concave neck whose profile is a circular arc, flared shoulders, flat ends). Every point of a
+  concave neck whose profile is a circular arc, rounded shoulders, flat ends). Every point of a
   surface of revolution about the axis faces outwards along the scanner's line of sight, so the
   scan captures all of the concave neck and every surface that lights it: the fitter sees the whole
   interreflecting geometry. Its materials are texel-aligned region maps of the scan grid
@@ -53,7 +53,9 @@ class MeshObject:
     or None for objects whose materials are texel maps of the scan grid (the scanner supplies them);
     extent_y: (min, max) world height; info: the object's defining geometry in world coordinates (Object E:
     fold_start (3,), fold_dir (3,) unit along the fold, plate_dirs (2, 3) unit directions of the plates from
-    the fold (upper, lower), inside_normals (2, 3), length, width; bowl: centre, axis, radius, wall)."""
+    the fold (upper, lower), inside_normals (2, 3), length, width; bowl: centre, axis, radius, wall, inner_faces
+    (faces of the inside: 0..inner_faces-1); vase: profile (VaseProfile), core, groove_radius, y_edge, r_max,
+    half_height, side_faces (faces of the side: 0..side_faces-1))."""
 
     name: str
     vertices: np.ndarray
@@ -180,7 +182,7 @@ def bowl(seed: int = 0, uniform: bool = False, *, radius: float = 45.0, wall: fl
         ph = np.arctan2(d @ e2, d @ e1)
         return mats(np.clip(a, 0.0, np.pi / 2), ph, part_of(tri))
 
-    info = {"centre": centre, "axis": axis, "radius": radius, "wall": wall}
+    info = {"centre": centre, "axis": axis, "radius": radius, "wall": wall, "inner_faces": n_in}
     return MeshObject("bowl", verts, faces, normal, material, (float(verts[:, 1].min()), float(verts[:, 1].max())), info)
 
 
@@ -252,7 +254,7 @@ def vase(*, core: float = 45.0, groove_radius: float = 40.0, flank_deg: float = 
         return np.where((tri >= n_side)[:, None], ends, n)
 
     info = {"profile": prof, "core": core, "groove_radius": groove_radius, "y_edge": float(prof.y_edge),
-            "r_max": float(prof.r_max), "half_height": half_height}
+            "r_max": float(prof.r_max), "half_height": half_height, "side_faces": n_side}
     return MeshObject("vase", verts, faces, normal, None, (-half_height, half_height), info)
 
 

@@ -209,11 +209,11 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             from torchrefl.fit.photon_schedule import run_schedule
             pc = cfg.photon
             plevel = _photon_setup(cfg, surface, obs, fit_mask | eval_mask, device, dt,
-                                   radiosity_irradiance=indirect if pc.diffuse_paths == "radiosity" else None)
+                                   radiosity_irradiance=indirect if hybrid else None)
             log(f"photon level: {plevel.sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
                 f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}, "
                 + ("all-diffuse paths from the radiosity level, photons for the paths with a specular scattering"
-                   if pc.diffuse_paths == "radiosity" else "every path from photons"))
+                   if hybrid else "every path from photons"))
 
             def reinitialise(direct_only):
                 fresh = initialise_local(terms, direct_only.cpu().to(obs.intensity.dtype), cls, counts["T_spec"],

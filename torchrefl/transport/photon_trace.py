@@ -204,9 +204,9 @@ class PhotonTracer:
         (3, N), about normals n (3, N) with cos_i = n.wi > 0, own (N,) bool or None (n is the texel's normal),
         flux power (3, N), uniforms u (4, N) float32 (u[2] picks the component, u[3] plays the roulette).
         Returns the survivors' (origin (3, M), direction (3, M), power (3, M), diffuse_per_pd (3, M), emitter
-        texel (M,)), float32 / int32 (vectors are stored component-major: numpy's fast layout for them); with
-        `path` (N,) bool (the photons' specular_path flags) a sixth element, the survivors' flags after this
-        scattering (path or specular).
+        texel (M,), specular_path (M,) bool), float32 / int32 (vectors are stored component-major: numpy's fast
+        layout for them); path (N,) bool: the photons' specular_path flags before this scattering (None: all False),
+        which a survivor keeps after a diffuse scattering and sets after a specular one.
 
         One-sample component selection: with probability q_t the specular lobe, otherwise the cosine
         distribution, each weighted by its own part of the BRDF over its own pdf (unbiased, since
@@ -217,6 +217,7 @@ class PhotonTracer:
         in closed form (lobe_sampling.lobe_over_pdf); diffuse_per_pd = 0. Russian roulette (when `roulette`):
         survival s = min(0.95, max_c w), Phi <- Phi w / s; otherwise only photons with w = 0 stop."""
         spec = u[2] < np.take(tables.q, texel)
+        path = np.zeros(len(texel), dtype=bool) if path is None else path
         surv, w_d, k_d = tables.diffuse(roulette)
         parts = []
         iD = np.flatnonzero(~spec & (u[3] < np.take(surv, texel)))
@@ -228,8 +229,8 @@ class PhotonTracer:
             d = nD + np.stack([r * np.cos(phi), r * np.sin(phi), z])
             d /= np.maximum(np.sqrt(column_dot(d, d)), np.float32(1e-12))
             pw = _take3(power, iD)
-            parts.append((_take3(y, iD) + self._offset32 * nD, d, pw * _take3(w_d, tD), pw * np.take(k_d, tD), tD)
-                         + (() if path is None else (np.take(path, iD),)))
+            parts.append((_take3(y, iD) + self._offset32 * nD, d, pw * _take3(w_d, tD), pw * np.take(k_d, tD), tD,
+                          np.take(path, iD)))
         iS = np.flatnonzero(spec) if self.lobe is not None and spec.any() else np.zeros(0, np.int64)
         if iS.size:
             tS, nS, wiS = np.take(texel, iS), _take3(n, iS), _take3(wi, iS)
@@ -260,14 +261,14 @@ class PhotonTracer:
             if live.size:
                 i, tl = np.take(iS, live), np.take(tS, live)
                 pw = _take3(power, i) * _take3(tables.ps, tl) * (np.take(ws, live) / np.take(s, live))
-                parts.append((_take3(y, i) + self._offset32 * _take3(nS, live), _take3(wo, live), pw, np.zeros_like(pw), tl)
-                             + (() if path is None else (np.ones(live.size, dtype=bool),)))
+                parts.append((_take3(y, i) + self._offset32 * _take3(nS, live), _take3(wo, live), pw, np.zeros_like(pw), tl,
+                              np.ones(live.size, dtype=bool)))
         if len(parts) == 1:
             return parts[0]
         if not parts:
             empty = np.zeros((3, 0), np.float32)
-            return (empty, empty, empty, empty, np.zeros(0, np.int32)) + (() if path is None else (np.zeros(0, bool),))
-        return tuple(np.concatenate([p[j] for p in parts], axis=-1) for j in range(len(parts[0])))
+            return empty, empty, empty, empty, np.zeros(0, np.int32), np.zeros(0, bool)
+        return tuple(np.concatenate([p[j] for p in parts], axis=-1) for j in range(6))
 
     # ------------------------------------------------------------------ paths
 
