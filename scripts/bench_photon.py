@@ -161,7 +161,8 @@ def main() -> None:
     tracer = RayTracer(V, F, threads=args.threads)
     rc = base.radiosity                        # the configured (default) patch size and hemisphere samples
     start = time.perf_counter()
-    patches, Fm = form_factors_for_surface(geom.surface, tracer, patch_size=rc.patch_size, samples_per_patch=rc.hemisphere_samples)
+    patches, Fm = form_factors_for_surface(geom.surface, tracer, patch_size=rc.patch_size, samples_per_patch=rc.hemisphere_samples,
+                                           split_angle_deg=rc.patch_split_angle_deg)
     ff_s = time.perf_counter() - start
     ff_rays = patches.num_patches * rc.hemisphere_samples
     report["form_factors"] = {"patches": patches.num_patches, "patch_size": rc.patch_size, "samples_per_patch": rc.hemisphere_samples,

@@ -289,6 +289,62 @@ def test_texel_patches_membership_areas_normals(s):
     assert torch.equal(pos[mask].sum(0), surf.positions[P.member_texels].sum(0))
 
 
+def split_reference(surf, s, angle_deg):
+    """Slow, obvious split of every block: repeatedly take the block's lowest-index unplaced texel and put
+    every unplaced texel within angle_deg of its normal in its patch. Returns the patches as sorted
+    member lists in block order, then split order."""
+    H, W = surf.grid_shape
+    n = surf.normals.numpy()
+    cos_min = math.cos(math.radians(angle_deg))
+    by_block = {}
+    for t, f in enumerate(surf.texel_index.tolist()):
+        by_block.setdefault(((f // W) // s, (f % W) // s), []).append(t)
+    out = []
+    for key in sorted(by_block):
+        left = sorted(by_block[key])
+        while left:
+            seed = left[0]
+            part = [t for t in left if t == seed or float(n[t] @ n[seed]) >= cos_min]
+            out.append((key, part))
+            left = [t for t in left if t not in part]
+    return out
+
+
+@pytest.mark.parametrize("s,angle", [(2, 20.0), (3, 15.0), (4, 25.0), (3, 180.0)])
+def test_blocks_split_where_normals_disagree_like_the_slow_reference(s, angle):
+    surf, *_ = small_surface()          # normals tilted at random by ~0.2 rad: some blocks split, most do not
+    P = texel_patches(surf, s, split_angle_deg=angle)
+    ref = split_reference(surf, s, angle)
+    assert P.num_patches == len(ref)
+    for q, (block, members) in enumerate(ref):
+        assert P.members(q).tolist() == members
+        assert P.block[q].tolist() == list(block)
+    blocks = len({b for b, _ in ref})
+    if angle < 180:
+        assert P.num_patches > blocks                   # the case splits something
+    else:
+        assert P.num_patches == blocks
+
+
+def test_a_patch_does_not_straddle_a_fold():
+    """Fold grid with 5 columns per plate: the 2-texel blocks of columns 4-5 straddle the fold line. Split at
+    30 degrees, they become one patch per plate (same block), with that plate's normal; unsplit, one patch
+    holds both plates with a 45-degree mean normal."""
+    from conftest import fold_surface
+
+    surf = fold_surface(6, 10)
+    n = surf.normals
+    plain = texel_patches(surf, 2)
+    split = texel_patches(surf, 2, split_angle_deg=30.0)
+    assert plain.num_patches == 15 and split.num_patches == 18
+    spread = lambda P, q: float((n[P.members(q)] * n[P.members(q)[0]]).sum(-1).min())   # smallest cosine to the first
+    assert sum(spread(plain, q) < 0.5 for q in range(plain.num_patches)) == 3
+    for q in range(split.num_patches):
+        assert spread(split, q) > 0.999
+        torch.testing.assert_close(split.normals[q], n[split.members(q)[0]])
+    assert torch.unique(split.block, dim=0).shape[0] == 15
+
+
 def test_face_patches_follow_the_first_vertex():
     surf, _, _, _, valid = small_surface()
     H, W = valid.shape
@@ -391,6 +447,8 @@ def test_bad_inputs_raise_named_errors():
     surf, *_ = small_surface()
     with pytest.raises(ConfigError, match="patch_size"):
         texel_patches(surf, 0)
+    with pytest.raises(ConfigError, match="split_angle_deg"):
+        texel_patches(surf, 2, split_angle_deg=200.0)
     with pytest.raises(ConfigError, match="patch_size"):
         form_factors_for_surface(surf, None, patch_size=1.5, samples_per_patch=10, seed=0, offset=1e-4)
     with pytest.raises(ConfigError, match="samples_per_patch"):

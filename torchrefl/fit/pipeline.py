@@ -49,7 +49,8 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     rc = cfg.radiosity
     tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
     patches, F = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size,
-                                          samples_per_patch=rc.hemisphere_samples, seed=cfg.seed)
+                                          samples_per_patch=rc.hemisphere_samples, seed=cfg.seed,
+                                          split_angle_deg=rc.patch_split_angle_deg)
     pmap = PatchMap(patches.texel_patch, surface.areas.double(), patches.num_patches)
     F = F.to(obs.intensity.dtype)
     solver = {"method": rc.solver, "tol": rc.tolerance, "max_iter": rc.max_iterations, "direct_max": rc.direct_max}
@@ -61,7 +62,10 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
         if sources.num_maps > 1:                                       # the lights move with the scan
             maps = emitter_maps(sources, surface.positions, surface.normals, tracer, cfg.geometry.shadow_offset_mm,
                                 obs.kappa)
-    note = (f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels, "
+    blocks = int(torch.unique(patches.block[:, 0] * (surface.grid_shape[1] + 1) + patches.block[:, 1]).numel())
+    split = (f" ({patches.num_patches - blocks} more where a block straddles a crease of > {rc.patch_split_angle_deg:g} deg)"
+             if patches.num_patches > blocks else "")
+    note = (f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels{split}, "
             f"{rc.hemisphere_samples} hemisphere rays each, {nnz} non-zero form factors"
             + (f", {maps.weights.shape[0]} emitter maps per light" if maps is not None else "")
             + f"; inverse radiosity (eq. 4.7) determined {int(det.sum())} patches")

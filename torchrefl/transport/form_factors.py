@@ -18,7 +18,8 @@ reach the back side of a patch count nowhere: energy arriving at the back of a r
 does not feed the radiosity B of its observed front side (`count_back_hits=True` counts them).
 Embree's tnear is 0, so rays start `offset` along the normal.
 
-Patches are square blocks of texels on the texel grid (`texel_patches`); a mesh face belongs to the
+Patches are square blocks of texels on the texel grid, split where the texel normals disagree
+(`texel_patches`: a patch does not straddle a fold); a mesh face belongs to the
 patch of the texel at its first vertex (`face_patches`, which relies on the vertex layout of
 torchrefl.geometry.range_mesh.grid_triangulation).
 """
@@ -56,7 +57,8 @@ class Patches:
     member_offsets: (Q + 1,) int64 and member_texels: (M,) int64, CSR lists of member texels
         (indices into the Surface's texels, increasing within a patch): patch q owns
         member_texels[member_offsets[q]:member_offsets[q + 1]].
-    block: (Q, 2) int64, (block row, block column) of each patch on the texel grid.
+    block: (Q, 2) int64, (block row, block column) of each patch on the texel grid (the patches
+        a block was split into at a crease share it).
     patch_size: texels per block side.
     """
 
@@ -96,13 +98,18 @@ class Patches:
         return (*out, mask)
 
 
-def texel_patches(surface: Surface, patch_size: int) -> Patches:
-    """Square blocks of patch_size x patch_size texels on the (H, W) texel grid.
+def texel_patches(surface: Surface, patch_size: int, split_angle_deg: float = 180.0) -> Patches:
+    """Square blocks of patch_size x patch_size texels on the (H, W) texel grid, split at creases.
 
     Block (i, j) holds the valid texels with row // patch_size == i and col // patch_size == j
     (blocks at the bottom and right borders may be smaller); blocks with no valid texel are no
-    patch. Patches are numbered by increasing block index i * ceil(W / patch_size) + j;
-    patch_size=1 gives one texel per patch, numbered like the texels.
+    patch. A block whose texel normals differ by more than split_angle_deg is split (`split_by_normal`):
+    its first texel (lowest index) seeds a patch with every texel of the block within split_angle_deg of
+    that texel's normal, the first of the rest seeds the next, and so on. A patch thus never straddles a
+    fold or crease, where one shared mean normal, form-factor row and irradiance would be wrong for the
+    texels on both sides (180 = never split). Patches are numbered by increasing block index
+    i * ceil(W / patch_size) + j, then by split order; patch_size=1 gives one texel per patch, numbered
+    like the texels.
     """
     if isinstance(patch_size, bool) or not isinstance(patch_size, (int, np.integer)) or patch_size < 1:
         raise ConfigError(f"patch_size must be an integer >= 1 (texels per block side), got {patch_size!r}")
@@ -112,7 +119,15 @@ def texel_patches(surface: Surface, patch_size: int) -> Patches:
     row, col = flat // W, flat % W
     bw = -(-W // s)
     block_id = (row // s) * bw + (col // s)
-    uniq, texel_patch = torch.unique(block_id, sorted=True, return_inverse=True)
+    if not (isinstance(split_angle_deg, (int, float, np.number)) and 0.0 <= float(split_angle_deg) <= 180.0):
+        raise ConfigError(f"split_angle_deg must be a number in [0, 180] (degrees between texel normals that split "
+                          f"a patch), got {split_angle_deg!r}")
+    n = surface.normals.detach().cpu().double()
+    part, parts = split_by_normal(block_id, n, math.cos(math.radians(float(split_angle_deg)))) if s > 1 else (
+        torch.zeros_like(block_id), 1)
+    key = block_id * parts + part
+    uniq, texel_patch = torch.unique(key, sorted=True, return_inverse=True)
+    uniq = uniq // parts                                                # the block of each patch
     Q = len(uniq)
     order = torch.argsort(texel_patch, stable=True)
     counts = torch.bincount(texel_patch, minlength=Q)
@@ -121,7 +136,6 @@ def texel_patches(surface: Surface, patch_size: int) -> Patches:
 
     a = surface.areas.detach().cpu().double()
     x = surface.positions.detach().cpu().double()
-    n = surface.normals.detach().cpu().double()
     areas = torch.zeros(Q, dtype=torch.float64).index_add_(0, texel_patch, a)
     if (areas <= 0).any():
         q = int(torch.nonzero(areas <= 0)[0])
@@ -137,6 +151,30 @@ def texel_patches(surface: Surface, patch_size: int) -> Patches:
     block = torch.stack([uniq // bw, uniq % bw], dim=1)
     return Patches(texel_patch=texel_patch, centres=centres, normals=nsum / nlen[:, None], areas=areas,
                    member_offsets=offsets, member_texels=order, block=block, patch_size=s)
+
+
+def split_by_normal(group: torch.Tensor, normals: torch.Tensor, cos_min: float) -> tuple[torch.Tensor, int]:
+    """Split groups of texels where their normals disagree.
+
+    group (T,) int64 group of each texel, normals (T, 3) unit. In each round, the lowest-index texel
+    not yet placed in every group seeds a part; the group's unplaced texels whose normal has a dot
+    product >= cos_min with the seed's join it. Returns (part (T,) int64: the round each texel joined,
+    0 for most; number of rounds). Deterministic; a seed always joins its own part, so every group
+    ends within as many rounds as it has texels."""
+    T = group.numel()
+    part = torch.full((T,), -1, dtype=torch.int64)
+    ids, local = torch.unique(group, return_inverse=True)
+    rounds = 0
+    left = torch.arange(T)
+    while left.numel():
+        g = local[left]
+        seed = torch.full((len(ids),), T, dtype=torch.int64).scatter_reduce(0, g, left, "amin")
+        join = (normals[left] * normals[seed[g]]).sum(-1) >= cos_min
+        join |= left == seed[g]
+        part[left[join]] = rounds
+        left = left[~join]
+        rounds += 1
+    return part, max(rounds, 1)
 
 
 def face_patches(surface: Surface, patches: Patches) -> np.ndarray:
@@ -325,8 +363,9 @@ def _front_faces(tracer: RayTracer, fp: np.ndarray, w: np.ndarray, nm: np.ndarra
 
 def form_factors_for_surface(surface: Surface, tracer: Optional[RayTracer] = None, patch_size: int = 1,
                              samples_per_patch: int = 256, seed: int = 0, offset: Optional[float] = None,
-                             **kwargs) -> tuple[Patches, torch.Tensor]:
-    """Patches of the surface (texel_patches) and their form factors (hemisphere_form_factors).
+                             split_angle_deg: float = 180.0, **kwargs) -> tuple[Patches, torch.Tensor]:
+    """Patches of the surface (texel_patches with split_angle_deg) and their form factors
+    (hemisphere_form_factors).
 
     Candidate origins of a patch are its texel positions with their normals, weighted by texel
     area. tracer: a RayTracer over the surface mesh (built from surface.mesh_* when None).
@@ -337,7 +376,7 @@ def form_factors_for_surface(surface: Surface, tracer: Optional[RayTracer] = Non
     if not surface.has_mesh:
         raise GeometryError(f"surface from {surface.source}: mesh_vertices/mesh_faces are None; form factors "
                             "need the triangle mesh")
-    patches = texel_patches(surface, patch_size)
+    patches = texel_patches(surface, patch_size, split_angle_deg)
     fpatch = face_patches(surface, patches)
     if tracer is None:
         tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces)
