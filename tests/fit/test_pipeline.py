@@ -32,3 +32,27 @@ def test_a_shared_lobe_is_not_pulled_to_the_floor_by_texels_without_highlights()
     ps = float(res["ps"][0].mean())
     sigma = float(res["sigma"][0])
     assert abs(ps / ps_true - 1) < 0.1 and abs(sigma / sigma_true - 1) < 0.1, (ps, sigma)
+
+
+def test_the_radiosity_setup_splits_patches_at_the_configured_angle():
+    """radiosity.patch_split_angle_deg reaches the patches: on a fold grid with 5 texel columns per plate the
+    three 2 x 2 blocks on the fold line are split at 30 degrees (and the run log says so), not at 180."""
+    from conftest import fold_surface
+    from torchrefl.fit.classify import classify
+    from torchrefl.fit.pipeline import _radiosity_setup
+
+    s = fold_surface(6, 10)
+    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
+                                   torch.tensor([-150.0, 0.0, 150.0]))
+    terms = local_terms("lambertian", s.normals, obs)
+    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
+    counts = {}
+    for angle in (30.0, 180.0):
+        cfg = Config()
+        cfg.radiosity.patch_size = 2
+        cfg.radiosity.hemisphere_samples = 16
+        cfg.radiosity.patch_split_angle_deg = angle
+        pmap, *_, note = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
+        counts[angle] = (pmap.num_patches, note)
+    assert counts[180.0][0] == 15 and "straddles" not in counts[180.0][1]
+    assert counts[30.0][0] == 18 and "3 more where a block straddles a crease of > 30 deg" in counts[30.0][1]
