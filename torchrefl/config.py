@@ -155,6 +155,7 @@ class RadiosityConfig:
     patch_size: int = opt(2, "patch side in texels (patches are patch_size x patch_size texel blocks; 1 = one texel per patch)", low=1)
     patch_split_angle_deg: float = opt(30.0, "a patch's texels stay within this angle (degrees) of one another's normals: a block straddling a fold or crease is split into one patch per side (a shared patch gives the texels on both sides one irradiance, too low on the side that faces the other across the fold; Object E at full size: +3 % Pd within 2 mm of the fold); 180 = plain blocks", low=0.0, high=180.0)
     hemisphere_samples: int = opt(256, "cosine-weighted hemisphere rays per patch for the form factors", low=1)
+    solve_samples: Optional[int] = opt(None, "hemisphere rays per patch for a second, cheaper set of form factors used only by the solve B = rho (E + F B), the hemisphere_samples ones then only gathering H = F B at the texels (null = one set for both). The solve costs (non-zeros of F) x (iterations); B's noise averages out over the emitters each patch gathers from, so the gather is where the rays count", low=1)
     solver: str = opt("auto", "linear solver: direct (dense LU), iterative (fixed point, sparse) or auto (by size)", choices=("auto", "direct", "iterative"))
     direct_max: int = opt(800, "auto uses the direct solver up to this many patches (the iterative one above)", low=1)
     tolerance: float = opt(1e-7, "relative tolerance of the iterative solver", low=0.0)

@@ -56,3 +56,29 @@ def test_the_radiosity_setup_splits_patches_at_the_configured_angle():
         counts[angle] = (pmap.num_patches, note)
     assert counts[180.0][0] == 15 and "straddles" not in counts[180.0][1]
     assert counts[30.0][0] == 18 and "3 more where a block straddles a crease of > 30 deg" in counts[30.0][1]
+
+
+def test_the_radiosity_setup_builds_a_separate_solve_matrix_when_asked():
+    """radiosity.solve_samples: a second F for the solve (its rays in the log); the indirect light then differs
+    from the one-matrix setup's but stays close (same patches, both estimates of the same form factors)."""
+    from conftest import fold_surface
+    from torchrefl.fit.classify import classify
+    from torchrefl.fit.pipeline import _radiosity_setup
+
+    s = fold_surface(6, 10)
+    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
+                                   torch.tensor([-150.0, 0.0, 150.0]))
+    terms = local_terms("lambertian", s.normals, obs)
+    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
+    pd = torch.full((s.num_texels, 3), 0.7, dtype=obs.intensity.dtype)
+    out = {}
+    for solve in (None, 64):
+        cfg = Config()
+        cfg.radiosity.hemisphere_samples = 512
+        cfg.radiosity.solve_samples = solve
+        *_, indirect, note = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
+        out[solve] = (indirect(pd), note)
+    assert "the solve's: 64 rays" in out[64][1] and "the solve's" not in out[None][1]
+    a, b = out[None][0], out[64][0]
+    assert not torch.equal(a, b)
+    assert float(((a - b).abs().sum() / a.abs().sum())) < 0.1

@@ -197,3 +197,27 @@ def test_fold_texels_get_their_own_irradiance_when_patches_split_at_the_fold():
     plain = column_h(2, 180.0, 1024)[fold] / ref[fold] - 1
     assert float(split.abs().max()) < 0.025
     assert float(plain.abs().max()) > 0.05      # the unsplit patch is off there (measured +8 % on the wall)
+
+
+def test_a_separate_solve_matrix_solves_with_it_and_gathers_with_f():
+    """F_solve (radiosity.solve_samples): B from F_solve, H = F B, against a dense solve by hand; F_solve = F is
+    the one-matrix level exactly; gradcheck through both matrices."""
+    obs, terms, patches, F, pd = scene()
+    _, _, _, F2, _ = scene(seed=3)                     # another reciprocal, open F for the same patches
+    E = terms.diffuse * (math.pi / obs.kappa)
+    got = indirect_irradiance(terms, obs.kappa, pd, patches, F, F_solve=F2)
+    ref = torch.zeros_like(got)
+    eye = torch.eye(F.shape[0], dtype=torch.float64)
+    for p in range(E.shape[0]):
+        for c in range(3):
+            B = torch.linalg.solve(eye - pd[:, c, None] * F2, pd[:, c] * E[p, :, c])
+            ref[p, :, c] = F @ B
+    torch.testing.assert_close(got, ref, rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(indirect_irradiance(terms, obs.kappa, pd, patches, F, F_solve=F),
+                               indirect_irradiance(terms, obs.kappa, pd, patches, F), rtol=0, atol=0)
+    assert float((got - indirect_irradiance(terms, obs.kappa, pd, patches, F)).abs().max()) > 1e-6 * float(got.abs().max())
+    small = scene(T=6)
+    o6, t6, p6, F6, pd6 = small
+    G6 = scene(T=6, seed=4)[3]
+    assert torch.autograd.gradcheck(lambda p: indirect_irradiance(t6, o6.kappa, p, p6, F6, F_solve=G6),
+                                    (pd6.clone().requires_grad_(),))

@@ -53,6 +53,11 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
                                           split_angle_deg=rc.patch_split_angle_deg)
     pmap = PatchMap(patches.texel_patch, surface.areas.double(), patches.num_patches)
     F = F.to(obs.intensity.dtype)
+    F_solve = None
+    if rc.solve_samples is not None and rc.solve_samples != rc.hemisphere_samples:
+        _, F_solve = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size, samples_per_patch=rc.solve_samples,
+                                              seed=cfg.seed + 1, split_angle_deg=rc.patch_split_angle_deg)
+        F_solve = F_solve.to(obs.intensity.dtype)
     solver = {"method": rc.solver, "tol": rc.tolerance, "max_iter": rc.max_iterations, "direct_max": rc.direct_max}
     rho, det = inverse_radiosity(terms, obs.kappa, obs.intensity, (cls == T_DIFF) & fit_mask, pmap, F)
     nnz = int(F._nnz()) if F.is_sparse else int((F != 0).sum())
@@ -67,6 +72,8 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
              if patches.num_patches > blocks else "")
     note = (f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels{split}, "
             f"{rc.hemisphere_samples} hemisphere rays each, {nnz} non-zero form factors"
+            + (f" (the solve's: {rc.solve_samples} rays, {int(F_solve._nnz()) if F_solve.is_sparse else int((F_solve != 0).sum())})"
+               if F_solve is not None else "")
             + (f", {maps.weights.shape[0]} emitter maps per light" if maps is not None else "")
             + f"; inverse radiosity (eq. 4.7) determined {int(det.sum())} patches")
     smooth = rc.smoothing if rc.smoothing is not None else (rc.patch_size / 2.0 if rc.patch_size > 1 else 0.0)
@@ -74,9 +81,9 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
         note += f"; patch irradiance spread over the texels (std {smooth:g} texels)"
         M = smoothing_matrix(surface.texel_index.numpy(), surface.grid_shape, smooth, surface.normals.numpy(),
                              cfg.photon.smoothing_normal)
-        indirect = lambda pd: apply_on_grid(M, indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, **solver))
+        indirect = lambda pd: apply_on_grid(M, indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, **solver))
     else:
-        indirect = lambda pd: indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, **solver)
+        indirect = lambda pd: indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, **solver)
     return pmap, F, solver, rho, det, indirect, note
 
 

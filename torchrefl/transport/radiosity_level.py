@@ -113,16 +113,19 @@ def emitter_maps(sources, positions: torch.Tensor, normals: torch.Tensor, tracer
 
 
 def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: PatchMap, F: torch.Tensor,
-                        maps: EmitterMaps | None = None, **solver) -> torch.Tensor:
+                        maps: EmitterMaps | None = None, F_solve: torch.Tensor | None = None, **solver) -> torch.Tensor:
     """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3); with maps, the
-    emitters are lit from each map's source and H interpolates between maps (module doc)."""
+    emitters are lit from each map's source and H interpolates between maps (module doc). F_solve: other
+    (cheaper, noisier) form factors of the same patches for the solve B = rho (E + F_solve B), F then only
+    gathers H = F B (None = F for both): B's noise averages out over the many emitters a patch gathers from,
+    while the gather's noise is what each texel sees."""
     rho = patches.mean(pd[None])[0].clamp(max=RHO_MAX)                 # (Q, 3)
     if maps is None:
         E = patches.mean(direct_irradiance(terms, kappa))              # (P, Q, 3)
     else:
         P, K, T, C = maps.irradiance.shape
         E = patches.mean(maps.irradiance.to(pd.dtype).reshape(P * K, T, C))   # (P K, Q, 3)
-    B = solve_radiosity(rho, E, F, **solver)                           # (P or P K, Q, 3)
+    B = solve_radiosity(rho, E, F if F_solve is None else F_solve.to(F.dtype), **solver)   # (P or P K, Q, 3)
     R, Q, C = B.shape
     H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, R * C)).reshape(Q, R, C).permute(1, 0, 2)
     H = patches.scatter(H)                                             # (R, T, 3)
