@@ -60,7 +60,7 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
         F_solve = F_solve.to(obs.intensity.dtype)
     solver = {"method": rc.solver, "tol": rc.tolerance, "max_iter": rc.max_iterations, "direct_max": rc.direct_max}
     rho, det = inverse_radiosity(terms, obs.kappa, obs.intensity, (cls == T_DIFF) & fit_mask, pmap, F)
-    nnz = int(F._nnz()) if F.is_sparse else int((F != 0).sum())
+    nnz = lambda M: int(M._nnz()) if M.is_sparse else int((M != 0).sum())
     maps = None
     if obs.light_positions is not None and rc.light_maps > 1:
         sources = light_sources(surface, obs, rc.light_maps)
@@ -71,9 +71,8 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     split = (f" ({patches.num_patches - blocks} more where a block straddles a crease of > {rc.patch_split_angle_deg:g} deg)"
              if patches.num_patches > blocks else "")
     note = (f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels{split}, "
-            f"{rc.hemisphere_samples} hemisphere rays each, {nnz} non-zero form factors"
-            + (f" (the solve's: {rc.solve_samples} rays, {int(F_solve._nnz()) if F_solve.is_sparse else int((F_solve != 0).sum())})"
-               if F_solve is not None else "")
+            f"{rc.hemisphere_samples} hemisphere rays each, {nnz(F)} non-zero form factors"
+            + (f" (the solve's: {rc.solve_samples} rays, {nnz(F_solve)})" if F_solve is not None else "")
             + (f", {maps.weights.shape[0]} emitter maps per light" if maps is not None else "")
             + f"; inverse radiosity (eq. 4.7) determined {int(det.sum())} patches")
     smooth = rc.smoothing if rc.smoothing is not None else (rc.patch_size / 2.0 if rc.patch_size > 1 else 0.0)
