@@ -62,6 +62,11 @@ def test_wrong_type_and_choice_and_range(tmp_path):
         load_config(write(tmp_path, "radiosity:\n  patch_split_angle_deg: 200\n"))
     with pytest.raises(ConfigError, match="radiosity.solve_samples.*>= 1"):
         load_config(write(tmp_path, "radiosity:\n  solve_samples: 0\n"))
+    with pytest.raises(ConfigError, match="photon.specular_gather.*>= 0"):
+        load_config(write(tmp_path, "photon:\n  specular_gather: -1\n"))
+    with pytest.raises(ConfigError, match="'photon.specular_gather' \\(64\\).*needs photon.diffuse_paths: radiosity"):
+        load_config(write(tmp_path, "photon:\n  specular_gather: 64\n"))
+    assert load_config(None, ["photon.specular_gather=64", "photon.diffuse_paths=radiosity"]).photon.specular_gather == 64
 
 
 @pytest.mark.parametrize("name", ["object_e_setup1.yaml", "object_e_setup2.yaml"])

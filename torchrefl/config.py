@@ -179,8 +179,9 @@ class PhotonConfig:
     linear_emitters: bool = opt(False, "keep the cached irradiance linear in the Pd of each photon's last emitter (exact last bounce between refreshes; about 3x slower fits)")
     reinitialise: bool = opt(False, "start every outer iteration from the closed forms on the images minus the cached indirect light")
     smoothing: float = opt(1.0, "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each texel's own photons)", low=0.0)
-    diffuse_paths: str = opt("photons", "where the indirect irradiance of the all-diffuse light paths comes from: photons (every path traced), or radiosity (the radiosity level's solution at the current Pd, recomputed at every refresh, noise-free; the photons then carry only the paths with a specular scattering, and still give the receiving texel's specular reflection of all indirect light). radiosity removes most photon noise where the interreflection is mostly diffuse (the vase: README)", choices=("photons", "radiosity"))
+    diffuse_paths: str = opt("photons", "where the indirect irradiance of the all-diffuse light paths comes from: photons (every path traced), or radiosity (the radiosity level's solution at the current Pd, recomputed at every refresh, noise-free; the photons then carry only the paths with a specular scattering, and still give the receiving texel's specular reflection of all indirect light unless specular_gather is set). radiosity removes most photon noise where the interreflection is mostly diffuse (the vase: README)", choices=("photons", "radiosity"))
     specular_smoothing: float = opt(0.0, "density estimation of the specular entries: each photon's entry is spread over the neighbouring texels (3 x 3, Gaussian of this std in texels, normal-tested like smoothing); 0 = per texel. Per-texel entries are so noisy that they bias Ps down when highlights are observed (errors in variables); 1.0 removes most of that bias at ~2.5x the photon level's fit time (4-7x the entries)", low=0.0)
+    specular_gather: int = opt(0, "with diffuse_paths: radiosity, directions per texel for gathering the texel's specular reflection of the all-diffuse paths' light (traced from its lobe to the texels they hit, whose radiance the radiosity level gives); the photons' specular entries then carry only the paths with a specular scattering. Removes the photon noise that biases Ps down (errors in variables) where a glossy surface mirrors its lit neighbours (Object E: README); 0 = photons for all of it", low=0)
     smoothing_normal: float = opt(0.1, "density estimation: a neighbour's weight also falls as exp(-|n - n'|^2 / (2 s^2)) with its normal's distance from the texel's (s ~ radians), so the kernel does not gather across folds and creases; 0 = plain Gaussian", low=0.0)
     min_bounces: int = opt(1, "scatterings before Russian roulette starts", low=0)
     max_bounces: int = opt(16, "cap on scatterings per photon", low=1)
@@ -308,6 +309,10 @@ def _validate(cfg: Config, where: str) -> None:
     if cfg.synthetic.minnaert_k != 1.0 and cfg.synthetic.indirect_samples > 0:
         raise ConfigError(f"{where}: key 'synthetic.minnaert_k' = {cfg.synthetic.minnaert_k} needs synthetic.indirect_samples: 0 "
                           "(the interreflection renderer is Lambertian)")
+    if cfg.photon.specular_gather > 0 and cfg.photon.diffuse_paths != "radiosity":
+        raise ConfigError(f"{where}: key 'photon.specular_gather' ({cfg.photon.specular_gather}) gathers the radiosity "
+                          f"level's light and needs photon.diffuse_paths: radiosity (it is '{cfg.photon.diffuse_paths}'); "
+                          "set photon.diffuse_paths: radiosity or photon.specular_gather: 0")
     if cfg.reflectance.theta_specular_deg >= cfg.reflectance.theta_diffuse_deg:
         raise ConfigError(f"{where}: reflectance.theta_specular_deg must be < reflectance.theta_diffuse_deg")
     if len(cfg.capture.kappa) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.capture.kappa):

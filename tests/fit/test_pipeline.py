@@ -1,5 +1,7 @@
 """The fit pipeline's choices that only show end to end."""
 
+import math
+
 import torch
 
 from conftest import dome_scene, point_light_observations
@@ -76,9 +78,44 @@ def test_the_radiosity_setup_builds_a_separate_solve_matrix_when_asked():
         cfg = Config()
         cfg.radiosity.hemisphere_samples = 512
         cfg.radiosity.solve_samples = solve
-        *_, indirect, note = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
+        *_, indirect, _, note = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
         out[solve] = (indirect(pd), note)
     assert "the solve's: 64 rays" in out[64][1] and "the solve's" not in out[None][1]
     a, b = out[None][0], out[64][0]
     assert not torch.equal(a, b)
     assert float(((a - b).abs().sum() / a.abs().sum())) < 0.1
+
+
+def test_the_photon_level_gathers_the_radiosity_radiance_when_asked():
+    """photon.specular_gather: the radiosity setup's radiance is Pd (E + H) / pi with the same H as its indirect
+    light (static lights: one map); the photon level's cache then holds the flagged photons' specular entries plus
+    the gathered ones (counted in its stats), and without the gather every photon's entries."""
+    from conftest import fold_surface
+    from torchrefl.fit.classify import classify
+    from torchrefl.fit.pipeline import _photon_setup, _radiosity_setup
+    from torchrefl.transport.radiosity_level import direct_irradiance
+
+    s = fold_surface(8, 16)
+    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
+                                   torch.tensor([-150.0, 0.0, 150.0]))
+    terms = local_terms("torrance_sparrow", s.normals, obs)
+    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
+    T = s.num_texels
+    pd, ps, sigma = torch.full((T, 3), 0.5, dtype=torch.float64), torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64)
+    stats = {}
+    for gather in (0, 32):
+        cfg = Config()
+        cfg.reflectance.brdf = "torrance_sparrow"
+        cfg.radiosity.hemisphere_samples = 256
+        cfg.photon.diffuse_paths = "radiosity"
+        cfg.photon.specular_gather = gather
+        cfg.photon.photons_per_light = 20_000
+        *_, indirect, radiance, _ = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
+        R, weights = radiance(pd)
+        torch.testing.assert_close(R[:, 0], pd[None] * (direct_irradiance(terms, obs.kappa) + indirect(pd)) / math.pi)
+        assert weights.shape == (1, T) and bool((weights == 1).all())
+        level = _photon_setup(cfg, s, obs, obs.valid, torch.device("cpu"), torch.float64,
+                              radiosity_irradiance=indirect, radiosity_radiance=radiance)
+        stats[gather] = level.cache(pd, ps, sigma, refresh=0).stats
+    assert "gather_entries" not in stats[0] and stats[32]["gather_entries"] > 0 and stats[32]["gather_rays"] > 0
+    assert 0 < stats[32]["specular_entries"] < stats[0]["specular_entries"]

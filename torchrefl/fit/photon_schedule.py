@@ -31,6 +31,7 @@ from torchrefl.fit.refine import refine
 from torchrefl.report.stages import bar
 from torchrefl.transport.photon_level import LightSources, PhotonCache, build_cache, indirect_radiance, smoothing_matrix
 from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
+from torchrefl.transport.specular_gather import SpecularGather
 
 SCHEDULES = ("joint", "seed")
 
@@ -57,6 +58,11 @@ class PhotonLevel:
     # photon.diffuse_paths 'radiosity': H(pd) -> (P, T, 3) the all-diffuse paths' irradiance from the radiosity
     # level (noise-free; the photons then carry only paths with a specular scattering into H)
     radiosity_irradiance: Callable | None = None
+    # photon.specular_gather: the gatherer and pd -> (radiance (P, K, T, 3), map weights (K, T)), the radiosity
+    # level's outgoing all-diffuse radiance per emitter map (the photons' specular entries then keep only the
+    # paths with a specular scattering)
+    specular_gather: SpecularGather | None = None
+    radiosity_radiance: Callable | None = None
 
     def smoother(self) -> torch.Tensor | None:
         """The density-estimation kernel as a sparse operator, built on first use and kept for every refresh."""
@@ -91,16 +97,36 @@ class PhotonLevel:
                             self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
                             emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal,
                             specular_smoothing=self.specular_smoothing, threads=self.tracer.tracer.threads,
-                            smoother=self.smoother(), diffuse_paths=self.radiosity_irradiance is None)
+                            smoother=self.smoother(), diffuse_paths=self.radiosity_irradiance is None,
+                            specular_paths_only=self.specular_gather is not None)
         if self.radiosity_irradiance is not None:
             with torch.no_grad():
                 H_rad = self.radiosity_irradiance(pd.detach().cpu().to(cache.irradiance.dtype))
             cache.stats["radiosity_irradiance_mean"] = float(H_rad.mean())
             cache.stats["photon_irradiance_mean"] = float(cache.irradiance.mean())
             cache.irradiance = cache.irradiance + H_rad.to(cache.irradiance.dtype)
+        if self.specular_gather is not None:
+            cache = self._add_gather(cache, pd, sigma, refresh)
         cache.stats["trace_s"] = round(traced - start, 3)
         cache.stats["reduce_s"] = round(time.perf_counter() - traced, 3)
         return cache.to(self.dtype, self.device)
+
+
+    def _add_gather(self, cache: PhotonCache, pd, sigma, refresh: int) -> PhotonCache:
+        """The cache with the gathered specular entries of the all-diffuse paths appended (specular_gather)."""
+        start = time.perf_counter()
+        sig = sigma.detach().cpu().double().numpy()
+        samples = self.specular_gather.directions(sig, refresh)
+        with torch.no_grad():
+            radiance, weights = self.radiosity_radiance(pd.detach().cpu().to(cache.irradiance.dtype))
+        obs, theta, weight = self.specular_gather.entries(samples, radiance.double().numpy(), weights.double().numpy(), sig)
+        dt = cache.entry_theta_h.dtype
+        cache.entry_obs = torch.cat([cache.entry_obs, torch.from_numpy(obs)])
+        cache.entry_theta_h = torch.cat([cache.entry_theta_h, torch.from_numpy(theta).to(dt)])
+        cache.entry_weight = torch.cat([cache.entry_weight, torch.from_numpy(weight).to(dt)])
+        cache.stats.update(gather_rays=int(samples.rays), gather_entries=int(obs.size),
+                           gather_s=round(time.perf_counter() - start, 3))
+        return cache
 
 
 BACK_HIT_WARNING = 0.03      # share of photon rays ending on the back of the scanned surface that draws a warning
@@ -146,7 +172,9 @@ def run_schedule(params: TexelParams, level: PhotonLevel, local_predict: Callabl
             score = image_score(model(*values), intensity, fit_mask)
         scores.append(score)
         log(f"photon refresh {k}: {cache.stats['photons_emitted']} photons, {cache.stats['stored_hits']} stored hits, "
-            f"{cache.stats['specular_entries']} specular entries; image difference {score:.4f} DN")
+            f"{cache.stats['specular_entries']} specular entries"
+            + (f" (+ {cache.stats['gather_entries']} gathered from {cache.stats['gather_rays']} rays)"
+               if "gather_entries" in cache.stats else "") + f"; image difference {score:.4f} DN")
         back = cache.stats.get("back_side_hits", 0) / max(cache.stats.get("rays", 0), 1)
         if k == 0 and back > BACK_HIT_WARNING:
             log(f"warning: {back:.0%} of the photon rays hit the back of the scanned surface: light reaches parts of the "

@@ -44,7 +44,8 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     from torchrefl.rays import RayTracer
     from torchrefl.transport.form_factors import form_factors_for_surface
     from torchrefl.transport.photon_level import apply_on_grid, light_sources, smoothing_matrix
-    from torchrefl.transport.radiosity_level import PatchMap, emitter_maps, indirect_irradiance, inverse_radiosity
+    from torchrefl.transport.radiosity_level import (PatchMap, direct_irradiance, emitter_maps, indirect_irradiance,
+                                                     inverse_radiosity)
 
     rc = cfg.radiosity
     tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
@@ -76,19 +77,31 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
             + (f", {maps.weights.shape[0]} emitter maps per light" if maps is not None else "")
             + f"; inverse radiosity (eq. 4.7) determined {int(det.sum())} patches")
     smooth = rc.smoothing if rc.smoothing is not None else (rc.patch_size / 2.0 if rc.patch_size > 1 else 0.0)
+    spread = lambda H: H
     if smooth > 0:
         note += f"; patch irradiance spread over the texels (std {smooth:g} texels)"
         M = smoothing_matrix(surface.texel_index.numpy(), surface.grid_shape, smooth, surface.normals.numpy(),
                              cfg.photon.smoothing_normal)
-        indirect = lambda pd: apply_on_grid(M, indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, **solver))
-    else:
-        indirect = lambda pd: indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, **solver)
-    return pmap, F, solver, rho, det, indirect, note
+        spread = lambda H: apply_on_grid(M, H)
+    indirect = lambda pd: spread(indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, **solver))
+
+    def radiance(pd):
+        """(P, K, T, 3) every texel's outgoing all-diffuse radiance Pd (E + H) / pi with light p at map k's
+        source, and the maps' (K, T) tent weights (K = 1 for static lights): what photon.specular_gather gathers."""
+        H = spread(indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, per_map=True, **solver))
+        if maps is None:
+            E, weights = direct_irradiance(terms, obs.kappa)[:, None], torch.ones(1, pd.shape[0], dtype=torch.float64)
+        else:
+            E, weights = maps.irradiance, maps.weights
+        return pd[None, None] * (E.to(H.dtype) + H) / math.pi, weights
+
+    return pmap, F, solver, rho, det, indirect, radiance, note
 
 
-def _photon_setup(cfg: Config, surface, obs, keep, device, dtype, radiosity_irradiance=None):
+def _photon_setup(cfg: Config, surface, obs, keep, device, dtype, radiosity_irradiance=None, radiosity_radiance=None):
     """The PhotonLevel of this capture (tracer over the texel mesh, light sources); radiosity_irradiance: the
-    radiosity level's H(pd) when photon.diffuse_paths is 'radiosity'."""
+    radiosity level's H(pd) when photon.diffuse_paths is 'radiosity'; radiosity_radiance: its outgoing radiance
+    per emitter map (_radiosity_setup), gathered when photon.specular_gather > 0."""
     from torchrefl.fit.photon_schedule import PhotonLevel
     from torchrefl.rays import RayTracer
     from torchrefl.transport.photon_level import light_sources
@@ -102,11 +115,19 @@ def _photon_setup(cfg: Config, surface, obs, keep, device, dtype, radiosity_irra
                            min_bounces=pc.min_bounces, max_bounces=pc.max_bounces)
     sources = light_sources(surface, obs, pc.light_maps)
     view = obs.view_dirs_full() if obs.view_dir.dim() == 3 else obs.view_dir
+    gather = None
+    if pc.specular_gather > 0:
+        if radiosity_radiance is None:
+            raise ConfigError("photon.specular_gather > 0 needs photon.diffuse_paths: radiosity (the radiance it gathers)")
+        from torchrefl.transport.specular_gather import SpecularGather
+        gather = SpecularGather(ptracer, view.double().numpy(), keep.cpu().numpy(), rc.brdf, pc.specular_gather,
+                                rc.min_cos_light, rc.sigma_max, seed=cfg.seed)
     return PhotonLevel(ptracer, sources, view.double(), keep, pc.photons_per_light, rc.sigma_max, rc.min_cos_light,
                        cfg.seed, dtype, device, smoothing=pc.smoothing,
                        grid=(surface.texel_index, surface.grid_shape, surface.normals.double()), smoothing_normal=pc.smoothing_normal,
                        specular_smoothing=pc.specular_smoothing,
-                       linear_emitters=pc.linear_emitters, radiosity_irradiance=radiosity_irradiance)
+                       linear_emitters=pc.linear_emitters, radiosity_irradiance=radiosity_irradiance,
+                       specular_gather=gather, radiosity_radiance=radiosity_radiance if gather is not None else None)
 
 
 def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
@@ -155,7 +176,8 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             level, reason = choice.level, choice.reason
         hybrid = cfg.photon.diffuse_paths == "radiosity"
         if level in ("radiosity", "auto") or (level == "photon" and (cfg.photon.start == "radiosity" or hybrid)):
-            pmap, F, solver, rho_patch, rho_det, indirect, note = _radiosity_setup(cfg, surface, obs, terms, cls, fit_mask, log)
+            pmap, F, solver, rho_patch, rho_det, indirect, radiance, note = _radiosity_setup(cfg, surface, obs, terms, cls,
+                                                                                            fit_mask, log)
             log(note)
             if level == "photon":
                 reason += ("; started from Method II" if cfg.photon.start == "radiosity" else "; started from Method I") + (
@@ -219,7 +241,8 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             from torchrefl.fit.photon_schedule import run_schedule
             pc = cfg.photon
             plevel = _photon_setup(cfg, surface, obs, fit_mask | eval_mask, device, dt,
-                                   radiosity_irradiance=indirect if hybrid else None)
+                                   radiosity_irradiance=indirect if hybrid else None,
+                                   radiosity_radiance=radiance if hybrid else None)
             log(f"photon level: {plevel.sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
                 f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}, "
                 + ("all-diffuse paths from the radiosity level, photons for the paths with a specular scattering"

@@ -33,7 +33,10 @@ tested equal to kornia's), so the kernel gathers along the surface and not acros
 where the two sides receive different indirect light (a photon map's gather with a normal test). The
 specular entries stay per texel unless `specular_smoothing` > 0 spreads each photon's entry over
 its grid neighbours with the same kind of kernel (spread_on_grid): per-texel entries come from a few
-photons each, and that noise, multiplying Ps in the fit, biases Ps down (errors in variables).
+photons each, and that noise, multiplying Ps in the fit, biases Ps down (errors in variables). Where the
+all-diffuse paths come from the radiosity level, torchrefl.transport.specular_gather replaces their
+specular entries by gathered ones without photon noise (build_cache(specular_paths_only=True) then keeps
+only the photons whose path had a specular scattering).
 
 Moving lights. On the cylindrical rig the lights co-rotate with the scan, so each texel column sees
 light p from its own position L_pt = x_t + l_pt / sqrt(falloff_pt). `light_sources` places K
@@ -265,11 +268,34 @@ def spread_on_grid(obs: np.ndarray, T: int, texel_index, grid_shape: tuple[int, 
     return np.concatenate(out_obs), np.concatenate(out_src), np.concatenate(out_w)
 
 
+def merge_entries(e_obs: np.ndarray, theta_h: np.ndarray, weight: np.ndarray, sigma, T: int,
+                  theta_bin: float = THETA_BIN, bin_per_sigma: float = BIN_PER_SIGMA) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge specular entries (flat observation e_obs = p T + t (M,), theta_h (M,), weight (3, M)) whose theta_h fall
+    in the same bin of the same observation: bins max(theta_bin, bin_per_sigma * sigma_t) wide for the texel's
+    roughness sigma (T,); merging entries whose theta_h differ by a fraction of the lobe's width changes
+    sum_k w_k D(theta_k) by < 0.5 % (second order in the spread within a bin). Returns (entry_obs (E,), the
+    weight-averaged theta_h (E,), summed weight (E, 3)), sorted by observation and bin."""
+    width = np.maximum(theta_bin, bin_per_sigma * np.take(np.asarray(sigma, dtype=np.float64), e_obs % T))
+    bins = np.floor(theta_h / width).astype(np.int64)
+    key = e_obs * (int(math.pi / 2 / theta_bin) + 2) + bins
+    uniq, inv = torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)
+    uniq, inv = uniq.numpy(), inv.numpy()
+    m = weight.mean(0)
+    wsum = np.stack([np.bincount(inv, weights=weight[c], minlength=len(uniq)) for c in range(3)], -1)
+    msum = np.bincount(inv, weights=m, minlength=len(uniq))
+    tsum = np.bincount(inv, weights=m * theta_h, minlength=len(uniq))
+    first = np.zeros(len(uniq), dtype=np.int64)
+    first[inv[::-1]] = np.arange(len(inv))[::-1]
+    mean_theta = np.where(msum > 0, tsum / np.where(msum > 0, msum, 1.0), np.take(theta_h, first))
+    return np.take(e_obs, first), mean_theta, wsum
+
+
 def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
                 sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
                 bin_per_sigma: float = BIN_PER_SIGMA, threads: int = 2, smoother: torch.Tensor | None = None,
                 smoothing: float = 0.0, grid=None, emitter_pd=None, smoothing_normal: float = 0.0,
-                specular_smoothing: float = 0.0, diffuse_paths: bool = True) -> PhotonCache:
+                specular_smoothing: float = 0.0, diffuse_paths: bool = True,
+                specular_paths_only: bool = False) -> PhotonCache:
     """Reduce photon hits to the cache.
 
     hits: from PhotonTracer.trace over sources.positions.reshape(-1, 3) (source s = p * K + k);
@@ -285,7 +311,8 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd;
     diffuse_paths: False leaves the photons whose paths were diffuse at every scattering (hits.specular_path
     False) out of H, for a caller that adds those paths' irradiance from the radiosity level (their
-    expectation); the specular entries keep every photon.
+    expectation); the specular entries keep every photon unless specular_paths_only (for a caller that gathers
+    the receiving texel's specular reflection of the all-diffuse paths' light itself: specular_gather).
     """
     P, K = sources.positions.shape[:2]
     T = int(areas.shape[0])
@@ -297,8 +324,9 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     scale = np.take(np.asarray(sources.weights, dtype=np.float64).reshape(-1), (hits.source % K) * T + t) / np.take(A, t)
     flux = np.asarray(hits.power, dtype=np.float64).T * scale                                     # (3, N)
     obs_idx = p * T + t
-    if not diffuse_paths and hits.specular_path is None:
-        raise ValueError("build_cache: diffuse_paths=False needs hits.specular_path (PhotonTracer.trace records it)")
+    if (not diffuse_paths or specular_paths_only) and hits.specular_path is None:
+        raise ValueError("build_cache: diffuse_paths=False or specular_paths_only needs hits.specular_path "
+                         "(PhotonTracer.trace records it)")
     in_H = None if diffuse_paths else np.asarray(hits.specular_path, dtype=np.float64)      # (N,) 1 = counted in H
     flux_H = flux if in_H is None else flux * in_H
     H = np.stack([np.bincount(obs_idx, weights=flux_H[c], minlength=P * T) for c in range(3)], -1)
@@ -319,7 +347,10 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     empty = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=dtype), torch.zeros(0, 3, dtype=dtype))
     lobe = brdf != "lambertian"
     keep_np = np.asarray(keep, dtype=bool).reshape(-1)
-    sel = np.flatnonzero(np.take(keep_np, obs_idx)) if lobe else np.zeros(0, dtype=np.int64)
+    wanted = np.take(keep_np, obs_idx)
+    if specular_paths_only and lobe:
+        wanted &= np.asarray(hits.specular_path, dtype=bool)
+    sel = np.flatnonzero(wanted) if lobe else np.zeros(0, dtype=np.int64)
     if sel.size:
         normals_3 = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
         v_all = np.asarray(view_dirs, dtype=np.float64)
@@ -360,23 +391,9 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
             e_obs, src, k = spread_on_grid(e_obs, T, index, shape, specular_smoothing, gnormals, smoothing_normal)
             theta_h, weight = np.take(theta_h, src), np.take(weight, src, axis=1) * k
         if e_obs.size:
-            # bins of max(theta_bin, sigma_t * BIN_PER_SIGMA): merging photons whose theta_h differ by a fraction of the
-            # lobe's width changes sum_k w_k D(theta_k) by < 0.5 % (second order in the spread within a bin)
-            width = np.maximum(theta_bin, bin_per_sigma * np.take(np.asarray(sigma, dtype=np.float64), e_obs % T))
-            bins = np.floor(theta_h / width).astype(np.int64)
-            key = e_obs * (int(math.pi / 2 / theta_bin) + 2) + bins
-            uniq, inv = torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)
-            uniq, inv = uniq.numpy(), inv.numpy()
-            m = weight.mean(0)
-            wsum = np.stack([np.bincount(inv, weights=weight[c], minlength=len(uniq)) for c in range(3)], -1)
-            msum = np.bincount(inv, weights=m, minlength=len(uniq))
-            tsum = np.bincount(inv, weights=m * theta_h, minlength=len(uniq))
-            first = np.zeros(len(uniq), dtype=np.int64)
-            first[inv[::-1]] = np.arange(len(inv))[::-1]
-            mean_theta = np.where(msum > 0, tsum / np.where(msum > 0, msum, 1.0), np.take(theta_h, first))
-            entry_obs = np.take(e_obs, first)
+            entry_obs, mean_theta, wsum = merge_entries(e_obs, theta_h, weight, sigma, T, theta_bin, bin_per_sigma)
             empty = (torch.from_numpy(entry_obs), torch.from_numpy(mean_theta).to(dtype), torch.from_numpy(wsum).to(dtype))
-            stats["specular_photons"] = int(len(inv))
+            stats["specular_photons"] = int(e_obs.size)
     stats["specular_entries"] = int(empty[0].numel())
     irradiance = torch.from_numpy(H.reshape(P, T, 3))
     if smoothing > 0:

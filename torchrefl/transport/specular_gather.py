@@ -1,0 +1,161 @@
+"""Final gathering of the receiving texel's specular reflection of diffusely reflected light.
+
+The photon level predicts observation (p, t) as local + kappa (Pd_t / pi H_pt + Ps_t sum_e D(theta_e; sigma_t) c_e)
+(torchrefl.transport.photon_level). Its specular entries c_e come from the photons stored at t: a few per
+observation at full size, and most land far outside a glossy lobe, so the entries are a handful of spikes.
+That noise multiplies Ps in the fit and biases it down (errors in variables), and the lost specular
+reflection of the neighbouring surfaces then goes into Pd (Object E's lower plate mirrors the upper one).
+
+With photon.diffuse_paths 'radiosity' the light that reaches t after diffuse reflections only is known
+without photon noise: a texel u sends L_pu = Pd_u (E_pu + H_pu) / pi towards t (the radiosity level's direct
+and all-diffuse irradiance at u, with light p where t's image put it: the emitter maps of t's column,
+tent-interpolated). This module estimates t's specular reflection of that radiance by gathering N
+directions l_k per texel from t's own lobe (mirrored about the view v_t, roughness sigma_s = min(1.25 sigma_t,
+sigma_max) at the refresh, so the fit may widen the lobe by a quarter before the next refresh and the weights stay
+bounded), each traced with Embree to the texel u_k it hits:
+
+    S_pt = 1/N sum_k D(theta_k; sigma_t) G(n.l_k, n.v_t) / pdf(l_k) * L_{p u_k}(t)
+
+(the photon level's specular entry in expectation: Ps D G is the specular part of f cos_l, torchrefl.brdf).
+The samples are emitted as entries of the photon cache's format (observation p T + t, theta_h, weight
+G L / (N pdf)), merged per theta_h bin like the photons' (photon_level.merge_entries), so D stays
+differentiable in sigma_t and the product with Ps in Ps; L is fixed until the next refresh, like the photons'.
+The photons then keep only the paths with a specular scattering in their specular entries
+(build_cache(specular_paths_only=True)), so every path is counted once.
+
+Rays that miss the scan or hit a surface's back carry nothing (a dark room; the radiosity level has no
+light on the backs either). Directions: a scrambled Sobol set with a random toroidal shift per texel
+(randomised QMC, unbiased), keyed by seed and refresh.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.stats import qmc
+
+from torchrefl import brdf as brdf_mod
+from torchrefl.errors import ConfigError
+from torchrefl.transport.lobe_sampling import row_dot, sample_mixture
+from torchrefl.transport.photon_level import LOBE_CUTOFF, merge_entries
+from torchrefl.transport.photon_trace import PhotonTracer
+
+WIDEN = 1.25         # sampling roughness over the texel's roughness at the refresh
+
+
+@dataclass
+class GatherSamples:
+    """One refresh's gather directions, for every texel with a predicted observation.
+
+    texel (S,) int64 receiving texel; hit (S,) int64 texel hit; theta_h (S,) angle between n_t and the
+    half vector of (l, v_t); weight (S,) G / (N pdf) (per unit radiance); view_light (S,) int64 the light whose
+    view the direction was drawn for, or -1 where every light shares the texel's view."""
+
+    texel: np.ndarray
+    hit: np.ndarray
+    theta_h: np.ndarray
+    weight: np.ndarray
+    view_light: np.ndarray
+    rays: int
+
+
+class SpecularGather:
+    """Gather directions from each texel's lobe and turn the radiosity level's radiance into specular entries.
+
+    tracer: the photon level's PhotonTracer (Embree scene, texel lookup, face normals, origin offset);
+    view_dirs (T, 3) or (P, T, 3); keep (P, T) bool predicted observations; brdf: the fitter's model;
+    samples: directions per texel (and per light where the view depends on the light); min_cos_light:
+    directions at or below this n.l carry no specular term (as in the photon entries and the fit);
+    sigma_max: the fit's upper bound of sigma (caps the sampling roughness).
+    """
+
+    def __init__(self, tracer: PhotonTracer, view_dirs, keep, brdf: str, samples: int, min_cos_light: float,
+                 sigma_max: float, seed: int = 0):
+        if int(samples) < 1:
+            raise ConfigError(f"photon.specular_gather: expected a positive number of directions per texel, got {samples}")
+        if tracer.lobe is None:
+            raise ConfigError(f"photon.specular_gather: reflectance.brdf '{brdf}' has no specular lobe to gather with")
+        self.tracer = tracer
+        self.view = np.asarray(view_dirs, dtype=np.float64)
+        self.keep = np.asarray(keep, dtype=bool)
+        self.brdf = brdf
+        self.samples = int(samples)
+        self.min_cos_light = float(min_cos_light)
+        self.sigma_max = float(sigma_max)
+        self.seed = int(seed)
+
+    def directions(self, sigma, refresh: int = 0) -> GatherSamples:
+        """Draw and trace the directions for the texels' roughness sigma (T,) at this refresh."""
+        N = self.samples
+        rng = np.random.default_rng([self.seed, 0x67, int(refresh)])
+        base = qmc.Sobol(2, scramble=True, seed=rng).random_base2(int(math.ceil(math.log2(N))))[:N] if N > 1 else rng.random((1, 2))
+        sig_all = np.minimum(WIDEN * np.maximum(np.asarray(sigma, dtype=np.float64), brdf_mod.SIGMA_EPS), self.sigma_max)
+        groups = ([(-1, self.keep.any(0), self.view)] if self.view.ndim == 2 else
+                  [(p, self.keep[p], self.view[p]) for p in range(self.keep.shape[0])])
+        parts, rays = [], 0
+        for light, wanted, view in groups:
+            texels = np.flatnonzero(wanted)
+            if not texels.size:
+                continue
+            t = np.repeat(texels, N)
+            u = np.mod(np.tile(base, (len(texels), 1)) + np.repeat(rng.random((len(texels), 2)), N, 0), 1.0)
+            n, v, sig = self.tracer.normals[t], view[t], sig_all[t]
+            l, pdf = sample_mixture(self.tracer.lobe, n, v, None, None, sig, np.column_stack([u, np.zeros(len(t))]),
+                                    q=np.ones(len(t)))
+            cos_i, cos_v = row_dot(n, l), row_dot(n, v)
+            ok = np.flatnonzero((cos_i > self.min_cos_light) & (cos_v > 0) & (pdf > 0))
+            t, n, v, l, pdf, cos_i, cos_v = t[ok], n[ok], v[ok], l[ok], pdf[ok], cos_i[ok], cos_v[ok]
+            hits = self.tracer.tracer.closest_hit(self.tracer.positions[t] + self.tracer.offset * n, l)
+            rays += len(t)
+            front = hits.hit.copy()
+            i = np.flatnonzero(front)
+            front[i] = row_dot(self.tracer.face_normals[hits.triangle[i]], l[i]) < 0     # the lit side faces the ray
+            i = np.flatnonzero(front)
+            hit, _ = self.tracer.hit_texels(hits.triangle[i], hits.barycentric[i, 0], hits.barycentric[i, 1])
+            t, n, v, l, pdf, cos_i, cos_v = t[i], n[i], v[i], l[i], pdf[i], cos_i[i], cos_v[i]
+            with torch.no_grad():
+                tt = lambda x: torch.from_numpy(np.ascontiguousarray(x))
+                theta = brdf_mod.half_angle(tt(n), tt(l), tt(v)).numpy()
+                geom = brdf_mod.specular_geometry(self.brdf, tt(cos_i), tt(cos_v)).numpy()
+                alive = brdf_mod.specular_lobe(self.brdf, tt(theta), tt(np.minimum(3.0 * sig_all[t] / WIDEN, self.sigma_max))).numpy() > LOBE_CUTOFF
+            a = np.flatnonzero(alive)
+            parts.append((t[a], hit.astype(np.int64)[a], theta[a], geom[a] / (N * pdf[a]), np.full(a.size, light, dtype=np.int64)))
+        if not parts:
+            z = np.zeros(0)
+            return GatherSamples(z.astype(np.int64), z.astype(np.int64), z, z, z.astype(np.int64), rays)
+        cat = lambda j: np.concatenate([x[j] for x in parts])
+        return GatherSamples(cat(0), cat(1), cat(2), cat(3), cat(4), rays)
+
+    def entries(self, samples: GatherSamples, radiance, map_weights, sigma) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Specular entries (entry_obs (E,), theta_h (E,), weight (E, 3)) from the outgoing radiance
+        (P, K, T, 3) of every texel with light p at map k's source, map_weights (K, T) (each texel's tent weights
+        over the maps, at most two non-zero), and sigma (T,) (the merge bins' widths)."""
+        R = np.asarray(radiance, dtype=np.float64)
+        P, K, T, _ = R.shape
+        Wm = np.asarray(map_weights, dtype=np.float64)
+        if Wm.shape != (K, T):
+            raise ValueError(f"specular gather: map weights of shape {Wm.shape}, expected {(K, T)}")
+        order = np.argsort(-Wm, axis=0, kind="stable")[:2] if K > 1 else np.zeros((1, T), dtype=np.int64)
+        if K > 2 and np.abs(np.take_along_axis(Wm, np.argsort(-Wm, axis=0, kind="stable")[2:], 0)).max() > 0:
+            raise ValueError("specular gather: a texel has more than two non-zero map weights (expected tent weights)")
+        t, hit = samples.texel, samples.hit
+        obs, th, w = [], [], []
+        for p in range(P):
+            s = np.flatnonzero(self.keep[p, t] & ((samples.view_light < 0) | (samples.view_light == p)))
+            if not s.size:
+                continue
+            ts, hs = t[s], hit[s]
+            flat = R[p].reshape(K * T, 3).T                                         # (3, K T), component-major
+            L = np.zeros((3, s.size))
+            for j in range(order.shape[0]):
+                k = np.take(order[j], ts)
+                L += np.take(flat, k * T + hs, axis=1) * Wm[k, ts]
+            obs.append(p * T + ts)
+            th.append(samples.theta_h[s])
+            w.append(L * samples.weight[s])
+        if not obs:
+            return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3))
+        return merge_entries(np.concatenate(obs), np.concatenate(th), np.concatenate(w, axis=1), sigma, T)
