@@ -18,7 +18,7 @@ bounded), each traced with Embree to the texel u_k it hits:
 
 (the photon level's specular entry in expectation: Ps D G is the specular part of f cos_l, torchrefl.brdf).
 The samples are emitted as entries of the photon cache's format (observation p T + t, theta_h, weight
-G L / (N pdf)), merged per theta_h bin like the photons' (photon_level.merge_entries), so D stays
+G L / (N pdf)), merged per theta_h bin with the bins of the photons' (photon_level.merge_entries), so D stays
 differentiable in sigma_t and the product with Ps in Ps; L is fixed until the next refresh, like the photons'.
 The photons then keep only the paths with a specular scattering in their specular entries
 (build_cache(specular_paths_only=True)), so every path is counted once.
@@ -40,7 +40,7 @@ from scipy.stats import qmc
 from torchrefl import brdf as brdf_mod
 from torchrefl.errors import ConfigError
 from torchrefl.transport.lobe_sampling import row_dot, sample_mixture
-from torchrefl.transport.photon_level import LOBE_CUTOFF, merge_entries
+from torchrefl.transport.photon_level import BIN_PER_SIGMA, LOBE_CUTOFF, THETA_BIN
 from torchrefl.transport.photon_trace import PhotonTracer
 
 WIDEN = 1.25         # sampling roughness over the texel's roughness at the refresh
@@ -132,30 +132,50 @@ class SpecularGather:
     def entries(self, samples: GatherSamples, radiance, map_weights, sigma) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Specular entries (entry_obs (E,), theta_h (E,), weight (E, 3)) from the outgoing radiance
         (P, K, T, 3) of every texel with light p at map k's source, map_weights (K, T) (each texel's tent weights
-        over the maps, at most two non-zero), and sigma (T,) (the merge bins' widths)."""
+        over the maps, at most two non-zero), and sigma (T,) (the merge bins' widths).
+
+        The samples of a texel are grouped per theta_h bin (the bins of photon_level.merge_entries) once for all
+        lights; per light a group's weight is the sum of its samples' G L / (N pdf) and its theta_h their mean
+        weighted by that (as merge_entries weighs photons). Sorted by light, texel and bin."""
         R = np.asarray(radiance, dtype=np.float64)
         P, K, T, _ = R.shape
         Wm = np.asarray(map_weights, dtype=np.float64)
         if Wm.shape != (K, T):
             raise ValueError(f"specular gather: map weights of shape {Wm.shape}, expected {(K, T)}")
-        order = np.argsort(-Wm, axis=0, kind="stable")[:2] if K > 1 else np.zeros((1, T), dtype=np.int64)
-        if K > 2 and np.abs(np.take_along_axis(Wm, np.argsort(-Wm, axis=0, kind="stable")[2:], 0)).max() > 0:
+        order = np.argsort(-Wm, axis=0, kind="stable")
+        if K > 2 and np.abs(np.take_along_axis(Wm, order[2:], 0)).max() > 0:
             raise ValueError("specular gather: a texel has more than two non-zero map weights (expected tent weights)")
-        t, hit = samples.texel, samples.hit
-        obs, th, w = [], [], []
+        order = order[:2]
+        t, hit, w = samples.texel, samples.hit, samples.weight
+        empty = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3))
+        if not t.size:
+            return empty
+        width = np.maximum(THETA_BIN, BIN_PER_SIGMA * np.take(np.asarray(sigma, dtype=np.float64), t))
+        nb = int(math.pi / 2 / THETA_BIN) + 2
+        key = (t * nb + np.floor(samples.theta_h / width).astype(np.int64)) * (P + 1) + (samples.view_light + 1)
+        uniq, group = torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)
+        uniq, group = uniq.numpy(), group.numpy()
+        G = len(uniq)
+        g_texel = uniq // (P + 1) // nb
+        g_light = uniq % (P + 1) - 1
+        wsum = np.bincount(group, weights=w, minlength=G)
+        g_theta = np.bincount(group, weights=w * samples.theta_h, minlength=G) / np.maximum(wsum, 1e-300)
+        # each sample's two maps and their weights: radiance of the texel hit with the light where t's image put it
+        k_s = [np.take(order[j], t) for j in range(order.shape[0])]
+        a_s = [Wm[k, t] * w for k in k_s]
+        obs, th, wt = [], [], []
         for p in range(P):
-            s = np.flatnonzero(self.keep[p, t] & ((samples.view_light < 0) | (samples.view_light == p)))
-            if not s.size:
-                continue
-            ts, hs = t[s], hit[s]
-            flat = R[p].reshape(K * T, 3).T                                         # (3, K T), component-major
-            L = np.zeros((3, s.size))
-            for j in range(order.shape[0]):
-                k = np.take(order[j], ts)
-                L += np.take(flat, k * T + hs, axis=1) * Wm[k, ts]
-            obs.append(p * T + ts)
-            th.append(samples.theta_h[s])
-            w.append(L * samples.weight[s])
-        if not obs:
-            return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3))
-        return merge_entries(np.concatenate(obs), np.concatenate(th), np.concatenate(w, axis=1), sigma, T)
+            flat = R[p].reshape(K * T, 3).T                                          # (3, K T), component-major
+            L = np.zeros((3, t.size))
+            for k, a in zip(k_s, a_s):
+                L += np.take(flat, k * T + hit, axis=1) * a
+            vals = np.stack([np.bincount(group, weights=L[c], minlength=G) for c in range(3)], -1)
+            m = L.mean(0)
+            msum = np.bincount(group, weights=m, minlength=G)
+            theta = np.where(msum > 0, np.bincount(group, weights=m * samples.theta_h, minlength=G)
+                             / np.where(msum > 0, msum, 1.0), g_theta)
+            gk = np.flatnonzero(self.keep[p, g_texel] & ((g_light < 0) | (g_light == p)) & (vals.max(-1) > 0))
+            obs.append(p * T + g_texel[gk])
+            th.append(theta[gk])
+            wt.append(vals[gk])
+        return np.concatenate(obs), np.concatenate(th), np.concatenate(wt)
