@@ -74,6 +74,8 @@ def test_object_e_configs_load_with_their_form_factor_settings(name):
     cfg = load_config(ROOT / "configs" / name)
     assert cfg.radiosity.hemisphere_samples == 2048 and cfg.radiosity.solve_samples == 256
     assert cfg.radiosity.patch_split_angle_deg == 30.0
+    assert cfg.geometry.median_size == 1 and cfg.synthetic.range_noise_mm == 0     # exact ranges need no median
+    assert cfg.photon.specular_gather == (64 if name == "object_e_setup2.yaml" else 0)
 
 
 def test_section_must_be_mapping(tmp_path):
