@@ -97,6 +97,7 @@ class GeometryConfig:
     noise_tolerance: float = opt(2.0, "Yokoya-Levine window choice: most centred window within this factor of the median residual of the best (0 = the seed's strict smallest residual, poor on quantised ranges)", low=0.0)
     shadow_offset_mm: float = opt(0.05, "origin offset along the normal for shadow rays, mm", low=0.0)
     edge_width: int = opt(1, "texels within this many texels of the scanned surface's boundary (silhouettes, depth discontinuities: mixed pixels) are not fitted or evaluated (0 = use them)", low=0)
+    crease_angle_deg: Optional[float] = opt(None, "texels on a crease sharper than this (a mesh face around the texel is more than this far from its normal: its footprint spans two faces, a mixed pixel) are not fitted or evaluated, like edge_width's; null = use them. 60 catches a 90-degree fold's or rim's texels and spares their neighbours", low=1.0, high=179.0)
 
 
 @dataclass

@@ -112,7 +112,10 @@ def load_capture(cfg: Config, out: Path, stages: Stages, log) -> dict:
         obs, stats = load_scan_observations(
             geom, light_subset=cfg.capture.light_subset, saturation_level=cfg.capture.saturation_level,
             shadow_offset=cfg.geometry.shadow_offset_mm, threads=cfg.threads, dtype=dtype,
-            edge_width=cfg.geometry.edge_width)
+            edge_width=cfg.geometry.edge_width, crease_angle_deg=cfg.geometry.crease_angle_deg)
+    if stats["crease_texels_excluded"]:
+        log(f"geometry: {stats['crease_texels_excluded']} texels on creases sharper than "
+            f"{cfg.geometry.crease_angle_deg:g} deg (mixed pixels) are not fitted")
     result.update(surface=geom.surface, obs=obs, stats=stats, truth=load_truth(folder, geom.surface))
     return result
 

@@ -1,8 +1,10 @@
-"""Boundary texels of a triangulated range image: the silhouette, holes and depth discontinuities."""
+"""Boundary texels of a triangulated range image: the silhouette, holes and depth discontinuities; crease
+texels: folds and rims."""
 
 import numpy as np
+import pytest
 
-from torchrefl.geometry.range_mesh import boundary_texels, grid_triangulation
+from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation
 
 
 def grid(H=10, W=12, jump_col=None):
@@ -39,3 +41,65 @@ def test_a_depth_discontinuity_is_a_boundary_and_width_dilates():
     assert one[5, 5] and one[5, 6] and not one[5, 4] and not one[5, 7]
     assert two[5, 4] and two[5, 7] and not two[5, 3]
     assert (two >= one).all()
+
+
+def fold_grid(H=8, W=12, fold_col=5.0, angle_deg=90.0):
+    """A grid bent along the column line u = fold_col: flat (z = 0) before it, rising at angle_deg after it.
+    Returns points (H, W, 3) and the true normals (H, W, 3) of the side each grid point lies on (the first
+    side's on the fold line)."""
+    r, c = np.meshgrid(np.arange(H, dtype=float), np.arange(W, dtype=float), indexing="ij")
+    a = np.radians(angle_deg)
+    d = np.maximum(c - fold_col, 0.0)
+    pts = np.stack([np.minimum(c, fold_col) + d * np.cos(a), r, d * np.sin(a)], -1)
+    n = np.where((c > fold_col)[..., None], np.array([-np.sin(a), 0.0, np.cos(a)]), np.array([0.0, 0.0, 1.0]))
+    return pts, n
+
+
+def slow_crease(pts, normals, faces, angle_deg):
+    """Per texel, the largest angle between its normal and any face around it, faces oriented to the texel."""
+    v = pts.reshape(-1, 3)
+    n = normals.reshape(-1, 3)
+    out = np.zeros(len(v), bool)
+    for t in range(len(v)):
+        for f in faces:
+            if t in f:
+                fn = np.cross(v[f[1]] - v[f[0]], v[f[2]] - v[f[0]])
+                fn /= np.linalg.norm(fn)
+                if np.dot(fn, n[f].sum(0)) < 0:
+                    fn = -fn
+                out[t] |= np.degrees(np.arccos(np.clip(np.dot(fn, n[t]), -1, 1))) > angle_deg
+    return out
+
+
+def test_texels_on_a_fold_line_are_creases_and_their_neighbours_are_not():
+    """A 90-degree fold through a column of grid points: that column meets faces of both sides (90 degrees), the
+    columns beside it only faces of their own side and the ones bridging nothing (the fold runs along grid
+    lines). Bent half a texel off the grid points, the faces across the fold lean 45 degrees and no texel is a
+    crease at 60. A gentle 30-degree bend is no crease at 60 either; None flags nothing."""
+    H, W = 8, 12
+    idx = np.arange(H * W)
+    for fold_col, angle, expected_cols in ((5.0, 90.0, {5}), (5.5, 90.0, set()), (5.0, 30.0, set())):
+        pts, n = fold_grid(H, W, fold_col, angle)
+        verts, faces = grid_triangulation(pts, np.ones((H, W), bool))
+        got = crease_texels(verts, faces, n.reshape(-1, 3), idx, 60.0).reshape(H, W)
+        cols = {int(c) for c in np.flatnonzero(got.any(0))}
+        assert cols == expected_cols, (fold_col, angle, cols)
+        if expected_cols:
+            assert got[:, 5].all()
+        np.testing.assert_array_equal(got.ravel(), slow_crease(pts, n, faces, 60.0))
+    assert not crease_texels(verts, faces, n.reshape(-1, 3), idx, None).any()
+
+
+def test_crease_texels_match_a_slow_reference_on_a_bumpy_surface():
+    rng = np.random.default_rng(0)
+    H, W = 7, 9
+    r, c = np.meshgrid(np.arange(H, dtype=float), np.arange(W, dtype=float), indexing="ij")
+    pts = np.stack([c, r, rng.normal(0, 0.6, (H, W))], -1)
+    verts, faces = grid_triangulation(pts, np.ones((H, W), bool))
+    n = rng.normal(0, 0.3, (H, W, 3)) + np.array([0.0, 0.0, 1.0])
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    for angle in (20.0, 40.0, 70.0):
+        got = crease_texels(verts, faces, n.reshape(-1, 3), np.arange(H * W), angle)
+        np.testing.assert_array_equal(got, slow_crease(pts, n, faces, angle))
+    with pytest.raises(ValueError, match="crease angle"):
+        crease_texels(verts, faces, n.reshape(-1, 3), np.arange(H * W), 0.0)

@@ -29,7 +29,7 @@ from torchrefl.capture.observations import Observations
 from torchrefl.config import read_yaml_mapping
 from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.geometry.range_image import preprocess_range_image
-from torchrefl.geometry.range_mesh import boundary_texels, grid_triangulation, texel_areas
+from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
 from torchrefl.geometry.surface import Surface
 from torchrefl.rays import RayTracer
 
@@ -265,11 +265,13 @@ def observation_geometry(geom: ScanGeometry, head_positions: np.ndarray, *, shad
 
 def load_scan_observations(geom: ScanGeometry, *, light_subset=None, saturation_level: float = 0.995,
                            shadow_offset: float = 0.05, min_cos_view: float = 0.0, min_cos_light: float = 0.0,
-                           threads: int = 2, dtype=torch.float32, edge_width: int = 0) -> tuple[Observations, dict]:
+                           threads: int = 2, dtype=torch.float32, edge_width: int = 0,
+                           crease_angle_deg: float | None = None) -> tuple[Observations, dict]:
     """Texture images + light table -> Observations (and load statistics).
 
     edge_width: observations of texels within this many texels of the mesh boundary (silhouettes,
-    depth discontinuities: mixed pixels) are not valid (counted in the statistics)."""
+    depth discontinuities: mixed pixels) are not valid (counted in the statistics); crease_angle_deg:
+    neither are those of texels on a crease sharper than this (range_mesh.crease_texels; None: none)."""
     doc = read_scan_yaml(geom.folder)
     lights = doc["lights"]
     where = str(geom.folder / "scan.yaml")
@@ -297,6 +299,9 @@ def load_scan_observations(geom: ScanGeometry, *, light_subset=None, saturation_
     valid = og["seen"][None] & og["lit"] & ~og["shadowed"] & ~saturated & finite
     edge = boundary_texels(geom.surface.mesh_faces, (H, W), idx, edge_width)
     valid &= ~edge[None]
+    crease = crease_texels(geom.surface.mesh_vertices, geom.surface.mesh_faces, geom.surface.normals.double().numpy(),
+                           idx, crease_angle_deg)
+    valid &= ~crease[None]
     Y = np.array([e.get("intensity", doc["light"]["intensity"]) for e in lights], dtype=np.float64)
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(dtype)
     obs = Observations(
@@ -314,6 +319,7 @@ def load_scan_observations(geom: ScanGeometry, *, light_subset=None, saturation_
         "shadowed_observations": int(og["shadowed"].sum()),
         "valid_observations": int(valid.sum()),
         "edge_texels_excluded": int(edge.sum()),
+        "crease_texels_excluded": int((crease & ~edge).sum()),
     }
     return obs, stats
 

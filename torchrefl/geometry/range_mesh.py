@@ -75,3 +75,38 @@ def boundary_texels(faces: np.ndarray, grid_shape: tuple[int, int], texel_index:
 
         edge = binary_dilation(edge.reshape(H, W), iterations=width - 1).ravel()
     return edge[texel_index]
+
+
+def crease_texels(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, texel_index: np.ndarray,
+                  angle_deg: float | None) -> np.ndarray:
+    """(T,) bool: texels on a crease, whose footprint spans two faces of the object (mixed pixels, like those at
+    boundary_texels' edges): some mesh face around the texel's grid point is more than angle_deg from the
+    texel's normal. On a 90-degree fold the texels whose grid point lies on the fold line meet faces of both
+    sides (85-93 degrees); their neighbours half a texel or more away meet only the faces that bridge the fold
+    (about 45 degrees). vertices (V, 3), faces (F, 3): the texel grid's triangulation (grid point v is
+    vertex v); normals (T, 3) unit; texel_index (T,) grid point of each texel; angle_deg None: none.
+    """
+    T = len(texel_index)
+    if angle_deg is None:
+        return np.zeros(T, dtype=bool)
+    if not 0.0 < float(angle_deg) < 180.0:
+        raise ValueError(f"crease angle: expected degrees in (0, 180), got {angle_deg!r}")
+    faces = np.asarray(faces, dtype=np.int64)
+    if not faces.size:
+        return np.zeros(T, dtype=bool)
+    slot = np.full(len(vertices), -1, dtype=np.int64)
+    slot[np.asarray(texel_index, dtype=np.int64)] = np.arange(T)
+    v = np.asarray(vertices, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    fn = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    corner = slot[faces]                                          # (F, 3) texel of each corner, -1 if none
+    # orient each face like the summed normals of its corners (the grid's winding may face either way)
+    side = np.einsum("fi,fi->f", fn, np.where(corner[..., None] >= 0, n[np.maximum(corner, 0)], 0.0).sum(1))
+    fn *= np.where(side < 0, -1.0, 1.0)[:, None]
+    worst = np.ones(T)
+    for c in range(3):
+        t = corner[:, c]
+        ok = t >= 0
+        np.minimum.at(worst, t[ok], np.einsum("fi,fi->f", fn[ok], n[t[ok]]))
+    return worst < np.cos(np.radians(float(angle_deg)))
