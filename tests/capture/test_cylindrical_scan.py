@@ -87,6 +87,22 @@ def test_observations_and_truth(scan_folder):
     assert truth["pd"].shape == (geom.surface.num_texels, 3)
 
 
+def test_crease_texels_are_excluded_and_counted(scan_folder):
+    """load_scan_observations(crease_angle_deg=...): the smooth ellipsoid has no crease at 60 degrees; at 3
+    degrees (its facets' spread at this resolution) some texels count as creases, and every observation of
+    theirs is invalid."""
+    folder, _ = scan_folder
+    geom = load_scan_geometry(folder, threads=1, dtype=torch.float64)
+    base, s0 = load_scan_observations(geom, threads=1, dtype=torch.float64)
+    smooth, s60 = load_scan_observations(geom, threads=1, dtype=torch.float64, crease_angle_deg=60.0)
+    assert s0["crease_texels_excluded"] == 0 and s60["crease_texels_excluded"] == 0
+    assert torch.equal(base.valid, smooth.valid)
+    tight, s3 = load_scan_observations(geom, threads=1, dtype=torch.float64, crease_angle_deg=3.0)
+    assert 0 < s3["crease_texels_excluded"] < geom.surface.num_texels
+    lost = base.valid.any(0) & ~tight.valid.any(0)
+    assert int(lost.sum()) > 0 and bool((tight.valid <= base.valid).all())
+
+
 def test_textures_are_deterministic_and_noise_is_seeded(tmp_path):
     cfg = small_cfg(noise_dn=2.0)
     a = SyntheticScan(cfg, seed=5).render_texture([0.0, 0.0, 300.0])
