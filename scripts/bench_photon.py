@@ -74,7 +74,8 @@ def overrides(out: Path, args, columns=512, rows=450, angle=0.7, height=0.56, li
             f"photon.outer_iterations={args.outer}", f"photon.specular_smoothing={args.specular_smoothing}",
             f"photon.smoothing={args.smoothing}",
             # the library defaults where the glossy Object E config departs from them (the bench times the defaults)
-            "photon.diffuse_paths=photons", "radiosity.hemisphere_samples=256"]
+            "photon.diffuse_paths=photons", "photon.specular_gather=0", "radiosity.hemisphere_samples=256",
+            "geometry.median_size=5", "geometry.crease_angle_deg=null"]
 
 
 def refresh_time(cfg, out: Path, photons: int, lights: int | None = None, record: list | None = None) -> tuple[float, dict]:

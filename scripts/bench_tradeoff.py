@@ -11,6 +11,8 @@ fitted at many settings, one knob at a time around a base point:
                outer iterations    photon.outer_iterations in 1, 2, 3
                precision           dtype float32, float64
                diffuse paths       photon.diffuse_paths photons, radiosity (one of them is the scene's own)
+               specular gather     photon.specular_gather 0, 64 with the radiosity paths (the other points keep
+                                   the scene's own: 64 on Object E, 0 on the vase)
 
 For every point: the wall time of the fit (precompute + initialise + fit stages), the ground-truth
 errors (pd_rmse, ps_median_rel_err, sigma_median_rel_err) and the held-out image error
@@ -54,8 +56,9 @@ POINTS = [
     ("photon", "outer=1", PHOTON_BASE + ["photon.outer_iterations=1"]),
     ("photon", "outer=3", PHOTON_BASE + ["photon.outer_iterations=3"]),
     ("photon", "float64", PHOTON_BASE + ["dtype=float64"]),
-    ("photon", "diffuse_paths=photons", PHOTON_BASE + ["photon.diffuse_paths=photons"]),
-    ("photon", "diffuse_paths=radiosity", PHOTON_BASE + ["photon.diffuse_paths=radiosity"]),
+    ("photon", "diffuse_paths=photons", PHOTON_BASE + ["photon.diffuse_paths=photons", "photon.specular_gather=0"]),
+    ("photon", "diffuse_paths=radiosity", PHOTON_BASE + ["photon.diffuse_paths=radiosity", "photon.specular_gather=0"]),
+    ("photon", "specular_gather=64", PHOTON_BASE + ["photon.diffuse_paths=radiosity", "photon.specular_gather=64"]),
 ]
 
 
