@@ -62,6 +62,8 @@ def test_wrong_type_and_choice_and_range(tmp_path):
         load_config(write(tmp_path, "radiosity:\n  patch_split_angle_deg: 200\n"))
     with pytest.raises(ConfigError, match="radiosity.solve_samples.*>= 1"):
         load_config(write(tmp_path, "radiosity:\n  solve_samples: 0\n"))
+    with pytest.raises(ConfigError, match="geometry.crease_angle_deg.*<= 179"):
+        load_config(write(tmp_path, "geometry:\n  crease_angle_deg: 180\n"))
     with pytest.raises(ConfigError, match="photon.specular_gather.*>= 0"):
         load_config(write(tmp_path, "photon:\n  specular_gather: -1\n"))
     with pytest.raises(ConfigError, match="'photon.specular_gather' \\(64\\).*needs photon.diffuse_paths: radiosity"):

@@ -88,7 +88,7 @@ def test_the_radiosity_setup_builds_a_separate_solve_matrix_when_asked():
 
 def test_the_photon_level_gathers_the_radiosity_radiance_when_asked():
     """photon.specular_gather: the radiosity setup's radiance is Pd (E + H) / pi with the same H as its indirect
-    light (static lights: one map); the photon level's cache then holds the flagged photons' specular entries plus
+    light, which the same call returns (static lights: one map); the photon level's cache then holds the flagged photons' specular entries plus
     the gathered ones (counted in its stats), and without the gather every photon's entries."""
     from conftest import fold_surface
     from torchrefl.fit.classify import classify
@@ -111,7 +111,8 @@ def test_the_photon_level_gathers_the_radiosity_radiance_when_asked():
         cfg.photon.specular_gather = gather
         cfg.photon.photons_per_light = 20_000
         *_, indirect, radiance, _ = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
-        R, weights = radiance(pd)
+        H, R, weights = radiance(pd)
+        torch.testing.assert_close(H, indirect(pd))          # one solve serves the irradiance and the radiance
         torch.testing.assert_close(R[:, 0], pd[None] * (direct_irradiance(terms, obs.kappa) + indirect(pd)) / math.pi)
         assert weights.shape == (1, T) and bool((weights == 1).all())
         level = _photon_setup(cfg, s, obs, obs.valid, torch.device("cpu"), torch.float64,

@@ -4,6 +4,7 @@ texels: folds and rims."""
 import numpy as np
 import pytest
 
+from torchrefl.errors import GeometryError
 from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation
 
 
@@ -101,5 +102,5 @@ def test_crease_texels_match_a_slow_reference_on_a_bumpy_surface():
     for angle in (20.0, 40.0, 70.0):
         got = crease_texels(verts, faces, n.reshape(-1, 3), np.arange(H * W), angle)
         np.testing.assert_array_equal(got, slow_crease(pts, n, faces, angle))
-    with pytest.raises(ValueError, match="crease angle"):
+    with pytest.raises(GeometryError, match="'angle_deg' \\(geometry.crease_angle_deg\\)"):
         crease_texels(verts, faces, n.reshape(-1, 3), np.arange(H * W), 0.0)

@@ -58,9 +58,9 @@ class PhotonLevel:
     # photon.diffuse_paths 'radiosity': H(pd) -> (P, T, 3) the all-diffuse paths' irradiance from the radiosity
     # level (noise-free; the photons then carry only paths with a specular scattering into H)
     radiosity_irradiance: Callable | None = None
-    # photon.specular_gather: the gatherer and pd -> (radiance (P, K, T, 3), map weights (K, T)), the radiosity
-    # level's outgoing all-diffuse radiance per emitter map (the photons' specular entries then keep only the
-    # paths with a specular scattering)
+    # photon.specular_gather: the gatherer and pd -> (H (P, T, 3) as radiosity_irradiance gives it, radiance
+    # (P, K, T, 3), map weights (K, T)) from one radiosity solve: the level's outgoing all-diffuse radiance per
+    # emitter map (the photons' specular entries then keep only the paths with a specular scattering)
     specular_gather: SpecularGather | None = None
     radiosity_radiance: Callable | None = None
 
@@ -100,25 +100,28 @@ class PhotonLevel:
                             smoother=self.smoother(), diffuse_paths=self.radiosity_irradiance is None,
                             specular_paths_only=self.specular_gather is not None)
         if self.radiosity_irradiance is not None:
+            pd_cpu = pd.detach().cpu().to(cache.irradiance.dtype)
             with torch.no_grad():
-                H_rad = self.radiosity_irradiance(pd.detach().cpu().to(cache.irradiance.dtype))
+                if self.specular_gather is not None:
+                    H_rad, radiance, weights = self.radiosity_radiance(pd_cpu)
+                else:
+                    H_rad = self.radiosity_irradiance(pd_cpu)
             cache.stats["radiosity_irradiance_mean"] = float(H_rad.mean())
             cache.stats["photon_irradiance_mean"] = float(cache.irradiance.mean())
             cache.irradiance = cache.irradiance + H_rad.to(cache.irradiance.dtype)
-        if self.specular_gather is not None:
-            cache = self._add_gather(cache, pd, sigma, refresh)
+            if self.specular_gather is not None:
+                cache = self._add_gather(cache, radiance, weights, sigma, refresh)
         cache.stats["trace_s"] = round(traced - start, 3)
         cache.stats["reduce_s"] = round(time.perf_counter() - traced, 3)
         return cache.to(self.dtype, self.device)
 
 
-    def _add_gather(self, cache: PhotonCache, pd, sigma, refresh: int) -> PhotonCache:
-        """The cache with the gathered specular entries of the all-diffuse paths appended (specular_gather)."""
+    def _add_gather(self, cache: PhotonCache, radiance, weights, sigma, refresh: int) -> PhotonCache:
+        """The cache with the gathered specular entries of the all-diffuse paths appended (specular_gather), from
+        the radiosity level's radiance (P, K, T, 3) and map weights (K, T)."""
         start = time.perf_counter()
         sig = sigma.detach().cpu().double().numpy()
         samples = self.specular_gather.directions(sig, refresh)
-        with torch.no_grad():
-            radiance, weights = self.radiosity_radiance(pd.detach().cpu().to(cache.irradiance.dtype))
         obs, theta, weight = self.specular_gather.entries(samples, radiance.double().numpy(), weights.double().numpy(), sig)
         dt = cache.entry_theta_h.dtype
         cache.entry_obs = torch.cat([cache.entry_obs, torch.from_numpy(obs)])

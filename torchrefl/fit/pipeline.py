@@ -86,14 +86,17 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     indirect = lambda pd: spread(indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, **solver))
 
     def radiance(pd):
-        """(P, K, T, 3) every texel's outgoing all-diffuse radiance Pd (E + H) / pi with light p at map k's
-        source, and the maps' (K, T) tent weights (K = 1 for static lights): what photon.specular_gather gathers."""
-        H = spread(indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, per_map=True, **solver))
+        """One radiosity solve for photon.specular_gather: (H, R, weights) with H (P, T, 3) what indirect(pd) gives,
+        R (P, K, T, 3) every texel's outgoing all-diffuse radiance Pd (E + H) / pi with light p at map k's source,
+        and the maps' (K, T) tent weights (K = 1 for static lights)."""
+        H_maps = indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, per_map=True, **solver)
         if maps is None:
             E, weights = direct_irradiance(terms, obs.kappa)[:, None], torch.ones(1, pd.shape[0], dtype=torch.float64)
         else:
             E, weights = maps.irradiance, maps.weights
-        return pd[None, None] * (E.to(H.dtype) + H) / math.pi, weights
+        H = spread((H_maps * weights.to(H_maps.dtype)[None, :, :, None]).sum(1))     # = indirect(pd), same solve
+        R = pd[None, None] * (E.to(H_maps.dtype) + spread(H_maps)) / math.pi
+        return H, R, weights
 
     return pmap, F, solver, rho, det, indirect, radiance, note
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from torchrefl.errors import GeometryError
+
 
 def grid_triangulation(points: np.ndarray, valid: np.ndarray, wrap: bool = False,
                        max_edge_ratio: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
@@ -90,7 +92,8 @@ def crease_texels(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, 
     if angle_deg is None:
         return np.zeros(T, dtype=bool)
     if not 0.0 < float(angle_deg) < 180.0:
-        raise ValueError(f"crease angle: expected degrees in (0, 180), got {angle_deg!r}")
+        raise GeometryError(f"argument 'angle_deg' (geometry.crease_angle_deg): expected degrees in (0, 180), "
+                            f"got {angle_deg!r}")
     faces = np.asarray(faces, dtype=np.int64)
     if not faces.size:
         return np.zeros(T, dtype=bool)
