@@ -141,6 +141,7 @@ class FitConfig:
     loss: str = opt("huber", "robust loss on 8-bit residuals", choices=("l2", "huber", "cauchy"))
     loss_scale_8bit: float = opt(3.0, "robust loss scale, in 8-bit digital numbers", low=1e-6)
     holdout: list = opt([], "light indices excluded from fitting and evaluated afterwards")
+    emitter_fill: str = opt("nearest", "what texels without a fitted observation (silhouette, crease, never lit) reflect when the interreflection levels light the object with them: nearest (the parameters of the nearest fitted texel in 3-D) or black (Pd 0: their share of the interreflected light is lost and the texels that see them come out too bright; Object E at full size: +0.5 % on the lower plate)", choices=("nearest", "black"))
     interpolation_window: int = opt(5, "W: window for interpolating undetermined texels (W x W)", low=1)
     sigma_search: int = opt(32, "sigma values of the variable-projection search that can replace the closed-form start (0 = off)", low=0)
     specular: str = opt("texel", "Ps, sigma per texel (texel), one lobe for the whole object (shared), or per texel pulled towards the shared lobe (pooled)", choices=("texel", "shared", "pooled"))
@@ -163,7 +164,7 @@ class RadiosityConfig:
     max_iterations: int = opt(500, "iteration cap of the iterative solver", low=1)
     smoothing: Optional[float] = opt(None, "std in texels of the Gaussian (normal-tested like photon.smoothing_normal) that spreads each patch's indirect irradiance over the texel grid, so that the texels of a patch do not share one value (which a fit answers with alternating Pd along a gradient); null = half the patch size, 0 = constant within a patch", low=0.0)
     init_passes: int = opt(3, "passes of the Method II start: the local closed forms on the intensities minus the interreflection predicted from the previous pass's Pd (the first from eq. 4.7); each pass starts from a Pd with less interreflection in it (Object E at full size: 3 passes let the fit converge in 60 iterations where 1 pass needed 180)", low=1)
-    light_maps: int = opt(8, "emitter maps per light when the lights move with the scan (co-rotating rig): the patches' radiosity is solved with the light at K evenly spaced columns' positions and each texel interpolates between its two nearest (like photon.light_maps); 1 = every patch lit as in its own column's image", low=1)
+    light_maps: int = opt(8, "emitter maps per light when the lights move with the scan (co-rotating rig): the patches' radiosity is solved with the light at K evenly spaced columns' positions and each texel interpolates cubically between the four nearest (like photon.light_maps; the tent between two nearest left Object E's lower plate 1.3 % short of indirect light at 8 maps, the cubic 0.1 %); 1 = every patch lit as in its own column's image", low=1)
 
 
 @dataclass
@@ -171,7 +172,7 @@ class PhotonConfig:
     """The photon level (Method III): photon tracing, the indirect-light cache, the outer loop."""
 
     photons_per_light: int = opt(400_000, "photons traced per light and cache refresh (shared by its light maps)", low=1)
-    light_maps: int = opt(8, "photon maps per light when the lights move with the scan (co-rotating rig); texels interpolate between the two nearest", low=1)
+    light_maps: int = opt(8, "photon maps per light when the lights move with the scan (co-rotating rig); texels interpolate cubically between the four nearest", low=1)
     start: str = opt("radiosity", "initial parameters: radiosity (Method II's closed forms: the first cache starts near the solution) or local (Method I's)", choices=("radiosity", "local"))
     outer_iterations: int = opt(3, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0)
     schedule: str = opt("joint", "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation", choices=("joint", "seed"))

@@ -299,3 +299,38 @@ def test_all_diffuse_paths_of_a_glossy_surface_converge_to_the_radiosity_solutio
     assert rel(H_spec + H_rad, H_all) < 0.04
     # and the specular entries (the receiver's lobe) still come from every photon
     torch.testing.assert_close(spec_only.entry_weight, cache.entry_weight)
+
+
+def test_a_ray_that_lands_on_the_strip_across_the_fold_goes_to_the_side_that_faces_it():
+    """The mesh cuts the fold's corner with faces from the floor's last texel column to the wall's first. A ray
+    from the floor that lands on such a face next to a floor corner would, on the real object, reach the wall:
+    with its direction hit_texels hands it to the wall texel of that face (and a ray from the wall to the
+    floor texel), without it to the nearest corner; on flat faces the direction changes nothing."""
+    s, obs, pt = fold_setup(H=4, W=8)
+    H, W = s.grid_shape
+    col = s.texel_index.numpy() % W
+    faces = pt.faces
+    fcol = col[pt.vertex_texel[faces]]                                       # (F, 3) corner columns
+    bridge = np.flatnonzero((fcol.min(1) == W // 2 - 1) & (fcol.max(1) == W // 2))
+    flat = np.flatnonzero(fcol.max(1) < W // 2 - 1)
+    assert bridge.size and flat.size
+    for side, d in (("floor", np.array([1.0, 0.0, 0.2])), ("wall", np.array([-0.2, 0.0, -1.0]))):
+        # the ray leaves the floor (+z) towards the wall (+x), or the wall (-x) towards the floor (-z)
+        d = d / np.linalg.norm(d)
+        tri = bridge.repeat(3)
+        k = np.tile(np.arange(3), bridge.size)
+        bary = np.full((tri.size, 3), 0.1)
+        bary[np.arange(tri.size), k] = 0.8                                  # next to each corner in turn
+        u, v = bary[:, 1], bary[:, 2]
+        plain, _ = pt.hit_texels(tri, u, v)
+        ruled, _ = pt.hit_texels(tri, u, v, np.repeat(d[:, None], tri.size, 1))
+        nearest = pt.vertex_texel[faces[tri, k]]
+        assert np.array_equal(plain, nearest)
+        facing = s.normals.numpy()[ruled] @ d
+        assert bool((facing < 0).all()), side                               # every hit on the side facing the ray
+        own = s.normals.numpy()[nearest] @ d < 0
+        assert np.array_equal(ruled[own], nearest[own]) and bool((ruled[~own] != nearest[~own]).all())
+    u = np.full(flat.size, 0.2)
+    a, _ = pt.hit_texels(flat, u, u)
+    b, _ = pt.hit_texels(flat, u, u, np.repeat(np.array([[0.3], [0.0], [-1.0]]), flat.size, 1))
+    assert np.array_equal(a, b)

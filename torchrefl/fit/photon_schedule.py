@@ -63,6 +63,8 @@ class PhotonLevel:
     # emitter map (the photons' specular entries then keep only the paths with a specular scattering)
     specular_gather: SpecularGather | None = None
     radiosity_radiance: Callable | None = None
+    # fit.emitter_fill: (T,) index of the texel whose parameters each texel scatters with (None = its own)
+    emitter_source: torch.Tensor | None = None
 
     def smoother(self) -> torch.Tensor | None:
         """The density-estimation kernel as a sparse operator, built on first use and kept for every refresh."""
@@ -78,6 +80,9 @@ class PhotonLevel:
 
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
+        if self.emitter_source is not None:
+            src = self.emitter_source.to(pd.device)
+            pd, ps, sigma = (x[src] if x.shape[0] == src.shape[0] else x for x in (pd, ps, sigma))   # a shared lobe stays
         P, K = self.sources.positions.shape[:2]
         per_map = max(1, math.ceil(self.photons_per_light / K))
         mat = TexelMaterial.from_tensors(pd, ps, sigma)

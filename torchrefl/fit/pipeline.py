@@ -24,6 +24,7 @@ from torchrefl.config import Config
 from torchrefl.errors import ConfigError
 from torchrefl.fit.classify import T_DIFF, class_counts, classify
 from torchrefl.fit.diffuse_shape import fit_minnaert_exponent
+from torchrefl.fit.emitter_fill import nearest_fitted
 from torchrefl.fit.initialise import initialise_local
 from torchrefl.fit.params import TexelParams
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
@@ -37,6 +38,11 @@ def _to_device(terms, device):
         return terms
     return replace(terms, theta_h=terms.theta_h.to(device), cos_l=terms.cos_l.to(device), cos_v=terms.cos_v.to(device),
                    diffuse=terms.diffuse.to(device), specular=terms.specular.to(device))
+
+
+def _with_emitters(fn, source):
+    """fn(pd) evaluated with every texel's Pd taken from texel source[t] (fit.emitter_fill)."""
+    return lambda pd: fn(pd[source.to(pd.device)])
 
 
 def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
@@ -88,7 +94,7 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     def radiance(pd):
         """One radiosity solve for photon.specular_gather: (H, R, weights) with H (P, T, 3) what indirect(pd) gives,
         R (P, K, T, 3) every texel's outgoing all-diffuse radiance Pd (E + H) / pi with light p at map k's source,
-        and the maps' (K, T) tent weights (K = 1 for static lights)."""
+        and the maps' (K, T) weights (K = 1 for static lights)."""
         H_maps = indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, per_map=True, **solver)
         if maps is None:
             E, weights = direct_irradiance(terms, obs.kappa)[:, None], torch.ones(1, pd.shape[0], dtype=torch.float64)
@@ -101,7 +107,8 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     return pmap, F, solver, rho, det, indirect, radiance, note
 
 
-def _photon_setup(cfg: Config, surface, obs, keep, device, dtype, radiosity_irradiance=None, radiosity_radiance=None):
+def _photon_setup(cfg: Config, surface, obs, keep, device, dtype, radiosity_irradiance=None, radiosity_radiance=None,
+                  emitter_source=None):
     """The PhotonLevel of this capture (tracer over the texel mesh, light sources); radiosity_irradiance: the
     radiosity level's H(pd) when photon.diffuse_paths is 'radiosity'; radiosity_radiance: its outgoing radiance
     per emitter map (_radiosity_setup), gathered when photon.specular_gather > 0."""
@@ -130,7 +137,8 @@ def _photon_setup(cfg: Config, surface, obs, keep, device, dtype, radiosity_irra
                        grid=(surface.texel_index, surface.grid_shape, surface.normals.double()), smoothing_normal=pc.smoothing_normal,
                        specular_smoothing=pc.specular_smoothing,
                        linear_emitters=pc.linear_emitters, radiosity_irradiance=radiosity_irradiance,
-                       specular_gather=gather, radiosity_radiance=radiosity_radiance if gather is not None else None)
+                       specular_gather=gather, radiosity_radiance=radiosity_radiance if gather is not None else None,
+                       emitter_source=emitter_source)
 
 
 def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
@@ -191,6 +199,17 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
                    window=fc.interpolation_window, sigma_search=fc.sigma_search, specular=fc.specular)
     with stages.stage("initialise"):
         init = initialise_local(terms, obs.intensity, cls, counts["T_spec"], fit_mask, surface, **init_kw)
+        emitter_source = None
+        if level != "local" and surface.has_mesh and fc.emitter_fill == "nearest":
+            emitter_source = nearest_fitted(surface.positions, init.defined)
+            filled = int((emitter_source != torch.arange(surface.num_texels)).sum())
+            if not filled:
+                emitter_source = None
+            elif indirect is not None:
+                log(f"interreflection: {filled} texels without a fitted observation reflect with the parameters of "
+                    "the nearest fitted texel (fit.emitter_fill: nearest)")
+                indirect = _with_emitters(indirect, emitter_source)
+                radiance = _with_emitters(radiance, emitter_source)
         if level == "auto":
             diff_dn, spec_dn = predicted_interreflection_dn(terms, obs.kappa, init.pd.to(obs.intensity.dtype),
                                                             init.ps.to(obs.intensity.dtype), indirect, fit_mask)
@@ -245,7 +264,7 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             pc = cfg.photon
             plevel = _photon_setup(cfg, surface, obs, fit_mask | eval_mask, device, dt,
                                    radiosity_irradiance=indirect if hybrid else None,
-                                   radiosity_radiance=radiance if hybrid else None)
+                                   radiosity_radiance=radiance if hybrid else None, emitter_source=emitter_source)
             log(f"photon level: {plevel.sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
                 f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}, "
                 + ("all-diffuse paths from the radiosity level, photons for the paths with a specular scattering"

@@ -209,6 +209,20 @@ def face_patches(surface: Surface, patches: Patches) -> np.ndarray:
     return grid[first]
 
 
+def face_corners(surface: Surface, patches: Patches) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3) int64 patch of each mesh face's corners (-1 where the corner is no valid texel) and (F, 3, 3)
+    float32 their texel normals (0 there), for hemisphere_form_factors' corner rule. Same mesh layout as
+    face_patches (vertex k = grid point k), whose checks it relies on."""
+    H, W = surface.grid_shape
+    faces = np.asarray(surface.mesh_faces).astype(np.int64)
+    grid = np.full(H * W, -1, dtype=np.int64)
+    index = surface.texel_index.cpu().numpy()
+    grid[index] = patches.texel_patch.cpu().numpy()
+    normal = np.zeros((H * W, 3), dtype=np.float32)
+    normal[index] = surface.normals.detach().cpu().numpy().astype(np.float32)
+    return grid[faces], normal[faces]
+
+
 def _onb(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tangents t, b (N, 3) with (t, b, n) orthonormal for unit n (N, 3) (Duff et al. 2017)."""
     sign = np.where(n[:, 2] >= 0, 1.0, -1.0)
@@ -228,7 +242,8 @@ def _as_array(name: str, x, shape_text: str) -> np.ndarray:
 
 def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, weights, *, samples_per_patch: int,
                             seed: int, offset: float, count_back_hits: bool = False, layout: str = "auto",
-                            progress: Optional[Callable[[int, int], None]] = None) -> torch.Tensor:
+                            progress: Optional[Callable[[int, int], None]] = None,
+                            corners: Optional[tuple[np.ndarray, np.ndarray]] = None) -> torch.Tensor:
     """Form factors F (Q, Q) float64 between Q patches by cosine-weighted hemisphere rays.
 
     tracer: RayTracer over the scene mesh (F faces). face_patch: (F,) int, patch of each face, -1 for
@@ -243,6 +258,14 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     else sparse. Both support .to_dense(). Deterministic in seed (independent of the thread count: each
     work unit of about UNIT_RAYS rays draws from its own stream keyed by seed and unit).
     progress(done_rays, total_rays) is called after each work unit.
+    corners: (face_corners) the patches (F, 3) and normals (F, 3, 3) of each face's corners. A hit then goes
+    to the patch of the face's first corner only if that corner's normal faces the ray (n . d < 0), else to
+    the corner that faces it most. A face that bridges a crease (a range mesh cuts a fold's corner with a
+    strip of faces from one side's last texel row to the other's first) is thus seen from each side as the
+    other side's surface, which is what a ray crossing that strip reaches on the real object; from its own
+    side's texels such a face would otherwise be the texels' own patch, lit like them (Object E at full size:
+    the lower plate's row nearest the fold gathered 3 % too little light). Faces with all corners alike are
+    unaffected.
     """
     if isinstance(samples_per_patch, bool) or not isinstance(samples_per_patch, (int, np.integer)) \
             or samples_per_patch < 1:
@@ -285,6 +308,14 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     if len(fp) and (fp.min() < -1 or fp.max() >= Q):
         raise GeometryError(f"face_patch values must lie in -1..{Q - 1} (Q = {Q} patches from origins)")
 
+    if corners is not None:
+        c_patch, c_normal = (np.asarray(x) for x in corners)
+        if c_patch.shape != (len(fp), 3) or c_normal.shape != (len(fp), 3, 3):
+            raise GeometryError(f"corners have shapes {c_patch.shape} and {c_normal.shape}, expected ({len(fp)}, 3) "
+                                f"and ({len(fp)}, 3, 3): the patch and normal of each face's three corners")
+        c_patch = c_patch.astype(np.int64)
+        c_normal = c_normal.astype(np.float32)
+
     N = int(samples_per_patch)
     cdf = torch.from_numpy(np.cumsum(w, axis=1) / row[:, None])
     # frames and start points once per candidate origin (Q * K), then gathered per ray (float32, like Embree)
@@ -322,6 +353,13 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         d = np.einsum("ni,nij->nj", local, frames[j])
         tri = tracer.first_hit_triangles(cstart[j], np.ascontiguousarray(d))
         dst = np.where(tri >= 0, fp[np.maximum(tri, 0)], -1)
+        if corners is not None:
+            hit = np.flatnonzero(tri >= 0)
+            facing = np.einsum("ni,nci->nc", d[hit], c_normal[tri[hit]])              # (n, 3) n . d per corner
+            facing = np.where(c_patch[tri[hit]] >= 0, facing, np.inf)
+            turn = np.flatnonzero((facing[:, 0] >= 0) & (facing.min(1) < 0))
+            if turn.size:
+                dst[hit[turn]] = c_patch[tri[hit[turn]], facing[turn].argmin(1)]
         if front is not None:
             hit = np.flatnonzero(dst >= 0)
             back = np.einsum("ni,ni->n", d[hit], front[tri[hit]]) >= 0
@@ -386,7 +424,7 @@ def form_factors_for_surface(surface: Surface, tracer: Optional[RayTracer] = Non
                                           surface.normals.detach().cpu().double(),
                                           surface.areas.detach().cpu().double())
     F = hemisphere_form_factors(tracer, fpatch, pos, nrm, area * mask, samples_per_patch=samples_per_patch,
-                                seed=seed, offset=float(offset), **kwargs)
+                                seed=seed, offset=float(offset), corners=face_corners(surface, patches), **kwargs)
     return patches, F
 
 

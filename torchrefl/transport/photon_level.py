@@ -40,9 +40,11 @@ only the photons whose path had a specular scattering).
 
 Moving lights. On the cylindrical rig the lights co-rotate with the scan, so each texel column sees
 light p from its own position L_pt = x_t + l_pt / sqrt(falloff_pt). `light_sources` places K
-sources per light at evenly spaced columns; a texel's indirect light is the linear (tent)
-interpolation in its column of the maps of the two nearest sources. A capture whose lights do not
-move uses one source per light.
+sources per light at evenly spaced columns; a texel's indirect light interpolates the maps in its column
+(`map_weights`: cubic Lagrange through the four nearest sources; the tent between the two nearest left the
+indirect light of Object E's lower plate 1.3 % low at 8 maps, since it bends with the light's position, and
+the end columns beyond the outer sources took the end maps' values unchanged). A capture whose lights do
+not move uses one source per light.
 """
 
 from __future__ import annotations
@@ -87,8 +89,32 @@ def texel_light_positions(surface, obs) -> np.ndarray:
     return (surface.positions.double()[None] + obs.light_dir.double() * dist[..., None]).numpy()
 
 
-def light_sources(surface, obs, max_maps: int) -> LightSources:
-    """Sources and tent weights (module docstring); one map per light when no light moves."""
+def map_weights(s: np.ndarray, K: int, order: int = 3) -> np.ndarray:
+    """(K, T) weights of K maps at map coordinates 0..K-1 for texels at map coordinate s (T,): Lagrange
+    interpolation through the order + 1 nearest maps (fewer when K is smaller; order 1 = the tent between
+    the two nearest; past the end maps the same polynomial extrapolates). Every column sums to 1 and a field
+    that is a polynomial of that order in s is reproduced exactly; order 3 weights dip below 0 between
+    maps (to -0.064 in the middle intervals, -0.32 in the two end ones), and their root sum of squares, the
+    gain on independent noise in the maps, stays below 1.09 between the end maps."""
+    s = np.asarray(s, dtype=np.float64)
+    T = s.shape[0]
+    if K <= 1:
+        return np.ones((1, T))
+    n = min(order + 1, K)
+    j0 = np.clip(np.floor(s).astype(np.int64) - (n - 1) // 2, 0, K - n)
+    weights = np.zeros((K, T))
+    for a in range(n):
+        w = np.ones(T)
+        for b in range(n):
+            if b != a:
+                w *= (s - (j0 + b)) / (a - b)
+        weights[j0 + a, np.arange(T)] += w
+    return weights
+
+
+def light_sources(surface, obs, max_maps: int, order: int = 3) -> LightSources:
+    """Sources and their per-texel map weights (module docstring; map_weights of this order); one map per
+    light when no light moves."""
     L = texel_light_positions(surface, obs)
     P, T, _ = L.shape
     intensity = obs.light_intensity.double().numpy()
@@ -101,15 +127,13 @@ def light_sources(surface, obs, max_maps: int) -> LightSources:
     col = (surface.texel_index.numpy() % W).astype(np.float64)
     cmin, cmax = col.min(), col.max()
     K = int(min(max_maps, cmax - cmin + 1))
-    step = (cmax - cmin + 1) / K
-    centres = cmin - 0.5 + step * (np.arange(K) + 0.5)
-    s = np.clip((col - centres[0]) / step if K > 1 else np.zeros(T), 0.0, K - 1)
-    k0 = np.minimum(np.floor(s).astype(np.int64), K - 1)
-    a = s - k0
-    weights = np.zeros((K, T))
-    weights[k0, np.arange(T)] += 1.0 - a
-    k1 = np.minimum(k0 + 1, K - 1)
-    weights[k1, np.arange(T)] += a
+    if K == 1:
+        return LightSources(L.mean(1)[:, None], np.ones((1, T)), intensity)
+    # the outer maps sit on the outermost columns, so every texel interpolates (no extrapolation, whose
+    # weights would amplify a photon map's noise at the object's ends)
+    step = (cmax - cmin) / (K - 1)
+    centres = cmin + step * np.arange(K)
+    weights = map_weights((col - cmin) / step, K, order)
     positions = np.empty((P, K, 3))
     for k, c in enumerate(centres):
         nearest = np.abs(col - c)

@@ -160,6 +160,11 @@ class PhotonTracer:
         self._t3, self._b3, self._fn3 = f32(self.frame_t), f32(self.frame_b), f32(self.face_normals)
         self._corner_texel = corner_texel.astype(np.int32).ravel()
         self._corner_collects = self.collects.ravel()
+        # faces whose corners' texel normals disagree (they bridge a fold or a crease): hit_texels' corner rule
+        cn = self.normals[corner_texel] if faces.size else np.zeros((0, 3, 3))
+        self._mixed_face = ((np.einsum("fi,fi->f", cn[:, 0], cn[:, 1]) < COLLECT_COS)
+                            | (np.einsum("fi,fi->f", cn[:, 0], cn[:, 2]) < COLLECT_COS)
+                            | (np.einsum("fi,fi->f", cn[:, 1], cn[:, 2]) < COLLECT_COS))
         self._offset32 = np.float32(self.offset)
 
     def landing(self, source: np.ndarray) -> np.ndarray:
@@ -180,11 +185,27 @@ class PhotonTracer:
 
     # ------------------------------------------------------------------ pieces
 
-    def hit_texels(self, triangle: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def hit_texels(self, triangle: np.ndarray, u: np.ndarray, v: np.ndarray,
+                   direction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(N,) int32 texel of each hit (the corner of the hit face with the largest barycentric weight, the
-        first one on a tie) and (N,) bool whether the hit counts in that texel's density (self.collects)."""
+        first one on a tie) and (N,) bool whether the hit counts in that texel's density (self.collects).
+        direction (3, N), the rays' directions: on a face that bridges a fold or crease (its corners' normals
+        disagree) the hit goes to the corner with the largest weight among those whose texel normal faces the
+        ray, as on the real object a ray crossing that strip reaches the surface that faces it (the strip's
+        own-side corners would hand a texel its own radiance; form_factors applies the same rule)."""
         w0 = 1 - u - v
         corner = np.where(u >= v, np.where(u > w0, 1, 0), np.where(v > w0, 2, 0))
+        if direction is not None and triangle.size:
+            m = np.flatnonzero(np.take(self._mixed_face, triangle))
+            if m.size:
+                tri = triangle[m].astype(np.int64)
+                texels = self._corner_texel[tri[:, None] * 3 + np.arange(3)]                      # (M, 3)
+                facing = np.einsum("im,mci->mc", np.asarray(direction, dtype=np.float64)[:, m], self.normals[texels]) < 0
+                bary = np.stack([w0[m], u[m], v[m]], 1)
+                turn = np.flatnonzero(~facing[np.arange(m.size), corner[m]] & facing.any(1))
+                if turn.size:
+                    corner = corner.copy()
+                    corner[m[turn]] = np.where(facing[turn], bary[turn], -np.inf).argmax(1)
         i = triangle.astype(np.int64) * 3 + corner
         return np.take(self._corner_texel, i), np.take(self._corner_collects, i)
 
@@ -309,8 +330,8 @@ class PhotonTracer:
                 if not k.size:
                     break
                 prim = np.take(prim, k)
-                texel, collects = self.hit_texels(prim, np.take(bu, k), np.take(bv, k))
                 dk = _take3(d, k)
+                texel, collects = self.hit_texels(prim, np.take(bu, k), np.take(bv, k), dk)
                 y = _take3(origin, k) + np.take(dist, k) * dk
                 wi = -dk
                 power, per_pd, emitter, path = _take3(power, k), _take3(per_pd, k), np.take(emitter, k), np.take(path, k)

@@ -10,9 +10,9 @@ For light p, texel t in patch u(t), channel c:
 Moving lights. On a co-rotating rig texel t's image was taken with light p at its own position L_pt, and
 then the whole object was lit from there: the emitters' E must come from L_pt too, not from the positions
 their own columns saw. EmitterMaps holds E under K source positions per light (those of
-photon_level.light_sources: evenly spaced columns, tent weights); B is solved for all P x K of them at
-once (one factorisation, more right-hand sides) and H_t interpolates between the two maps nearest to
-t's column. Static lights need no maps (E from the local terms, with the capture's visibility).
+photon_level.light_sources: evenly spaced columns, cubic weights over the four maps nearest to t's
+column); B is solved for all P x K of them at once (one factorisation, more right-hand sides) and H_t
+interpolates between the maps. Static lights need no maps (E from the local terms, with the capture's visibility).
 
 RHO_MAX = 0.99 is the one clamp here: an uncalibrated or not yet converged Pd above 1 would make
 I - rho F singular in closed geometry; Pd itself is not clamped (the direct term still sees it).
@@ -74,7 +74,7 @@ def direct_irradiance(terms: LocalTerms, kappa: torch.Tensor) -> torch.Tensor:
 @dataclass
 class EmitterMaps:
     """irradiance (P, K, T, 3): Y_p max(n_t.l, 0) vis / d^2 at every texel with light p at map k's source
-    position; weights (K, T): each texel's tent weights over the maps (columns sum to one)."""
+    position; weights (K, T): each texel's weights over the maps (photon_level.map_weights; columns sum to one)."""
 
     irradiance: torch.Tensor
     weights: torch.Tensor

@@ -9,7 +9,7 @@ reflection of the neighbouring surfaces then goes into Pd (Object E's lower plat
 With photon.diffuse_paths 'radiosity' the light that reaches t after diffuse reflections only is known
 without photon noise: a texel u sends L_pu = Pd_u (E_pu + H_pu) / pi towards t (the radiosity level's direct
 and all-diffuse irradiance at u, with light p where t's image put it: the emitter maps of t's column,
-tent-interpolated). This module estimates t's specular reflection of that radiance by gathering N
+interpolated as photon_level.map_weights does it). This module estimates t's specular reflection of that radiance by gathering N
 directions l_k per texel from t's own lobe (mirrored about the view v_t, roughness sigma_s = min(1.25 sigma_t,
 sigma_max) at the refresh, so the fit may widen the lobe by a quarter before the next refresh and the weights stay
 bounded), each traced with Embree to the texel u_k it hits:
@@ -114,7 +114,7 @@ class SpecularGather:
             i = np.flatnonzero(front)
             front[i] = row_dot(self.tracer.face_normals[hits.triangle[i]], l[i]) < 0     # the lit side faces the ray
             i = np.flatnonzero(front)
-            hit, _ = self.tracer.hit_texels(hits.triangle[i], hits.barycentric[i, 0], hits.barycentric[i, 1])
+            hit, _ = self.tracer.hit_texels(hits.triangle[i], hits.barycentric[i, 0], hits.barycentric[i, 1], l[i].T)
             t, n, v, l, pdf, cos_i, cos_v = t[i], n[i], v[i], l[i], pdf[i], cos_i[i], cos_v[i]
             with torch.no_grad():
                 tt = lambda x: torch.from_numpy(np.ascontiguousarray(x))
@@ -131,8 +131,8 @@ class SpecularGather:
 
     def entries(self, samples: GatherSamples, radiance, map_weights, sigma) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Specular entries (entry_obs (E,), theta_h (E,), weight (E, 3)) from the outgoing radiance
-        (P, K, T, 3) of every texel with light p at map k's source, map_weights (K, T) (each texel's tent weights
-        over the maps, at most two non-zero), and sigma (T,) (the merge bins' widths).
+        (P, K, T, 3) of every texel with light p at map k's source, map_weights (K, T) (each texel's weights
+        over the maps: photon_level.map_weights), and sigma (T,) (the merge bins' widths).
 
         The samples of a texel are grouped per theta_h bin (the bins of photon_level.merge_entries) once for all
         lights; per light a group's weight is the sum of its samples' G L / (N pdf) and its theta_h their mean
@@ -142,10 +142,7 @@ class SpecularGather:
         Wm = np.asarray(map_weights, dtype=np.float64)
         if Wm.shape != (K, T):
             raise ValueError(f"specular gather: map weights of shape {Wm.shape}, expected {(K, T)}")
-        order = np.argsort(-Wm, axis=0, kind="stable")
-        if K > 2 and np.abs(np.take_along_axis(Wm, order[2:], 0)).max() > 0:
-            raise ValueError("specular gather: a texel has more than two non-zero map weights (expected tent weights)")
-        order = order[:2]
+        order = np.argsort(-np.abs(Wm), axis=0, kind="stable")[:max(1, int((Wm != 0).sum(0).max(initial=0)))]
         t, hit, w = samples.texel, samples.hit, samples.weight
         empty = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3))
         if not t.size:
@@ -160,7 +157,7 @@ class SpecularGather:
         g_light = uniq % (P + 1) - 1
         wsum = np.bincount(group, weights=w, minlength=G)
         g_theta = np.bincount(group, weights=w * samples.theta_h, minlength=G) / np.maximum(wsum, 1e-300)
-        # each sample's two maps and their weights: radiance of the texel hit with the light where t's image put it
+        # each sample's maps and their weights: radiance of the texel hit with the light where t's image put it
         k_s = [np.take(order[j], t) for j in range(order.shape[0])]
         a_s = [Wm[k, t] * w for k in k_s]
         obs, th, wt = [], [], []
