@@ -84,18 +84,28 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
             + f"; inverse radiosity (eq. 4.7) determined {int(det.sum())} patches")
     smooth = rc.smoothing if rc.smoothing is not None else (rc.patch_size / 2.0 if rc.patch_size > 1 else 0.0)
     spread = lambda H: H
-    if smooth > 0:
+    reconstruct = None
+    if rc.reconstruction == "linear" and rc.patch_size > 1:
+        from torchrefl.transport.patch_reconstruction import linear_reconstruction
+        reconstruct = linear_reconstruction(surface.texel_index.numpy(), surface.grid_shape, surface.positions.double().numpy(),
+                                            surface.normals.double().numpy(), patches.texel_patch.numpy(),
+                                            patches.centres.numpy(), patches.normals.numpy(), rc.patch_size,
+                                            rc.patch_split_angle_deg)
+        note += "; texel irradiance from a plane through the neighbouring patches' (radiosity.reconstruction)"
+    elif smooth > 0:
         note += f"; patch irradiance spread over the texels (std {smooth:g} texels)"
         M = smoothing_matrix(surface.texel_index.numpy(), surface.grid_shape, smooth, surface.normals.numpy(),
                              cfg.photon.smoothing_normal)
         spread = lambda H: apply_on_grid(M, H)
-    indirect = lambda pd: spread(indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, **solver))
+    indirect = lambda pd: spread(indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve,
+                                                     reconstruct=reconstruct, **solver))
 
     def radiance(pd):
         """One radiosity solve for photon.specular_gather: (H, R, weights) with H (P, T, 3) what indirect(pd) gives,
         R (P, K, T, 3) every texel's outgoing all-diffuse radiance Pd (E + H) / pi with light p at map k's source,
         and the maps' (K, T) weights (K = 1 for static lights)."""
-        H_maps = indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, per_map=True, **solver)
+        H_maps = indirect_irradiance(terms, obs.kappa, pd, pmap, F, maps, F_solve, per_map=True,
+                                     reconstruct=reconstruct, **solver)
         if maps is None:
             E, weights = direct_irradiance(terms, obs.kappa)[:, None], torch.ones(1, pd.shape[0], dtype=torch.float64)
         else:

@@ -42,6 +42,8 @@ from torchrefl.rays import RayTracer
 #: hemisphere_form_factors returns a dense (Q, Q) tensor when Q * Q <= DENSE_MAX_ENTRIES
 #: (Q <= 2048: at most 32 MiB in float64), a sparse COO tensor otherwise.
 DENSE_MAX_ENTRIES = 2048 * 2048
+#: corners whose texel normals' cosine is below this make a face "mixed" (hemisphere_form_factors' corner rule)
+MIXED_COS = 0.9
 #: rays per work unit of hemisphere_form_factors (whole patches; one thread samples, traces and tallies a unit)
 UNIT_RAYS = 1 << 16
 
@@ -265,7 +267,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     other side's surface, which is what a ray crossing that strip reaches on the real object; from its own
     side's texels such a face would otherwise be the texels' own patch, lit like them (Object E at full size:
     the lower plate's row nearest the fold gathered 3 % too little light). Faces with all corners alike are
-    unaffected.
+    unaffected, and so are faces whose corners' normals agree within about 25 degrees (MIXED_COS).
     """
     if isinstance(samples_per_patch, bool) or not isinstance(samples_per_patch, (int, np.integer)) \
             or samples_per_patch < 1:
@@ -315,6 +317,11 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
                                 f"and ({len(fp)}, 3, 3): the patch and normal of each face's three corners")
         c_patch = c_patch.astype(np.int64)
         c_normal = c_normal.astype(np.float32)
+        # the rule matters on faces whose corners' normals disagree (they bridge a fold or crease; more than
+        # about 25 degrees, as photon_trace's faces that do not collect), and only those pay for it
+        cos = lambda a, b: np.einsum("fi,fi->f", c_normal[:, a], c_normal[:, b])
+        mixed = ((cos(0, 1) < MIXED_COS) | (cos(0, 2) < MIXED_COS) | (cos(1, 2) < MIXED_COS)) & (
+            (c_patch[:, 0] != c_patch[:, 1]) | (c_patch[:, 0] != c_patch[:, 2]))
 
     N = int(samples_per_patch)
     cdf = torch.from_numpy(np.cumsum(w, axis=1) / row[:, None])
@@ -355,6 +362,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         dst = np.where(tri >= 0, fp[np.maximum(tri, 0)], -1)
         if corners is not None:
             hit = np.flatnonzero(tri >= 0)
+            hit = hit[mixed[tri[hit]]]
             facing = np.einsum("ni,nci->nc", d[hit], c_normal[tri[hit]])              # (n, 3) n . d per corner
             facing = np.where(c_patch[tri[hit]] >= 0, facing, np.inf)
             turn = np.flatnonzero((facing[:, 0] >= 0) & (facing.min(1) < 0))

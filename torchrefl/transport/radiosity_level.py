@@ -114,13 +114,15 @@ def emitter_maps(sources, positions: torch.Tensor, normals: torch.Tensor, tracer
 
 def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: PatchMap, F: torch.Tensor,
                         maps: EmitterMaps | None = None, F_solve: torch.Tensor | None = None, per_map: bool = False,
-                        **solver) -> torch.Tensor:
+                        reconstruct: torch.Tensor | None = None, **solver) -> torch.Tensor:
     """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3); with maps, the
     emitters are lit from each map's source and H interpolates between maps (module doc). F_solve: other
     (cheaper, noisier) form factors of the same patches for the solve B = rho (E + F_solve B), F then only
     gathers H = F B (None = F for both): B's noise averages out over the many emitters a patch gathers from,
     while the gather's noise is what each texel sees. per_map: return (P, K, T, 3), H at every texel with
-    the light at each map's source (K = 1 without maps), before the interpolation."""
+    the light at each map's source (K = 1 without maps), before the interpolation. reconstruct: a sparse (T, Q)
+    operator from the patches' H to the texels' (patch_reconstruction.linear_reconstruction); None = each texel
+    takes its patch's H."""
     rho = patches.mean(pd[None])[0].clamp(max=RHO_MAX)                 # (Q, 3)
     if maps is None:
         E = patches.mean(direct_irradiance(terms, kappa))              # (P, Q, 3)
@@ -129,8 +131,12 @@ def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: Pat
         E = patches.mean(maps.irradiance.to(pd.dtype).reshape(P * K, T, C))   # (P K, Q, 3)
     B = solve_radiosity(rho, E, F if F_solve is None else F_solve.to(F.dtype), **solver)   # (P or P K, Q, 3)
     R, Q, C = B.shape
-    H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, R * C)).reshape(Q, R, C).permute(1, 0, 2)
-    H = patches.scatter(H)                                             # (R, T, 3)
+    H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, R * C))                        # (Q, R C)
+    if reconstruct is None:
+        H = patches.scatter(H.reshape(Q, R, C).permute(1, 0, 2))                            # (R, T, 3)
+    else:
+        H = _matmul(reconstruct.to(H.dtype), H)
+        H = H.reshape(H.shape[0], R, C).permute(1, 0, 2)
     if maps is None:
         return H[:, None] if per_map else H
     if per_map:
