@@ -322,6 +322,9 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         cos = lambda a, b: np.einsum("fi,fi->f", c_normal[:, a], c_normal[:, b])
         mixed = ((cos(0, 1) < MIXED_COS) | (cos(0, 2) < MIXED_COS) | (cos(1, 2) < MIXED_COS)) & (
             (c_patch[:, 0] != c_patch[:, 1]) | (c_patch[:, 0] != c_patch[:, 2]))
+        mixed = np.append(mixed, False)                 # index -1 (a miss) reads False: one pass over the rays
+        if not mixed.any():
+            corners = None
 
     N = int(samples_per_patch)
     cdf = torch.from_numpy(np.cumsum(w, axis=1) / row[:, None])
@@ -361,8 +364,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         tri = tracer.first_hit_triangles(cstart[j], np.ascontiguousarray(d))
         dst = np.where(tri >= 0, fp[np.maximum(tri, 0)], -1)
         if corners is not None:
-            hit = np.flatnonzero(tri >= 0)
-            hit = hit[mixed[tri[hit]]]
+            hit = np.flatnonzero(np.take(mixed, tri))
             facing = np.einsum("ni,nci->nc", d[hit], c_normal[tri[hit]])              # (n, 3) n . d per corner
             facing = np.where(c_patch[tri[hit]] >= 0, facing, np.inf)
             turn = np.flatnonzero((facing[:, 0] >= 0) & (facing.min(1) < 0))
