@@ -178,7 +178,7 @@ class PhotonConfig:
     outer_iterations: int = opt(3, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0)
     schedule: str = opt("joint", "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation", choices=("joint", "seed"))
     iterations: Optional[int] = opt(None, "refinement iterations per outer iteration and process (None = fit.iterations)")
-    damping: float = opt(0.5, "after each refit Pd keeps this fraction of the Pd the cache was traced with (under-relaxation against oscillation where texels light each other strongly)", low=0.0, high=0.95)
+    damping: float = opt(0.5, "after each refit Pd keeps this fraction of the Pd the cache was traced with (under-relaxation against oscillation where texels light each other strongly; it also slows convergence there, to about damping + (1 - damping) x the interreflected share per refresh: with diffuse_paths: radiosity little photon noise is left to damp, and the Object E configs use 0)", low=0.0, high=0.95)
     linear_emitters: bool = opt(False, "keep the cached irradiance linear in the Pd of each photon's last emitter (exact last bounce between refreshes; about 3x slower fits)")
     reinitialise: bool = opt(False, "start every outer iteration from the closed forms on the images minus the cached indirect light")
     smoothing: float = opt(1.0, "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each texel's own photons)", low=0.0)
