@@ -141,7 +141,7 @@ class FitConfig:
     loss: str = opt("huber", "robust loss on 8-bit residuals", choices=("l2", "huber", "cauchy"))
     loss_scale_8bit: float = opt(3.0, "robust loss scale, in 8-bit digital numbers", low=1e-6)
     holdout: list = opt([], "light indices excluded from fitting and evaluated afterwards")
-    emitter_fill: str = opt("nearest", "what texels without a fitted observation (silhouette, crease, never lit) reflect when the interreflection levels light the object with them: nearest (the parameters of the nearest fitted texel in 3-D) or black (Pd 0: their share of the interreflected light is lost and the texels that see them come out too bright; Object E at full size: +0.5 % on the lower plate)", choices=("nearest", "black"))
+    emitter_fill: str = opt("nearest", "what texels without a fitted observation (silhouette, crease, never lit) reflect when the interreflection levels light the object with them: nearest (the parameters of the nearest fitted texel in 3-D) or black (Pd 0: their share of the interreflected light is lost and the texels that see them come out too bright; Object E at full size: +0.2 % on the lower plate)", choices=("nearest", "black"))
     interpolation_window: int = opt(5, "W: window for interpolating undetermined texels (W x W)", low=1)
     sigma_search: int = opt(32, "sigma values of the variable-projection search that can replace the closed-form start (0 = off)", low=0)
     specular: str = opt("texel", "Ps, sigma per texel (texel), one lobe for the whole object (shared), or per texel pulled towards the shared lobe (pooled)", choices=("texel", "shared", "pooled"))
