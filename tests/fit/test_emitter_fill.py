@@ -93,3 +93,29 @@ def test_the_photon_level_scatters_with_the_filled_parameters():
     black = make(None).cache(pd, ps, sigma, refresh=0)
     torch.testing.assert_close(with_fill.irradiance, pre_filled.irradiance)
     assert float(with_fill.irradiance[:, fitted].sum()) > 1.02 * float(black.irradiance[:, fitted].sum())
+
+
+def test_the_fit_logs_the_filled_texels_and_black_leaves_them_out():
+    """End to end on a small fold: with fit.emitter_fill nearest the log names the texels filled (the wall's
+    rim is never lit here), with black it says nothing of them."""
+    from torchrefl.fit.pipeline import fit_capture
+    from torchrefl.report.stages import Stages
+
+    s = fold_surface(6, 12, dtype=torch.float32)
+    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0], [-30.0, 10.0, 30.0]]),
+                                   torch.tensor([-150.0, 0.0, 150.0]), dtype=torch.float32)
+    col = s.texel_index % 12
+    obs.valid[:, col >= 10] = False                       # two wall columns without a fitted observation
+    lines = {}
+    for fill in ("nearest", "black"):
+        cfg = Config()
+        cfg.fit.model = "radiosity"
+        cfg.fit.emitter_fill = fill
+        cfg.fit.iterations = 2
+        cfg.radiosity.hemisphere_samples = 32
+        cfg.output.progress = False
+        log = []
+        fit_capture(cfg, s, obs, Stages(), log.append, torch.device("cpu"))
+        lines[fill] = [l for l in log if "fit.emitter_fill" in l]
+    assert len(lines["nearest"]) == 1 and lines["nearest"][0].startswith("interreflection: 12 texels")
+    assert lines["black"] == []

@@ -92,6 +92,9 @@ def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
                                             patches.centres.numpy(), patches.normals.numpy(), rc.patch_size,
                                             rc.patch_split_angle_deg)
         note += "; texel irradiance from a plane through the neighbouring patches' (radiosity.reconstruction)"
+        if rc.smoothing is not None:
+            log(f"radiosity.smoothing ({rc.smoothing:g}) is not used with radiosity.reconstruction: linear "
+                "(set reconstruction: constant to spread patch values with it)")
     elif smooth > 0:
         note += f"; patch irradiance spread over the texels (std {smooth:g} texels)"
         M = smoothing_matrix(surface.texel_index.numpy(), surface.grid_shape, smooth, surface.normals.numpy(),
@@ -215,11 +218,12 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             filled = int((emitter_source != torch.arange(surface.num_texels)).sum())
             if not filled:
                 emitter_source = None
-            elif indirect is not None:
+            else:
                 log(f"interreflection: {filled} texels without a fitted observation reflect with the parameters of "
                     "the nearest fitted texel (fit.emitter_fill: nearest)")
-                indirect = _with_emitters(indirect, emitter_source)
-                radiance = _with_emitters(radiance, emitter_source)
+                if indirect is not None:
+                    indirect = _with_emitters(indirect, emitter_source)
+                    radiance = _with_emitters(radiance, emitter_source)
         if level == "auto":
             diff_dn, spec_dn = predicted_interreflection_dn(terms, obs.kappa, init.pd.to(obs.intensity.dtype),
                                                             init.ps.to(obs.intensity.dtype), indirect, fit_mask)
