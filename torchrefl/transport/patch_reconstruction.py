@@ -32,9 +32,9 @@ def linear_reconstruction(texel_index, grid_shape: tuple[int, int], positions, n
     """Sparse (T, Q) float64 operator: texel values = R @ patch values (module docstring).
 
     texel_index (T,) flat grid index of each texel on the (H, W) grid; positions, normals (T, 3); texel_patch
-    (T,) patch of each texel; patch_centres, patch_normals (Q, 3); patch_size: texels per patch side (sets
-    the neighbourhood, patch_size texels around the texel's grid point, and the Gaussian's std, the patch
-    pitch)."""
+    (T,) patch of each texel; patch_centres, patch_normals (Q, 3); patch_size: texels per patch side (the
+    blocks of texel_patches: the neighbourhood is the patches of the 3 x 3 blocks around the texel's; the
+    Gaussian's std is the patch pitch, the median distance between neighbouring centroids)."""
     if isinstance(patch_size, bool) or not isinstance(patch_size, (int, np.integer)) or patch_size < 1:
         raise ConfigError(f"radiosity.patch_size must be an integer >= 1, got {patch_size!r}")
     index = np.asarray(texel_index, dtype=np.int64)
@@ -45,19 +45,28 @@ def linear_reconstruction(texel_index, grid_shape: tuple[int, int], positions, n
     cn = np.asarray(patch_normals, dtype=np.float64)
     T, Q = len(index), len(c)
     H, W = grid_shape
-    grid = np.full(H * W, -1, dtype=np.int64)
-    grid[index] = tp
+    # candidates: the patches of the 3 x 3 blocks around the texel's block (a block may hold several patches
+    # where it was split at a crease), the texel's own patch first; their number does not grow with the size
+    s_ = int(patch_size)
+    bh, bw = -(-H // s_), -(-W // s_)
     row, col = index // W, index % W
-    r = int(patch_size)
+    brow, bcol = row // s_, col // s_
+    pblock = np.full(Q, -1, dtype=np.int64)
+    pblock[tp] = brow * bw + bcol
+    order = np.argsort(pblock, kind="stable")
+    count = np.bincount(np.maximum(pblock, 0), minlength=bh * bw)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    most = int(count.max()) if Q else 0
     cand = []
-    for dr in range(-r, r + 1):
-        for dc in range(-r, r + 1):
-            rr, cc = row + dr, col + dc
-            ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
-            cand.append(np.where(ok, grid[np.clip(rr, 0, H - 1) * W + np.clip(cc, 0, W - 1)], -1))
-    cand = np.sort(np.stack(cand, 1), axis=1)                                  # (T, M)
-    cand[:, 1:][cand[:, 1:] == cand[:, :-1]] = -1                              # each patch once per texel
-    # the texel's own patch always takes part
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            rr, cc = brow + dr, bcol + dc
+            ok = (rr >= 0) & (rr < bh) & (cc >= 0) & (cc < bw)
+            nb = np.clip(rr, 0, bh - 1) * bw + np.clip(cc, 0, bw - 1)
+            for j in range(most):
+                has = ok & (j < count[nb])
+                cand.append(np.where(has, order[np.minimum(start[nb] + j, Q - 1)], -1))
+    cand = np.stack(cand, 1) if cand else np.full((T, 0), -1, dtype=np.int64)   # (T, 9 most)
     cand = np.concatenate([tp[:, None], np.where(cand == tp[:, None], -1, cand)], 1)
     valid = cand >= 0
     q = np.maximum(cand, 0)
