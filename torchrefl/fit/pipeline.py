@@ -279,11 +279,10 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             plevel = _photon_setup(cfg, surface, obs, fit_mask | eval_mask, device, dt,
                                    radiosity_irradiance=indirect if hybrid else None,
                                    radiosity_radiance=radiance if hybrid else None, emitter_source=emitter_source)
-            damping = pc.damping if pc.damping is not None else (0.0 if hybrid else 0.5)
             log(f"photon level: {plevel.sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
                 f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}, "
                 + ("all-diffuse paths from the radiosity level, photons for the paths with a specular scattering"
-                   if hybrid else "every path from photons") + f", Pd damping {damping:g} between refreshes")
+                   if hybrid else "every path from photons") + f", Pd damping {pc.damping:g} between refreshes")
 
             def reinitialise(direct_only):
                 fresh = initialise_local(terms, direct_only.cpu().to(obs.intensity.dtype), cls, counts["T_spec"],
@@ -295,7 +294,7 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
                                   fit_mask, cls, schedule=pc.schedule, outer=pc.outer_iterations,
                                   optimizer=fc.optimizer, iterations=pc.iterations if pc.iterations is not None else fc.iterations,
                                   learning_rate=fc.learning_rate, progress=cfg.output.progress, log=log,
-                                  reinitialise=reinitialise if pc.reinitialise else None, damping=damping)
+                                  reinitialise=reinitialise if pc.reinitialise else None, damping=pc.damping)
             model, history = photon["predict"], photon["history"] or [photon["scores"][0]]
         else:
             objective = make_objective(model, fit_mask)
