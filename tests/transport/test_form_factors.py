@@ -446,6 +446,8 @@ def test_the_strip_that_cuts_the_fold_is_seen_as_the_other_plate():
 def test_bad_inputs_raise_named_errors():
     tracer, fp, o, n, w = scene(box(3))
     ok = dict(samples_per_patch=10, seed=0, offset=OFFSET)
+    with pytest.raises(GeometryError, match=r"corners have shapes \(1, 3\) and \(1, 3, 3\), expected"):
+        hemisphere_form_factors(tracer, fp, o, n, w, corners=(np.zeros((1, 3)), np.zeros((1, 3, 3))), **ok)
     with pytest.raises(ConfigError, match="samples_per_patch"):
         hemisphere_form_factors(tracer, fp, o, n, w, samples_per_patch=0, seed=0, offset=OFFSET)
     with pytest.raises(ConfigError, match="offset"):

@@ -38,12 +38,11 @@ import torch
 from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.geometry.surface import Surface
 from torchrefl.rays import RayTracer
+from torchrefl.transport.fold_hits import facing_corner, mixed_faces
 
 #: hemisphere_form_factors returns a dense (Q, Q) tensor when Q * Q <= DENSE_MAX_ENTRIES
 #: (Q <= 2048: at most 32 MiB in float64), a sparse COO tensor otherwise.
 DENSE_MAX_ENTRIES = 2048 * 2048
-#: corners whose texel normals' cosine is below this make a face "mixed" (hemisphere_form_factors' corner rule)
-MIXED_COS = 0.9
 #: rays per work unit of hemisphere_form_factors (whole patches; one thread samples, traces and tallies a unit)
 UNIT_RAYS = 1 << 16
 
@@ -262,12 +261,12 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     progress(done_rays, total_rays) is called after each work unit.
     corners: (face_corners) the patches (F, 3) and normals (F, 3, 3) of each face's corners. A hit then goes
     to the patch of the face's first corner only if that corner's normal faces the ray (n . d < 0), else to
-    the corner that faces it most. A face that bridges a crease (a range mesh cuts a fold's corner with a
+    the corner that faces it most (fold_hits.facing_corner). A face that bridges a crease (a range mesh cuts a fold's corner with a
     strip of faces from one side's last texel row to the other's first) is thus seen from each side as the
     other side's surface, which is what a ray crossing that strip reaches on the real object; from its own
     side's texels such a face would otherwise be the texels' own patch, lit like them (Object E at full size:
     the lower plate's row nearest the fold gathered 3 % too little light). Faces with all corners alike are
-    unaffected, and so are faces whose corners' normals agree within about 25 degrees (MIXED_COS).
+    unaffected, and so are faces whose corners' normals agree within about 25 degrees (fold_hits.MIXED_COS).
     """
     if isinstance(samples_per_patch, bool) or not isinstance(samples_per_patch, (int, np.integer)) \
             or samples_per_patch < 1:
@@ -317,11 +316,8 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
                                 f"and ({len(fp)}, 3, 3): the patch and normal of each face's three corners")
         c_patch = c_patch.astype(np.int64)
         c_normal = c_normal.astype(np.float32)
-        # the rule matters on faces whose corners' normals disagree (they bridge a fold or crease; more than
-        # about 25 degrees, as photon_trace's faces that do not collect), and only those pay for it
-        cos = lambda a, b: np.einsum("fi,fi->f", c_normal[:, a], c_normal[:, b])
-        mixed = ((cos(0, 1) < MIXED_COS) | (cos(0, 2) < MIXED_COS) | (cos(1, 2) < MIXED_COS)) & (
-            (c_patch[:, 0] != c_patch[:, 1]) | (c_patch[:, 0] != c_patch[:, 2]))
+        # the rule matters on mixed faces whose corners lie in different patches, and only those pay for it
+        mixed = mixed_faces(c_normal) & ((c_patch[:, 0] != c_patch[:, 1]) | (c_patch[:, 0] != c_patch[:, 2]))
         mixed = np.append(mixed, False)                 # index -1 (a miss) reads False: one pass over the rays
         if not mixed.any():
             corners = None
@@ -365,11 +361,11 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         dst = np.where(tri >= 0, fp[np.maximum(tri, 0)], -1)
         if corners is not None:
             hit = np.flatnonzero(np.take(mixed, tri))
-            facing = np.einsum("ni,nci->nc", d[hit], c_normal[tri[hit]])              # (n, 3) n . d per corner
-            facing = np.where(c_patch[tri[hit]] >= 0, facing, np.inf)
-            turn = np.flatnonzero((facing[:, 0] >= 0) & (facing.min(1) < 0))
-            if turn.size:
-                dst[hit[turn]] = c_patch[tri[hit[turn]], facing[turn].argmin(1)]
+            if hit.size:
+                th, cn = tri[hit], c_normal[tri[hit]]
+                k = facing_corner(np.zeros(hit.size, dtype=np.int64), cn, d[hit],
+                                  -np.einsum("ni,nci->nc", d[hit], cn), usable=c_patch[th] >= 0)
+                dst[hit] = np.where(k > 0, c_patch[th, k], dst[hit])
         if front is not None:
             hit = np.flatnonzero(dst >= 0)
             back = np.einsum("ni,ni->n", d[hit], front[tri[hit]]) >= 0

@@ -38,6 +38,7 @@ import torch
 from torchrefl import brdf as brdf_mod
 from torchrefl.errors import GeometryError
 from torchrefl.rays import RayTracer
+from torchrefl.transport.fold_hits import facing_corner, mixed_faces
 from torchrefl.transport.lobe_sampling import (LOBES, column_dot, lobe_constants, lobe_over_pdf, lobe_theta, row_dot,
                                                specular_probability, tangent_frame)
 
@@ -161,10 +162,7 @@ class PhotonTracer:
         self._corner_texel = corner_texel.astype(np.int32).ravel()
         self._corner_collects = self.collects.ravel()
         # faces whose corners' texel normals disagree (they bridge a fold or a crease): hit_texels' corner rule
-        cn = self.normals[corner_texel] if faces.size else np.zeros((0, 3, 3))
-        self._mixed_face = ((np.einsum("fi,fi->f", cn[:, 0], cn[:, 1]) < COLLECT_COS)
-                            | (np.einsum("fi,fi->f", cn[:, 0], cn[:, 2]) < COLLECT_COS)
-                            | (np.einsum("fi,fi->f", cn[:, 1], cn[:, 2]) < COLLECT_COS))
+        self._mixed_face = mixed_faces(self.normals[corner_texel]) if faces.size else np.zeros(0, dtype=bool)
         self._offset32 = np.float32(self.offset)
 
     def landing(self, source: np.ndarray) -> np.ndarray:
@@ -189,23 +187,18 @@ class PhotonTracer:
                    direction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(N,) int32 texel of each hit (the corner of the hit face with the largest barycentric weight, the
         first one on a tie) and (N,) bool whether the hit counts in that texel's density (self.collects).
-        direction (3, N), the rays' directions: on a face that bridges a fold or crease (its corners' normals
-        disagree) the hit goes to the corner with the largest weight among those whose texel normal faces the
-        ray, as on the real object a ray crossing that strip reaches the surface that faces it (the strip's
-        own-side corners would hand a texel its own radiance; form_factors applies the same rule)."""
+        direction (3, N), the rays' directions: on a face that bridges a fold or crease the hit goes to the
+        corner that faces the ray (fold_hits.facing_corner, scored by barycentric weight; the form factors
+        apply the same rule)."""
         w0 = 1 - u - v
         corner = np.where(u >= v, np.where(u > w0, 1, 0), np.where(v > w0, 2, 0))
         if direction is not None and triangle.size:
             m = np.flatnonzero(np.take(self._mixed_face, triangle))
             if m.size:
-                tri = triangle[m].astype(np.int64)
-                texels = self._corner_texel[tri[:, None] * 3 + np.arange(3)]                      # (M, 3)
-                facing = np.einsum("im,mci->mc", np.asarray(direction, dtype=np.float64)[:, m], self.normals[texels]) < 0
-                bary = np.stack([w0[m], u[m], v[m]], 1)
-                turn = np.flatnonzero(~facing[np.arange(m.size), corner[m]] & facing.any(1))
-                if turn.size:
-                    corner = corner.copy()
-                    corner[m[turn]] = np.where(facing[turn], bary[turn], -np.inf).argmax(1)
+                texels = self._corner_texel[triangle[m].astype(np.int64)[:, None] * 3 + np.arange(3)]   # (M, 3)
+                corner = corner.copy()
+                corner[m] = facing_corner(corner[m], self.normals[texels], np.asarray(direction)[:, m].T,
+                                          np.stack([w0[m], u[m], v[m]], 1))
         i = triangle.astype(np.int64) * 3 + corner
         return np.take(self._corner_texel, i), np.take(self._corner_collects, i)
 
