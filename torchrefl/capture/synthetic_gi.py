@@ -25,18 +25,17 @@ Deterministic in `seed` (random numbers are keyed by seed and chunk index, never
 
 from __future__ import annotations
 
-import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 import torch
-from scipy.stats import qmc
 
 from torchrefl import brdf as brdf_mod
 from torchrefl.errors import GeometryError
 from torchrefl.rays import RayTracer
+from torchrefl.rqmc import sobol_base, toroidal_shift
 from torchrefl.transport.lobe_sampling import LOBES, row_dot, sample_mixture
 
 
@@ -112,11 +111,7 @@ class IndirectRenderer:
         mpd, mps, msg = rep(pd), rep(ps), rep(sigma)
         T = np.ones((len(x), 3))
         # first bounce: randomised QMC (scrambled Sobol + a toroidal shift per origin)
-        if n_paths > 1:   # the first n_paths points of a scrambled Sobol set: each uniform on [0,1)^3
-            base = qmc.Sobol(3, scramble=True, seed=rng).random_base2(int(math.ceil(math.log2(n_paths))))[:n_paths]
-        else:
-            base = rng.random((n_paths, 3))
-        u = np.mod(np.tile(base, (M, 1)) + rep(rng.random((M, 3))), 1.0)
+        u = toroidal_shift(sobol_base(n_paths, 3, rng), rng.random((M, 3)))
         out = {k: [] for k in ("origin", "points", "normals", "wo", "pd", "ps", "sigma", "throughput")}
         for depth in range(self.max_bounces):
             if depth > 0:

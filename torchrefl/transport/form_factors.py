@@ -11,9 +11,14 @@ weights, leave in cosine-weighted directions about the local normal, and
 
     F_uv ~= (rays from u whose first hit is on the front of patch v) / (rays from u).
 
-Each ray is an independent Bernoulli trial for every v, so an entry has the binomial standard
-error sqrt(F (1 - F) / N) (`sampling_error`), on top of the (deterministic) discretisation of u
-into its candidate origins. Rays that escape, hit a face that belongs to no patch (a blocker), or
+The rays are randomised QMC (torchrefl.rqmc: a scrambled Sobol set moved by a uniform shift per
+patch, its first coordinate choosing the origin, the other two the direction): each ray is uniform like
+an independent one, so the estimate is unbiased, but the origins and directions are stratified. With
+independent rays an entry would have the binomial standard error sqrt(F (1 - F) / N) (`sampling_error`);
+the stratified rays stay below it (on a closed box: 0.47 of it at 2 000 rays per patch, 0.27 at 32 000,
+the error falling like N^-0.7 instead of N^-0.5). On Object E at full size they halve the fitter's own
+per-texel Pd noise on the lower plate (README, "Texel by texel"). The (deterministic) discretisation of u
+into its candidate origins comes on top. Rays that escape, hit a face that belongs to no patch (a blocker), or
 reach the back side of a patch count nowhere: energy arriving at the back of a range-image surface
 does not feed the radiosity B of its observed front side (`count_back_hits=True` counts them).
 Embree's tnear is 0, so rays start `offset` along the normal.
@@ -38,6 +43,7 @@ import torch
 from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.geometry.surface import Surface
 from torchrefl.rays import RayTracer
+from torchrefl.rqmc import sobol_base, toroidal_shift
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
 
 #: hemisphere_form_factors returns a dense (Q, Q) tensor when Q * Q <= DENSE_MAX_ENTRIES
@@ -348,12 +354,15 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         rng = np.random.default_rng([int(seed), 0xF0, i])
         # origin choice by inverse CDF of the weights; a zero-weight slot has the same cdf as the slot
         # before it, so right=True never picks padding
-        u = torch.from_numpy(rng.random((b - a, N)))
+        # randomised QMC: one scrambled Sobol set per unit, moved by a uniform shift per patch; its first
+        # coordinate picks the origin, the other two the direction, so both are stratified
+        uq = toroidal_shift(sobol_base(N, 3, rng), rng.random((b - a, 3)))
+        u = torch.from_numpy(np.ascontiguousarray(uq[:, 0].reshape(b - a, N)))
         k = np.minimum(torch.searchsorted(cdf[a:b], u, right=True).numpy(), K - 1)
         src = np.repeat(np.arange(a, b), N)
         j = slot[src * K + k.ravel()]
-        u1 = rng.random(len(j), dtype=np.float32)
-        phi = rng.random(len(j), dtype=np.float32) * np.float32(2.0 * np.pi)
+        u1 = uq[:, 1].astype(np.float32)
+        phi = uq[:, 2].astype(np.float32) * np.float32(2.0 * np.pi)
         r = np.sqrt(u1)
         local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(np.float32(1.0) - u1, 0))], 1)
         d = np.einsum("ni,nij->nj", local, frames[j])
@@ -435,7 +444,8 @@ def form_factors_for_surface(surface: Surface, tracer: Optional[RayTracer] = Non
 
 
 def sampling_error(F: torch.Tensor, samples_per_patch: int) -> torch.Tensor:
-    """Binomial standard error sqrt(F (1 - F) / N) of each entry (same layout as F; 0 where F is 0)."""
+    """Binomial standard error sqrt(F (1 - F) / N) of each entry (same layout as F; 0 where F is 0): the error
+    of independent rays, which hemisphere_form_factors' stratified rays stay below (module docstring)."""
     if isinstance(samples_per_patch, bool) or not isinstance(samples_per_patch, (int, np.integer)) \
             or samples_per_patch < 1:
         raise ConfigError(f"samples_per_patch must be an integer >= 1, got {samples_per_patch!r}")

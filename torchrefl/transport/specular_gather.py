@@ -35,10 +35,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.stats import qmc
 
 from torchrefl import brdf as brdf_mod
 from torchrefl.errors import ConfigError
+from torchrefl.rqmc import sobol_base, toroidal_shift
 from torchrefl.transport.lobe_sampling import row_dot, sample_mixture
 from torchrefl.transport.photon_level import BIN_PER_SIGMA, LOBE_CUTOFF, THETA_BIN
 from torchrefl.transport.photon_trace import PhotonTracer
@@ -91,7 +91,7 @@ class SpecularGather:
         """Draw and trace the directions for the texels' roughness sigma (T,) at this refresh."""
         N = self.samples
         rng = np.random.default_rng([self.seed, 0x67, int(refresh)])
-        base = qmc.Sobol(2, scramble=True, seed=rng).random_base2(int(math.ceil(math.log2(N))))[:N] if N > 1 else rng.random((1, 2))
+        base = sobol_base(N, 2, rng)
         sig_all = np.minimum(WIDEN * np.maximum(np.asarray(sigma, dtype=np.float64), brdf_mod.SIGMA_EPS), self.sigma_max)
         groups = ([(-1, self.keep.any(0), self.view)] if self.view.ndim == 2 else
                   [(p, self.keep[p], self.view[p]) for p in range(self.keep.shape[0])])
@@ -101,7 +101,7 @@ class SpecularGather:
             if not texels.size:
                 continue
             t = np.repeat(texels, N)
-            u = np.mod(np.tile(base, (len(texels), 1)) + np.repeat(rng.random((len(texels), 2)), N, 0), 1.0)
+            u = toroidal_shift(base, rng.random((len(texels), 2)))
             n, v, sig = self.tracer.normals[t], view[t], sig_all[t]
             l, pdf = sample_mixture(self.tracer.lobe, n, v, None, None, sig, np.column_stack([u, np.zeros(len(t))]),
                                     q=np.ones(len(t)))

@@ -1,0 +1,39 @@
+"""Randomised QMC points: uniform like independent ones, stratified within a group."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from torchrefl.rqmc import sobol_base, toroidal_shift
+
+
+def test_points_are_uniform_and_grouped_by_shift():
+    rng = np.random.default_rng(0)
+    base = sobol_base(100, 3, rng)                      # not a power of two: cut from 128
+    shifts = rng.random((500, 3))
+    u = toroidal_shift(base, shifts)
+    assert u.shape == (50_000, 3) and (u >= 0).all() and (u < 1).all()
+    for d in range(3):                                    # every coordinate uniform over all groups
+        assert stats.kstest(u[:, d], "uniform").pvalue > 1e-3
+    # rows g * n .. g * n + n - 1 are the base moved by shift g
+    g = 7
+    assert np.allclose(u[g * 100:(g + 1) * 100], np.mod(base + shifts[g], 1.0))
+
+
+def test_a_group_integrates_a_smooth_function_far_better_than_independent_points():
+    f = lambda u: np.exp(u[:, 0]) * np.cos(u[:, 1]) * (1 + u[:, 2] ** 2)
+    exact = (np.e - 1) * np.sin(1.0) * (4 / 3)
+    n, groups = 256, 400
+    rng = np.random.default_rng(1)
+    q = f(toroidal_shift(sobol_base(n, 3, rng), rng.random((groups, 3)))).reshape(groups, n).mean(1)
+    iid = f(rng.random((groups * n, 3))).reshape(groups, n).mean(1)
+    assert abs(q.mean() - exact) < 4 * q.std() / np.sqrt(groups)         # unbiased
+    assert q.std() < 0.2 * iid.std()                                      # stratified
+
+
+def test_one_point_and_bad_counts():
+    rng = np.random.default_rng(2)
+    assert sobol_base(1, 2, rng).shape == (1, 2)
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match="n must be an integer >= 1"):
+            sobol_base(bad, 2, rng)

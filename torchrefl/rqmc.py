@@ -1,0 +1,34 @@
+"""Randomised quasi-Monte Carlo points: one scrambled Sobol set shared by many groups, each group
+moved by its own uniform toroidal shift (Cranley-Patterson rotation).
+
+Every point of a shifted set is uniform on [0, 1)^d, so an estimator that averages a group's points is
+unbiased exactly as with independent uniforms, and the groups' errors are independent given their
+shifts; within a group the points are stratified, so for a smooth integrand the error falls faster
+than 1/sqrt(n). Used by the renderer's first bounce (torchrefl.capture.synthetic_gi), the specular
+gather's directions (torchrefl.transport.specular_gather) and the form factors' hemisphere rays
+(torchrefl.transport.form_factors).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.stats import qmc
+
+
+def sobol_base(n: int, dim: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, dim) float64: the first n points of a scrambled Sobol set drawn with rng (n = 1: one uniform
+    point). The set is generated to the next power of two and cut, so every point stays uniform."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n must be an integer >= 1, got {n!r}")
+    if n == 1:
+        return rng.random((1, dim))
+    return qmc.Sobol(dim, scramble=True, seed=rng).random_base2(int(math.ceil(math.log2(n))))[:n]
+
+
+def toroidal_shift(base: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+    """(G * n, dim): the base set (n, dim) moved by each group's shift (G, dim), modulo 1, group by group
+    (rows g * n .. g * n + n - 1 belong to group g)."""
+    n = len(base)
+    return np.mod(np.tile(base, (len(shifts), 1)) + np.repeat(shifts, n, axis=0), 1.0)
