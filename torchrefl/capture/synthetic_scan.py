@@ -299,7 +299,8 @@ class SyntheticScan:
         for k in ("pd", "ps", "sigma"):
             mat[k] = smp[k] if k in smp else self.truth[k].reshape((H * W,) + self.truth[k].shape[2:])[smp["texel"]]
         g = self.indirect_renderer().render(smp["points"], smp["normals"], smp["view"], mat["pd"], mat["ps"],
-                                            mat["sigma"], lights, cfg.indirect_samples, progress=progress)
+                                            mat["sigma"], lights, cfg.indirect_samples, progress=progress,
+                                            groups=smp["texel"])
         return self.kappa * cfg.light_intensity * g
 
     def _direct_sum(self, head_position) -> np.ndarray:
