@@ -380,18 +380,22 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
             back = np.einsum("ni,ni->n", d[hit], front[tri[hit]]) >= 0
             dst[hit[back]] = -1
         ok = dst >= 0
+        # tally per unit, on the unit's thread: units own disjoint source patches, so their (key, count)
+        # pairs never overlap and concatenate in key order
+        uniq, counts = np.unique(src[ok] * Q + dst[ok], return_counts=True)
         with lock:
             done[0] += len(j)
             if progress is not None:
                 progress(done[0], total)
-        return src[ok] * Q + dst[ok]
+        return uniq, counts
 
     if tracer.threads > 1 and len(units) > 1:
         with ThreadPoolExecutor(tracer.threads) as pool:
-            keys = np.concatenate(list(pool.map(work, range(len(units)))))
+            parts = list(pool.map(work, range(len(units))))
     else:
-        keys = np.concatenate([work(i) for i in range(len(units))])
-    uniq, counts = np.unique(keys, return_counts=True)
+        parts = [work(i) for i in range(len(units))]
+    uniq = np.concatenate([p[0] for p in parts])
+    counts = np.concatenate([p[1] for p in parts])
     values = torch.from_numpy(counts.astype(np.float64) / N)
     idx = torch.from_numpy(np.stack([uniq // Q, uniq % Q]))
     dense = layout == "dense" or (layout == "auto" and Q * Q <= DENSE_MAX_ENTRIES)
