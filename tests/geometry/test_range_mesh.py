@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from torchrefl.errors import GeometryError
-from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation
+from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, oriented_face_normals
 
 
 def grid(H=10, W=12, jump_col=None):
@@ -104,3 +104,20 @@ def test_crease_texels_match_a_slow_reference_on_a_bumpy_surface():
         np.testing.assert_array_equal(got, slow_crease(pts, n, faces, angle))
     with pytest.raises(GeometryError, match="'angle_deg' \\(geometry.crease_angle_deg\\)"):
         crease_texels(verts, faces, n.reshape(-1, 3), np.arange(H * W), 0.0)
+
+
+def test_face_normals_turn_to_their_corners_side_whatever_the_winding():
+    v = np.array([[0.0, 0, 0], [2, 0, 0], [0, 3, 0], [0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    faces = np.array([[0, 1, 2], [0, 2, 1], [3, 4, 5]])              # both windings, and a degenerate face
+    up = np.tile([0.0, 0.0, 1.0], (3, 3, 1))
+    n = oriented_face_normals(v, faces, up)
+    assert np.allclose(n[:2], [[0, 0, 1], [0, 0, 1]]) and np.allclose(n[2], 0)
+    assert np.allclose(oriented_face_normals(v, faces[:2], -up[:2]), [[0, 0, -1], [0, 0, -1]])
+    # corners without a normal (zeros) do not vote; a sum perpendicular to the face keeps the winding
+    one = np.zeros((2, 3, 3))
+    one[:, 1] = [0.0, 0.1, -1.0]
+    assert np.allclose(oriented_face_normals(v, faces[:2], one), [[0, 0, -1], [0, 0, -1]])
+    side = np.zeros((2, 3, 3))
+    side[:, :, 0] = 1.0
+    assert np.allclose(oriented_face_normals(v, faces[:2], side), [[0, 0, 1], [0, 0, -1]])
+    assert oriented_face_normals(v, np.zeros((0, 3), dtype=int), np.zeros((0, 3, 3))).shape == (0, 3)

@@ -79,6 +79,21 @@ def boundary_texels(faces: np.ndarray, grid_shape: tuple[int, int], texel_index:
     return edge[texel_index]
 
 
+def oriented_face_normals(vertices: np.ndarray, faces: np.ndarray, corner_normals: np.ndarray) -> np.ndarray:
+    """(F, 3) unit geometric normals of the faces (F, 3) of vertices (V, 3), each turned to the side that the sum
+    of its corners' normals corner_normals (F, 3, 3) points to (zeros for a corner without one): the grid's
+    winding may face either way. A face whose corners' normals sum perpendicular to it keeps its winding's
+    normal; a degenerate face gets zeros."""
+    v = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if not len(faces):
+        return np.zeros((0, 3))
+    fn = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    side = np.einsum("fi,fi->f", fn, np.asarray(corner_normals, dtype=np.float64).sum(1))
+    return fn * np.where(side < 0, -1.0, 1.0)[:, None]
+
+
 def crease_texels(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, texel_index: np.ndarray,
                   angle_deg: float | None) -> np.ndarray:
     """(T,) bool: texels on a crease, whose footprint spans two faces of the object (mixed pixels, like those at
@@ -101,12 +116,8 @@ def crease_texels(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, 
     slot[np.asarray(texel_index, dtype=np.int64)] = np.arange(T)
     v = np.asarray(vertices, dtype=np.float64)
     n = np.asarray(normals, dtype=np.float64)
-    fn = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
-    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
     corner = slot[faces]                                          # (F, 3) texel of each corner, -1 if none
-    # orient each face like the summed normals of its corners (the grid's winding may face either way)
-    side = np.einsum("fi,fi->f", fn, np.where(corner[..., None] >= 0, n[np.maximum(corner, 0)], 0.0).sum(1))
-    fn *= np.where(side < 0, -1.0, 1.0)[:, None]
+    fn = oriented_face_normals(v, faces, np.where(corner[..., None] >= 0, n[np.maximum(corner, 0)], 0.0))
     worst = np.ones(T)
     for c in range(3):
         t = corner[:, c]

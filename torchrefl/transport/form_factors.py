@@ -329,7 +329,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
             corners = None
 
     N = int(samples_per_patch)
-    cdf = torch.from_numpy(np.cumsum(w, axis=1) / row[:, None])
+    cdf = np.cumsum(w, axis=1) / row[:, None]
     # frames and start points once per candidate origin (Q * K), then gathered per ray (float32, like Embree)
     cand = np.flatnonzero(used.ravel())
     slot = np.full(Q * K, -1, dtype=np.int64)
@@ -352,13 +352,17 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     def work(i: int) -> np.ndarray:
         a, b = units[i]
         rng = np.random.default_rng([int(seed), 0xF0, i])
-        # origin choice by inverse CDF of the weights; a zero-weight slot has the same cdf as the slot
-        # before it, so right=True never picks padding
         # randomised QMC: one scrambled Sobol set per unit, moved by a uniform shift per patch; its first
         # coordinate picks the origin, the other two the direction, so both are stratified
         uq = toroidal_shift(sobol_base(N, 3, rng), rng.random((b - a, 3)))
-        u = torch.from_numpy(np.ascontiguousarray(uq[:, 0].reshape(b - a, N)))
-        k = np.minimum(torch.searchsorted(cdf[a:b], u, right=True).numpy(), K - 1)
+        # origin choice by inverse CDF of the weights; a zero-weight slot has the same cdf as the slot
+        # before it, so right=True (a count of cdf <= u) never picks padding
+        u = uq[:, 0].reshape(b - a, N)
+        if K <= 16:     # count(cdf <= u) is searchsorted(right=True), cheaper for a few candidates
+            k = np.minimum((u[:, :, None] >= cdf[a:b, None, :K - 1]).sum(-1), K - 1)
+        else:
+            k = np.minimum(torch.searchsorted(torch.from_numpy(cdf[a:b]), torch.from_numpy(np.ascontiguousarray(u)),
+                                              right=True).numpy(), K - 1)
         src = np.repeat(np.arange(a, b), N)
         j = slot[src * K + k.ravel()]
         u1 = uq[:, 1].astype(np.float32)
@@ -403,7 +407,8 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         F = torch.zeros(Q, Q, dtype=torch.float64)
         F[idx[0], idx[1]] = values
         return F
-    return torch.sparse_coo_tensor(idx, values, (Q, Q), dtype=torch.float64, check_invariants=False).coalesce()
+    # the keys are unique and sorted (row-major), which is the coalesced layout already
+    return torch.sparse_coo_tensor(idx, values, (Q, Q), dtype=torch.float64, check_invariants=False, is_coalesced=True)
 
 
 def _front_faces(tracer: RayTracer, fp: np.ndarray, w: np.ndarray, nm: np.ndarray, Q: int) -> np.ndarray:

@@ -37,6 +37,7 @@ import torch
 
 from torchrefl import brdf as brdf_mod
 from torchrefl.errors import GeometryError
+from torchrefl.geometry.range_mesh import oriented_face_normals
 from torchrefl.rays import RayTracer
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
 from torchrefl.transport.lobe_sampling import (LOBES, column_dot, lobe_constants, lobe_over_pdf, lobe_theta, row_dot,
@@ -142,10 +143,7 @@ class PhotonTracer:
         self.frame_t, self.frame_b = tangent_frame(self.normals)
         verts = np.asarray(tracer.vertices, dtype=np.float64)
         fa = 0.5 * np.linalg.norm(np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1)
-        fn = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]) if faces.size else np.zeros((0, 3))
-        fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
-        side = np.sign(row_dot(fn, self.normals[self.vertex_texel[faces]].sum(1))) if faces.size else np.zeros(0)
-        self.face_normals = fn * np.where(side == 0, 1.0, side)[:, None]
+        self.face_normals = oriented_face_normals(verts, faces, self.normals[self.vertex_texel[faces]])
         # a corner of a face collects for its texel only where the face lies along the texel's surface
         # (normals within ~25 deg): faces that cut across a fold or a crease (their normal between the two
         # sides) still scatter photons but do not count in the fold texels' density, which would
