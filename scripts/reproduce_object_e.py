@@ -25,7 +25,7 @@ per-texel columns against it.
 --set passes config overrides (dotted keys, as on the train command line) to every method's run, e.g.
 --set photon.diffuse_paths=radiosity.
 
---quick renders a 256 x 225 grid with fewer paths (about 8 minutes instead of 18, the capture floor included).
+--quick renders a 256 x 225 grid with fewer paths (about 2-3 minutes instead of 16, the capture floor included).
 """
 
 from __future__ import annotations
