@@ -169,7 +169,6 @@ def object_e_renders():
     cfg = e_cfg(indirect_samples=128)
     scan = SyntheticScan(cfg, seed=0)
     direct = SyntheticScan(e_cfg(), seed=0)
-    head = LIGHTS[0]
     return scan, scan.radiance_images(LIGHTS), np.stack([direct.radiance_image(h) for h in LIGHTS])
 
 
