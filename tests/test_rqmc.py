@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from torchrefl.rqmc import sobol_base, toroidal_shift
+from torchrefl.rqmc import grouped_points, sobol_base, toroidal_shift
 
 
 def test_points_are_uniform_and_grouped_by_shift():
@@ -37,3 +37,20 @@ def test_one_point_and_bad_counts():
     for bad in (0, -3, 2.5, True):
         with pytest.raises(ValueError, match="n must be an integer >= 1"):
             sobol_base(bad, 2, rng)
+
+
+def test_grouped_points_one_set_per_group():
+    # singletons: one Sobol set, a shift per member (toroidal_shift)
+    a = grouped_points(16, np.arange(5), np.random.default_rng(3), 3)
+    rng = np.random.default_rng(3)
+    assert np.array_equal(a, toroidal_shift(sobol_base(16, 3, rng), rng.random((5, 3))))
+    # groups: the k-th member of a group takes the k-th block of one set, moved by the group's shift
+    groups = np.array([4, 4, 4, 7, 9, 9])
+    u = grouped_points(16, groups, np.random.default_rng(4), 3)
+    rng = np.random.default_rng(4)
+    base, shifts = sobol_base(48, 3, rng), rng.random((3, 3))
+    assert u.shape == (96, 3) and (u >= 0).all() and (u < 1).all()
+    assert np.allclose(u[:48], np.mod(base + shifts[0], 1.0))                # group 4: all 48 points
+    assert np.allclose(u[48:64], np.mod(base[:16] + shifts[1], 1.0))         # group 7: the first block
+    assert np.allclose(u[80:96], np.mod(base[16:32] + shifts[2], 1.0))       # group 9's second member
+    assert grouped_points(8, np.zeros(0), rng, 2).shape == (0, 2)

@@ -8,12 +8,12 @@ import trimesh
 from scipy import stats
 
 from torchrefl.capture.cylindrical_rig import CylindricalRig
-from torchrefl.capture.synthetic_gi import IndirectRenderer, first_bounce_uniforms
+from torchrefl.capture.synthetic_gi import IndirectRenderer
 from torchrefl.transport.lobe_sampling import lobe_pdf, sample_lobe
 from torchrefl.capture.synthetic_scan import SyntheticScan
 from torchrefl.config import SyntheticConfig
+from torchrefl.errors import GeometryError
 from torchrefl.rays import RayTracer
-from torchrefl.rqmc import sobol_base, toroidal_shift
 
 LIGHTS = np.array([[0.0, 0.0, 300.0], [-150.0, 100.0, 300.0]])
 
@@ -198,22 +198,6 @@ def test_same_seed_same_images_and_paths_do_not_depend_on_the_light_batch(object
     assert np.abs(other - full[1]).max() * 255 < 40      # only the Monte Carlo noise differs
 
 
-def test_first_bounce_uniforms_one_set_per_group():
-    # singletons: one Sobol set, a shift per origin (the construction before groups existed)
-    a = first_bounce_uniforms(16, np.arange(5), np.random.default_rng(3))
-    rng = np.random.default_rng(3)
-    assert np.array_equal(a, toroidal_shift(sobol_base(16, 3, rng), rng.random((5, 3))))
-    # groups: the k-th origin of a group takes the k-th block of one set, moved by the group's shift
-    groups = np.array([4, 4, 4, 7, 9, 9])
-    u = first_bounce_uniforms(16, groups, np.random.default_rng(4))
-    rng = np.random.default_rng(4)
-    base, shifts = sobol_base(48, 3, rng), rng.random((3, 3))
-    assert u.shape == (96, 3) and (u >= 0).all() and (u < 1).all()
-    assert np.allclose(u[:48], np.mod(base + shifts[0], 1.0))                # group 4: all 48 points
-    assert np.allclose(u[48:64], np.mod(base[:16] + shifts[1], 1.0))         # group 7: the first block
-    assert np.allclose(u[80:96], np.mod(base[16:32] + shifts[2], 1.0))       # group 9's second origin
-
-
 def test_a_texels_sub_samples_share_one_stratified_set_unbiased_and_less_noisy():
     # texel values average their sub-samples; grouping their first bounces stratifies the texel's paths
     # (fewer than ungrouped: a test that fails if grouping is dropped) without moving the mean
@@ -241,6 +225,10 @@ def test_a_texels_sub_samples_share_one_stratified_set_unbiased_and_less_noisy()
     reference = texel_means(3, False, n_paths=256)
     grouped = np.mean([texel_means(s, True) for s in (4, 5, 6, 7)], axis=0)
     assert abs(grouped.sum() / reference.sum() - 1) < 0.01
+    gi = IndirectRenderer(scan.tracer, scan._normal_at, scan._material_at, scan.cfg.brdf, seed=0)
+    with pytest.raises(GeometryError, match=r"groups has shape \(3,\), expected \(4,\)"):
+        gi.render(smp["points"][sel[:4]], smp["normals"][sel[:4]], smp["view"][sel[:4]], mat["pd"][:4], mat["ps"][:4],
+                  mat["sigma"][:4], lights[:, :4], 4, groups=tex[:3])
 
 
 def test_mesh_objects_scan_only_in_front_of_the_axis_and_have_texel_truth():

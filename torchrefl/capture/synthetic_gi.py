@@ -15,7 +15,7 @@ the specular lobe (Torrance-Sparrow theta_h Gaussian or Ward), otherwise cosine-
 weight uses the mixture pdf (1 - q) cos/pi + q p_lobe, so the estimator is unbiased for any q.
 The first bounce uses randomised QMC (a scrambled Sobol set with a random toroidal shift, unbiased):
 per origin, or per group of origins that are averaged afterwards (a texel's sub-samples, which then share
-one stratified set: first_bounce_uniforms); later bounces use independent uniforms (stratifying the
+one stratified set: torchrefl.rqmc.grouped_points); later bounces use independent uniforms (stratifying the
 second bounce too, with 6-dimensional points, measured no better). At least
 `min_bounces` bounces are traced, then Russian roulette with survival min(0.95, max_c T).
 
@@ -37,7 +37,7 @@ import torch
 from torchrefl import brdf as brdf_mod
 from torchrefl.errors import GeometryError
 from torchrefl.rays import RayTracer
-from torchrefl.rqmc import sobol_base, toroidal_shift
+from torchrefl.rqmc import grouped_points
 from torchrefl.transport.lobe_sampling import LOBES, row_dot, sample_mixture
 
 
@@ -60,31 +60,6 @@ class PathVertices:
     ps: np.ndarray
     sigma: np.ndarray
     throughput: np.ndarray
-
-
-def first_bounce_uniforms(n_paths: int, groups: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """(M * n_paths, 3) uniforms for the first bounce of n_paths paths from each of M origins, origin by origin.
-
-    Randomised QMC: the origins of a group (groups (M,), contiguous runs) share one scrambled Sobol set of
-    n_paths times the largest group's size points, moved by a uniform shift per group; the k-th origin of a
-    group takes the set's k-th block of n_paths points. Every point is uniform, so each origin's estimate
-    stays unbiased, and a group's mean is stratified over all of its paths (the 3 x 3 sub-samples of a texel:
-    1 440 stratified paths instead of nine independent sets of 160). One origin per group is a set of
-    n_paths per origin with its own shift."""
-    M = len(groups)
-    if M == 0:
-        return np.zeros((0, 3))
-    new = np.r_[True, groups[1:] != groups[:-1]]
-    gid = np.cumsum(new) - 1                                     # group of each origin, 0..G-1
-    first = np.flatnonzero(new)
-    rank = np.arange(M) - first[gid]                             # position within its group
-    size = int(rank.max()) + 1
-    if size == 1:
-        return toroidal_shift(sobol_base(n_paths, 3, rng), rng.random((M, 3)))
-    base = sobol_base(n_paths * size, 3, rng)
-    shifts = rng.random((len(first), 3))
-    rows = (rank[:, None] * n_paths + np.arange(n_paths)[None, :]).ravel()
-    return np.mod(base[rows] + np.repeat(shifts[gid], n_paths, axis=0), 1.0)
 
 
 MaterialFn = Callable[[np.ndarray, np.ndarray], dict]
@@ -139,7 +114,7 @@ class IndirectRenderer:
         x, n, wo = rep(points), rep(normals), rep(view)
         mpd, mps, msg = rep(pd), rep(ps), rep(sigma)
         T = np.ones((len(x), 3))
-        u = first_bounce_uniforms(n_paths, np.arange(M) if groups is None else np.asarray(groups), rng)
+        u = grouped_points(n_paths, np.arange(M) if groups is None else np.asarray(groups), rng, 3)
         out = {k: [] for k in ("origin", "points", "normals", "wo", "pd", "ps", "sigma", "throughput")}
         for depth in range(self.max_bounces):
             if depth > 0:
@@ -216,7 +191,7 @@ class IndirectRenderer:
 
         points, normals, view: (M, 3); pd, ps: (M, 3); sigma: (M,); lights: (P, M, 3) world positions.
         groups (M,) int, optional: origins whose values are averaged afterwards (a texel's sub-samples),
-        in contiguous runs: their first bounces are drawn from one stratified set (first_bounce_uniforms),
+        in contiguous runs: their first bounces are drawn from one stratified set (torchrefl.rqmc.grouped_points),
         so the group's mean is stratified over all its paths. Origins are processed in fixed chunks that
         never split a group (random numbers keyed by seed and chunk, so the result does not depend on which
         lights are rendered together or on the thread count).
