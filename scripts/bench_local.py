@@ -23,10 +23,10 @@ import numpy as np
 import torch
 
 from torchrefl.capture.cylindrical_scan import load_scan_geometry, observation_geometry
-from torchrefl.capture.synthetic_scan import SyntheticScan
+from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.config import load_config
-from torchrefl.planning import select_for_scan
-from torchrefl.train import run
+from torchrefl.planning.light_selection import select_for_scan
+from torchrefl.run import run
 
 ROOT = Path(__file__).resolve().parents[1]
 

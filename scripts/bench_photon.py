@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from torchrefl.config import load_config
-from torchrefl.rays import _check_mesh, _scene, aimed_rays
+from torchrefl.core.rays import _check_mesh, _scene, aimed_rays
 from torchrefl.train import load_capture, run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,7 +82,7 @@ def refresh_time(cfg, out: Path, photons: int, lights: int | None = None, record
     """Seconds of one cache refresh (photon tracing + cache reduction) with fixed parameters (Object E's truth);
     with `record`, the rays of a second, identical refresh are appended to it."""
     from torchrefl.fit.pipeline import _photon_setup
-    from torchrefl.report.stages import Stages
+    from torchrefl.core.progress import Stages
 
     cap = load_capture(cfg, out, Stages(lambda *a: None), lambda *a: None)
     surface, obs = cap["surface"], cap["obs"]
@@ -159,7 +159,7 @@ def main() -> None:
         "tracing_ratio_to_bare_replay": round(tracing / replay, 3), "refresh_ratio_to_bare_replay": round(ours / replay, 3),
         "tracing_ratio_to_bare_aimed": round(tracing / bareN, 3), "refresh_ratio_to_bare_aimed": round(ours / bareN, 3),
         "stats": stats}
-    from torchrefl.rays import RayTracer
+    from torchrefl.core.rays import RayTracer
     from torchrefl.transport.form_factors import form_factors_for_surface
     tracer = RayTracer(V, F, threads=args.threads)
     rc = base.radiosity                        # the configured (default) patch size and hemisphere samples

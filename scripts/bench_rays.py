@@ -1,4 +1,4 @@
-"""Benchmark of the Embree boundary (torchrefl.rays) against bare embreex, measured in the same run.
+"""Benchmark of the Embree boundary (torchrefl.core.rays) against bare embreex, measured in the same run.
 
 Builds a displaced sphere of about 100k triangles, fires the same random rays aimed at it
 (rays.aimed_rays) through
@@ -22,7 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import trimesh
 
-from torchrefl.rays import RayTracer, aimed_rays
+from torchrefl.core.rays import RayTracer, aimed_rays
 
 
 def displaced_sphere(count: int) -> trimesh.Trimesh:

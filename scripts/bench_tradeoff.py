@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from torchrefl.config import load_config
-from torchrefl.train import run
+from torchrefl.run import run
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = ["synthetic.columns=256", "synthetic.rows=225", "synthetic.angle_step_deg=1.4",

@@ -38,9 +38,9 @@ import numpy as np
 
 from torchrefl.capture.cylindrical_scan import read_scan_yaml
 from torchrefl.capture.images import read_images
-from torchrefl.capture.synthetic_objects import make_object
+from torchrefl.synthetic.objects import make_object
 from torchrefl.config import load_config
-from torchrefl.train import run
+from torchrefl.run import run
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = [("I", "local"), ("II", "radiosity"), ("III", "photon")]

@@ -11,7 +11,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from torchrefl.capture.observations import Observations  # noqa: E402
+from torchrefl.core.observations import Observations  # noqa: E402
 
 
 def point_light_observations(normals, positions, light_positions, camera, intensity=1.0e5, dtype=torch.float64):
@@ -61,7 +61,7 @@ def fold_surface(H=24, W=48, L=60.0, dtype=torch.float64):
     and up the wall (x = 0, z > 0, normal -x), rows along the fold (y). Texel centres sit half a texel
     off the fold line. The mesh is the grid's triangulation. Columns W/2 - 1 and W/2 touch the fold."""
     from torchrefl.geometry.range_mesh import grid_triangulation, texel_areas
-    from torchrefl.geometry.surface import Surface
+    from torchrefl.core.surface import Surface
 
     u = (np.arange(W) + 0.5) / W * 2 * L - L
     y = (np.arange(H) + 0.5) / H * L - L / 2

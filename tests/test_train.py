@@ -176,7 +176,7 @@ def test_diligent_ball_subset(tmp_path):
     # the notebook API relights the estimate under a held-out light as the fit's model does
     from torchrefl.capture.images import read_image
     from torchrefl.capture.photometric_stereo import image_names, read_light_directions, read_light_intensities
-    from torchrefl.results import load_run
+    from torchrefl.report.run_result import load_run
 
     run = load_run(out)
     image = subset[5]

@@ -50,7 +50,7 @@ class LightGridConfig:
 class SyntheticConfig:
     """A synthetic object scanned by the seed's cylindrical rig (capture.kind: synthetic_cylindrical)."""
 
-    object: str = opt("ellipsoid", "synthetic object shape: analytic ellipsoid/sphere/blob, or a mesh object with interreflection: object_e (the seed's Object E, two plates at 90 deg, setup 1: white diffuse paper), object_e_glossy (Object E, setup 2: glossy paper), bowl (concave, non-uniform inside, a third of which the scanner sees), vase (a solid of revolution with a deep concave neck, non-uniform, scanned whole); see torchrefl/capture/synthetic_objects.py", choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl", "vase"))
+    object: str = opt("ellipsoid", "synthetic object shape: analytic ellipsoid/sphere/blob, or a mesh object with interreflection: object_e (the seed's Object E, two plates at 90 deg, setup 1: white diffuse paper), object_e_glossy (Object E, setup 2: glossy paper), bowl (concave, non-uniform inside, a third of which the scanner sees), vase (a solid of revolution with a deep concave neck, non-uniform, scanned whole); see torchrefl/synthetic/objects.py", choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl", "vase"))
     size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
     materials: str = opt("regions", "ground-truth material layout", choices=("regions", "uniform"))
     brdf: str = opt("torrance_sparrow", "BRDF used to render the synthetic images", choices=("torrance_sparrow", "ward", "ward_normalised"))
@@ -217,6 +217,13 @@ class Config:
     photon: PhotonConfig = field(default_factory=PhotonConfig, metadata={"doc": "photon level"})
     output: OutputConfig = field(default_factory=OutputConfig, metadata={"doc": "outputs"})
     config_dir: str = field(default=".", metadata={"doc": "(set by the loader) folder of the config file", "internal": True})
+
+    @property
+    def torch_dtype(self):
+        """The torch dtype named by `dtype`."""
+        import torch
+
+        return torch.float64 if self.dtype == "float64" else torch.float32
 
 
 # ---------------------------------------------------------------------------- machinery

@@ -9,7 +9,7 @@ import yaml
 
 from torchrefl.capture.cylindrical_rig import CylindricalRig, light_grid_positions
 from torchrefl.capture.cylindrical_scan import load_scan_geometry, load_scan_observations, load_truth, read_scan_yaml
-from torchrefl.capture.synthetic_scan import SyntheticScan
+from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.config import LightGridConfig, SyntheticConfig
 from torchrefl.errors import CaptureError
 

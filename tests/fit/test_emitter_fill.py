@@ -99,7 +99,7 @@ def test_the_fit_logs_the_filled_texels_and_black_leaves_them_out():
     """End to end on a small fold: with fit.emitter_fill nearest the log names the texels filled (the wall's
     rim is never lit here), with black it says nothing of them."""
     from torchrefl.fit.pipeline import fit_capture
-    from torchrefl.report.stages import Stages
+    from torchrefl.core.progress import Stages
 
     s = fold_surface(6, 12, dtype=torch.float32)
     obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0], [-30.0, 10.0, 30.0]]),

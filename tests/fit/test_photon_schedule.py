@@ -9,12 +9,12 @@ import pytest
 import torch
 
 from conftest import fold_surface, point_light_observations
-from torchrefl.capture.synthetic_gi import IndirectRenderer
+from torchrefl.synthetic.path_tracer import IndirectRenderer
 from torchrefl.fit.classify import classify
 from torchrefl.fit.params import TexelParams
 from torchrefl.fit.photon_schedule import PhotonLevel, run_schedule
 from torchrefl.fit.refine import Objective, refine
-from torchrefl.rays import RayTracer
+from torchrefl.core.rays import RayTracer
 from torchrefl.transport.local import local_terms, predict
 from torchrefl.transport.photon_level import light_sources
 from torchrefl.transport.photon_trace import PhotonTracer

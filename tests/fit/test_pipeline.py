@@ -7,8 +7,8 @@ import torch
 from conftest import dome_scene, point_light_observations
 from torchrefl.config import Config
 from torchrefl.fit.pipeline import fit_capture
-from torchrefl.geometry.surface import Surface
-from torchrefl.report.stages import Stages
+from torchrefl.core.surface import Surface
+from torchrefl.core.progress import Stages
 from torchrefl.transport.local import local_terms, predict
 
 

@@ -12,8 +12,8 @@ import torch
 
 from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.geometry.range_mesh import grid_triangulation
-from torchrefl.geometry.surface import Surface
-from torchrefl.rays import RayTracer
+from torchrefl.core.surface import Surface
+from torchrefl.core.rays import RayTracer
 from torchrefl.transport.form_factors import (face_patches, form_factors_for_surface, hemisphere_form_factors,
                                               sampling_error, texel_patches)
 
@@ -168,7 +168,7 @@ def test_back_side_of_a_patch_receives_nothing():
 
 
 def test_stratified_rays_beat_independent_ones_and_converge_faster_than_one_over_sqrt_n():
-    # the rays are randomised QMC (torchrefl.rqmc): unbiased like independent rays (the analytic tests
+    # the rays are randomised QMC (torchrefl.core.rqmc): unbiased like independent rays (the analytic tests
     # above), with an error below the binomial one that independent rays would have, falling faster
     # than 1/sqrt(N) (independent rays: a ratio of 4 for 16x the rays, rms / binomial about 1)
     args = scene(box(30))

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from conftest import fold_surface, point_light_observations
-from torchrefl.rays import RayTracer
+from torchrefl.core.rays import RayTracer
 from torchrefl.errors import ConfigError
 from torchrefl.transport.photon_level import (PhotonCache, build_cache, indirect_radiance, indirect_radiance_reference,
                                               light_sources, smooth_on_grid, spread_on_grid, texel_light_positions)

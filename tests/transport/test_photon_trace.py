@@ -9,13 +9,13 @@ import torch
 import trimesh
 
 from conftest import fold_surface, point_light_observations
-from torchrefl.capture.synthetic_gi import IndirectRenderer
-from torchrefl.geometry.surface import Surface
-from torchrefl.rays import RayTracer
+from torchrefl.synthetic.path_tracer import IndirectRenderer
+from torchrefl.core.surface import Surface
+from torchrefl.core.rays import RayTracer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.local import local_terms
 from torchrefl.transport.photon_level import build_cache, indirect_radiance, light_sources
-from torchrefl import brdf as brdf_mod
+from torchrefl.core import brdf as brdf_mod
 from torchrefl.transport.photon_trace import PhotonTracer, ScatterTables, TexelMaterial
 from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance
 
@@ -68,7 +68,7 @@ def away_from_fold(H, W, b=4):
 
 def directional_albedo(model, n, wi, pd, ps, sigma, nc=1500, nphi=1500):
     """The share of incident flux one scattering reflects: the integral of f(wi, wo) cos_o = g(n, l=wi, v=wo)
-    cos_o / cos_i over the hemisphere of wo (torchrefl.brdf, float64), by the midpoint rule in (cos_o, phi)."""
+    cos_o / cos_i over the hemisphere of wo (torchrefl.core.brdf, float64), by the midpoint rule in (cos_o, phi)."""
     c = (np.arange(nc) + 0.5) / nc
     ph = (np.arange(nphi) + 0.5) * 2 * np.pi / nphi
     C, PH = np.meshgrid(c, ph, indexing="ij")
@@ -91,7 +91,7 @@ def directional_albedo(model, n, wi, pd, ps, sigma, nc=1500, nphi=1500):
 @pytest.mark.parametrize("roulette", [False, True])
 def test_one_scattering_carries_the_directional_albedo(model, ps, sigma, roulette):
     """The mean weight of one scattering (one-sample component selection, with or without Russian roulette)
-    is the directional albedo of the BRDF, by quadrature of torchrefl.brdf; the part linear in Pd is
+    is the directional albedo of the BRDF, by quadrature of torchrefl.core.brdf; the part linear in Pd is
     exactly one per unit Pd; directions are unit and above the surface."""
     s, _, pt = fold_setup(model)
     T = s.num_texels

@@ -97,7 +97,7 @@ def moving_light_fold(H=4, W=10):
 
 
 def fold_form_factors(s):
-    from torchrefl.rays import RayTracer
+    from torchrefl.core.rays import RayTracer
     from torchrefl.transport.form_factors import form_factors_for_surface
 
     patches, F = form_factors_for_surface(s, RayTracer(s.mesh_vertices, s.mesh_faces), patch_size=1,
@@ -108,7 +108,7 @@ def fold_form_factors(s):
 def test_emitter_maps_give_each_texel_the_radiosity_lit_from_its_own_column():
     """With one map per column, the maps' E in a texel's own column is the local direct irradiance, and H at
     every texel equals a brute-force solve with all emitters lit from that texel's column light."""
-    from torchrefl.rays import RayTracer
+    from torchrefl.core.rays import RayTracer
     from torchrefl.transport.photon_level import light_sources
     from torchrefl.transport.radiosity_level import direct_irradiance, emitter_maps
 
@@ -140,7 +140,7 @@ def test_emitter_maps_give_each_texel_the_radiosity_lit_from_its_own_column():
 
 
 def test_one_emitter_map_of_static_lights_is_the_plain_level_and_gradcheck_with_maps():
-    from torchrefl.rays import RayTracer
+    from torchrefl.core.rays import RayTracer
     from torchrefl.transport.photon_level import light_sources
     from torchrefl.transport.radiosity_level import emitter_maps
 

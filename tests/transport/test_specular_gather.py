@@ -12,10 +12,10 @@ import pytest
 import torch
 
 from test_photon_trace import LIGHT, away_from_fold, blocks, fold_setup, material
-from torchrefl import brdf as brdf_mod
-from torchrefl.capture.synthetic_gi import IndirectRenderer
+from torchrefl.core import brdf as brdf_mod
+from torchrefl.synthetic.path_tracer import IndirectRenderer
 from torchrefl.errors import ConfigError
-from torchrefl.rays import RayTracer
+from torchrefl.core.rays import RayTracer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.local import local_terms
 from torchrefl.transport.photon_level import build_cache, indirect_radiance, light_sources

@@ -1,1 +1,1 @@
-"""Capture kinds: each loader turns a capture on disk (or a synthetic scene) into Surface + Observations."""
+"""Capture kinds: each loader reads a capture folder into one Capture (Surface + Observations + truth)."""

@@ -23,15 +23,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torchrefl.capture.base import Capture, CaptureLoader, Log
 from torchrefl.capture.cylindrical_rig import CylindricalRig
 from torchrefl.capture.images import read_images
-from torchrefl.capture.observations import Observations
-from torchrefl.config import read_yaml_mapping
+from torchrefl.core.observations import Observations
+from torchrefl.config import Config, read_yaml_mapping
 from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.geometry.range_image import preprocess_range_image
 from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
-from torchrefl.geometry.surface import Surface
-from torchrefl.rays import RayTracer
+from torchrefl.core.surface import Surface
+from torchrefl.core.rays import RayTracer
 
 
 @dataclass
@@ -337,3 +338,29 @@ def load_truth(folder, surface: Surface) -> dict | None:
         "brdf": str(data["brdf"]) if "brdf" in data else None,
         "minnaert_k": float(data["minnaert_k"]) if "minnaert_k" in data else 1.0,
     }
+
+
+class CylindricalScanLoader(CaptureLoader):
+    """capture.kind cylindrical_scan: scan.yaml, range.npy, textures/*.png (and truth.npz when synthetic)."""
+
+    kind = "cylindrical_scan"
+
+    def load_geometry(self, folder: Path, cfg: Config) -> ScanGeometry:
+        """The range image's Surface and the rig geometry (what light selection needs before any texture)."""
+        g = cfg.geometry
+        return load_scan_geometry(folder, median_size=g.median_size, fit_window=g.fit_window,
+                                  noise_tolerance=g.noise_tolerance, threads=cfg.threads, dtype=cfg.torch_dtype)
+
+    def load(self, folder: Path, cfg: Config, log: Log, geometry: ScanGeometry | None = None) -> Capture:
+        geom = geometry if geometry is not None else self.load_geometry(folder, cfg)
+        s = geom.surface
+        log(f"surface: {s.num_texels} texels on a {s.grid_shape} grid, {len(s.mesh_faces)} triangles")
+        g = cfg.geometry
+        obs, stats = load_scan_observations(
+            geom, light_subset=cfg.capture.light_subset, saturation_level=cfg.capture.saturation_level,
+            shadow_offset=g.shadow_offset_mm, threads=cfg.threads, dtype=cfg.torch_dtype,
+            edge_width=g.edge_width, crease_angle_deg=g.crease_angle_deg)
+        if stats["crease_texels_excluded"]:
+            log(f"geometry: {stats['crease_texels_excluded']} texels on creases sharper than "
+                f"{g.crease_angle_deg:g} deg (mixed pixels) are not fitted")
+        return Capture(s, obs, stats, load_truth(folder, s), Path(folder))

@@ -25,10 +25,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torchrefl.capture.base import Capture, CaptureLoader, Log
+from torchrefl.config import Config
 from torchrefl.capture.images import read_image, read_images
-from torchrefl.capture.observations import Observations
+from torchrefl.core.observations import Observations
 from torchrefl.errors import CaptureError, GeometryError
-from torchrefl.geometry.surface import UNIT_TOLERANCE, Surface
+from torchrefl.core.surface import UNIT_TOLERANCE, Surface
 
 FILENAMES = "filenames.txt"
 LIGHT_DIRECTIONS = "light_directions.txt"
@@ -286,3 +288,16 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
         "load_time_s": time.perf_counter() - t0,
     }
     return surface, obs, stats
+
+
+class PhotometricStereoLoader(CaptureLoader):
+    """capture.kind photometric_stereo: a DiLiGenT-layout folder (directional lights, orthographic camera)."""
+
+    kind = "photometric_stereo"
+
+    def load(self, folder: Path, cfg: Config, log: Log) -> Capture:
+        c = cfg.capture
+        surface, obs, stats = load_photometric_stereo(folder, saturation_level=c.saturation_level, kappa=tuple(c.kappa),
+                                                      light_subset=c.light_subset, dtype=cfg.torch_dtype,
+                                                      threads=cfg.threads)
+        return Capture(surface, obs, stats, None, Path(folder))

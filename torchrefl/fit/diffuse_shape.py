@@ -1,7 +1,7 @@
 """The shape of the diffuse part, from the diffuse-only observations: Minnaert's exponent k.
 
 On T_diff observations (far from every highlight: dissertation eq. 2.20) the local model is
-    i_ptc = Pd_tc A_ptc(k),   A(k) = A(1) (cos_l cos_v)^(k - 1)     (torchrefl.brdf.diffuse_term)
+    i_ptc = Pd_tc A_ptc(k),   A(k) = A(1) (cos_l cos_v)^(k - 1)     (torchrefl.core.brdf.diffuse_term)
 with A(1) the Lambertian factor of the local terms. For a given k the least-squares Pd of every texel
 and channel is closed form, Pd_tc = sum_p A i / sum_p A^2, so the squared error left,
     E(k) = sum (i - Pd A)^2 = sum i^2 - sum_tc (sum_p A i)^2 / sum_p A^2,
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import torch
 
-from torchrefl.brdf import COS_EPS
+from torchrefl.core.brdf import COS_EPS
 from torchrefl.errors import FitError
 from torchrefl.transport.local import LocalTerms
 

@@ -20,7 +20,7 @@ import torch
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.interpolate import fill_undetermined
 from torchrefl.fit.profile_search import profile_search, sigma_grid
-from torchrefl.geometry.surface import Surface
+from torchrefl.core.surface import Surface
 from torchrefl.transport.local import LocalTerms, predict
 
 COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND = 0, 1, 2, 3

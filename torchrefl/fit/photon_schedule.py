@@ -28,7 +28,7 @@ from torchrefl.errors import ConfigError
 from torchrefl.fit.classify import T_DIFF, T_NONE, T_SPEC
 from torchrefl.fit.params import TexelParams, inverse_softplus_b
 from torchrefl.fit.refine import refine
-from torchrefl.report.stages import bar
+from torchrefl.core.progress import bar
 from torchrefl.transport.photon_level import LightSources, PhotonCache, build_cache, indirect_radiance, smoothing_matrix
 from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
 from torchrefl.transport.specular_gather import SpecularGather

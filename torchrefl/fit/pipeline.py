@@ -19,7 +19,7 @@ from dataclasses import replace
 
 import torch
 
-from torchrefl.brdf import classification_angle
+from torchrefl.core.brdf import classification_angle
 from torchrefl.config import Config
 from torchrefl.errors import ConfigError
 from torchrefl.fit.classify import T_DIFF, class_counts, classify
@@ -27,8 +27,9 @@ from torchrefl.fit.diffuse_shape import fit_minnaert_exponent
 from torchrefl.fit.emitter_fill import nearest_fitted
 from torchrefl.fit.initialise import initialise_local
 from torchrefl.fit.params import TexelParams
+from torchrefl.fit.result import DiffuseModel, FitResult
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
-from torchrefl.report.stages import bar
+from torchrefl.core.progress import bar
 from torchrefl.transport.local import local_terms, predict
 from torchrefl.transport.select import choose_level, predicted_interreflection_dn
 
@@ -47,7 +48,7 @@ def _with_emitters(fn, source):
 
 def _radiosity_setup(cfg: Config, surface, obs, terms, cls, fit_mask, log):
     """Form factors, patch map and the Method II closed form; returns (patches, F, predict_indirect, note)."""
-    from torchrefl.rays import RayTracer
+    from torchrefl.core.rays import RayTracer
     from torchrefl.transport.form_factors import form_factors_for_surface
     from torchrefl.transport.photon_level import apply_on_grid, light_sources, smoothing_matrix
     from torchrefl.transport.radiosity_level import (PatchMap, direct_irradiance, emitter_maps, indirect_irradiance,
@@ -126,7 +127,7 @@ def _photon_setup(cfg: Config, surface, obs, keep, device, dtype, radiosity_irra
     radiosity level's H(pd) when photon.diffuse_paths is 'radiosity'; radiosity_radiance: its outgoing radiance
     per emitter map (_radiosity_setup), gathered when photon.specular_gather > 0."""
     from torchrefl.fit.photon_schedule import PhotonLevel
-    from torchrefl.rays import RayTracer
+    from torchrefl.core.rays import RayTracer
     from torchrefl.transport.photon_level import light_sources
     from torchrefl.transport.photon_trace import PhotonTracer
 
@@ -154,7 +155,7 @@ def _photon_setup(cfg: Config, surface, obs, keep, device, dtype, radiosity_irra
                        emitter_source=emitter_source)
 
 
-def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
+def fit_capture(cfg: Config, surface, obs, stages, log, device) -> FitResult:
     """Classify, initialise and refine at the transport level cfg.fit.model. Returns a dict of results."""
     rc, fc = cfg.reflectance, cfg.fit
     P = obs.num_lights
@@ -179,16 +180,16 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             rc.class_angle, surface.normals[None], obs.light_dir, obs.view_dirs_full())
         cls = classify(angle, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
         counts = class_counts(cls)
-        diffuse = {"model": rc.diffuse, "k": 1.0}
+        diffuse = DiffuseModel(rc.diffuse)
         if rc.diffuse == "minnaert":
             if rc.minnaert_k is None:
                 shape = fit_minnaert_exponent(terms, obs.intensity, (cls == T_DIFF) & fit_mask)
-                diffuse.update(shape.as_dict(), fitted=True)
+                diffuse = DiffuseModel(rc.diffuse, shape.k, True, shape.as_dict())
                 log(shape.note)
             else:
-                diffuse.update(k=float(rc.minnaert_k), fitted=False)
+                diffuse = DiffuseModel(rc.diffuse, float(rc.minnaert_k), False)
                 log(f"diffuse: Minnaert k = {rc.minnaert_k} (reflectance.minnaert_k)")
-            terms = local_terms(rc.brdf, surface.normals, obs, diffuse_exponent=diffuse["k"])
+            terms = local_terms(rc.brdf, surface.normals, obs, diffuse_exponent=diffuse.k)
         level = fc.model
         reason = "fit.model is 'local': direct light with cast shadows"
         indirect = None
@@ -305,11 +306,13 @@ def fit_capture(cfg: Config, surface, obs, stages, log, device) -> dict:
             pred = model(pd, ps, sigma).cpu()
             pd, ps, sigma = pd.cpu(), ps.cpu(), sigma.cpu()
     log(f"refinement ({fc.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
-    return {
-        "pd": pd, "ps": ps, "sigma": sigma, "pred": pred, "fit_mask": fit_mask, "eval_mask": eval_mask,
-        "classes": cls, "counts": counts, "coverage": init.coverage, "estimated": init.defined, "history": history,
-        "init": init, "n_spec": counts["T_spec"], "held": held, "model_reason": reason, "model": level, "diffuse": diffuse,
-        "model_numbers": choice.numbers if choice is not None else {},
-        "photon": None if photon is None else {"image_difference_per_refresh": photon["scores"],
-                                               "kept_refresh": photon["best"], "cache": photon["cache"].stats},
-    }
+    return FitResult(
+        pd=pd, ps=ps, sigma=sigma, predicted=pred, fit_mask=fit_mask, eval_mask=eval_mask, counts=counts,
+        coverage=init.coverage, estimated=init.defined,
+        init_counts={"pd_closed_form": int(init.pd_from_diffuse.sum()), "spec_closed_form": int(init.spec_closed_form.sum()),
+                     "spec_known": int(init.known.sum())},
+        history=history, level=level, model_reason=reason, diffuse=diffuse,
+        model_numbers=choice.numbers if choice is not None else {},
+        photon=None if photon is None else {"image_difference_per_refresh": photon["scores"],
+                                            "kept_refresh": photon["best"], "cache": photon["cache"].stats},
+    )

@@ -18,7 +18,7 @@ import math
 
 import torch
 
-from torchrefl.brdf import specular_lobe
+from torchrefl.core.brdf import specular_lobe
 from torchrefl.transport.local import LocalTerms
 
 

@@ -1,1 +1,1 @@
-"""Geometry: range-image preprocessing, the texel Surface, meshes."""
+"""Geometry: range-image preprocessing and the range mesh."""

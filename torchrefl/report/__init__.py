@@ -1,1 +1,1 @@
-"""Outputs: metrics, maps, plots, stage timing and progress."""
+"""Outputs: metrics, maps, and a finished run read back (load_run)."""

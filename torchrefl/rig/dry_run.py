@@ -1,5 +1,5 @@
 """A dry run: the fake GRBL device on a pseudo-terminal and a simulated camera rendering the
-synthetic object of a fitting config (torchrefl.capture.synthetic_scan.SyntheticScan), so that a
+synthetic object of a fitting config (torchrefl.synthetic.scan.SyntheticScan), so that a
 capture writes real texture images and a folder `python -m torchrefl.train` can fit."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from torchrefl.rig.settings import RigSettings
 
 def synthetic_scene(config=None, overrides=()):
     """SyntheticScan of a fitting config (its `synthetic`, `selection.grid`, `seed`, `capture.kappa`)."""
-    from torchrefl.capture.synthetic_scan import SyntheticScan
+    from torchrefl.synthetic.scan import SyntheticScan
     from torchrefl.config import load_config
 
     cfg = load_config(config, list(overrides))

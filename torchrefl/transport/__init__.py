@@ -1,1 +1,1 @@
-"""Transport levels: local (direct light with shadows); later radiosity and photon."""
+"""Transport levels: local (Method I), radiosity (Method II), photon (Method III), behind one TransportLevel interface."""

@@ -11,7 +11,7 @@ weights, leave in cosine-weighted directions about the local normal, and
 
     F_uv ~= (rays from u whose first hit is on the front of patch v) / (rays from u).
 
-The rays are randomised QMC (torchrefl.rqmc: a scrambled Sobol set moved by a uniform shift per
+The rays are randomised QMC (torchrefl.core.rqmc: a scrambled Sobol set moved by a uniform shift per
 patch, its first coordinate choosing the origin, the other two the direction): each ray is uniform like
 an independent one, so the estimate is unbiased, but the origins and directions are stratified. With
 independent rays an entry would have the binomial standard error sqrt(F (1 - F) / N) (`sampling_error`);
@@ -41,9 +41,9 @@ import numpy as np
 import torch
 
 from torchrefl.errors import ConfigError, GeometryError
-from torchrefl.geometry.surface import Surface
-from torchrefl.rays import RayTracer
-from torchrefl.rqmc import sobol_base, toroidal_shift
+from torchrefl.core.surface import Surface
+from torchrefl.core.rays import RayTracer
+from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
 
 #: hemisphere_form_factors returns a dense (Q, Q) tensor when Q * Q <= DENSE_MAX_ENTRIES

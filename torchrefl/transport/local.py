@@ -2,7 +2,7 @@
 
 The measured value of observation (p, t) in channel c is
     i = kappa_c * Y_pc * falloff_pt * vis_pt * g(n_t, l_pt, v_pt; Pd, Ps, sigma)
-with g the cosine-weighted BRDF (torchrefl.brdf). The geometry is fixed during a fit,
+with g the cosine-weighted BRDF (torchrefl.core.brdf). The geometry is fixed during a fit,
 so LocalTerms precomputes everything that does not depend on the parameters:
     i = Pd * A + Ps * D(theta_h; sigma) * B,
 A = kappa Y falloff vis max(n.l,0)/pi and B = kappa Y falloff vis G(cos_l, cos_v); with a Minnaert
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import torch
 
-from torchrefl import brdf as brdf_mod
-from torchrefl.capture.observations import Observations
+from torchrefl.core import brdf as brdf_mod
+from torchrefl.core.observations import Observations
 
 
 @dataclass

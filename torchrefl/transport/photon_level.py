@@ -18,7 +18,7 @@ carries is exactly proportional to Pd_e at that bounce, so
 differentiable in the emitters' Pd between refreshes; earlier bounces stay as traced. The reflected
 indirect light is differentiable in the receiving texel's parameters and in the emitters' Pd:
     i_ind(p, t) = kappa * ( Pd_t / pi * H_pt(Pd) + Ps_t * sum_entries D(theta_h; sigma_t) c )
-the photon estimate of kappa * sum_k f_t(wi_k, v_pt) Phi_k / A_t with f = g / cos_i (torchrefl.brdf).
+the photon estimate of kappa * sum_k f_t(wi_k, v_pt) Phi_k / A_t with f = g / cos_i (torchrefl.core.brdf).
 Photons reaching the texel at n.wi <= min_cos_light feed H but not the specular sum (the fitter
 does not use grazing light either).
 
@@ -56,9 +56,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from torchrefl import brdf as brdf_mod
+from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import ConfigError
-from torchrefl.transport.lobe_sampling import column_dot
+from torchrefl.core.lobe_sampling import column_dot
 from torchrefl.transport.photon_trace import PhotonHits
 
 THETA_BIN = 0.004         # radians; merged photons differ in theta_h by less than this, or by

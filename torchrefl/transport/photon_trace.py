@@ -10,7 +10,7 @@ and no photon is wasted on directions that miss. The first hit is not stored (di
 computed analytically by the local terms) and needs no ray: the photon starts at the texel with
 wi = l. Later hits are found with Embree; a hit's texel is the nearest mesh vertex (mesh vertices
 are texel grid points). From the first hit on, the photon is scattered by the current BRDF of the
-texel it hit, g = f cos_l = g_diffuse + g_specular (torchrefl.brdf; non-reciprocal lobes are evaluated
+texel it hit, g = f cos_l = g_diffuse + g_specular (torchrefl.core.brdf; non-reciprocal lobes are evaluated
 with the light on the incident side, the way the fitter and the renderer use them), by one-sample
 component selection: with probability q = mean(Ps) / (mean(Pd) + mean(Ps)) a direction wo from the
 specular lobe, otherwise a cosine-weighted one, each with the weight of its own component
@@ -35,12 +35,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from torchrefl import brdf as brdf_mod
+from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import GeometryError
 from torchrefl.geometry.range_mesh import oriented_face_normals
-from torchrefl.rays import RayTracer
+from torchrefl.core.rays import RayTracer
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
-from torchrefl.transport.lobe_sampling import (LOBES, column_dot, lobe_constants, lobe_over_pdf, lobe_theta, row_dot,
+from torchrefl.core.lobe_sampling import (LOBES, column_dot, lobe_constants, lobe_over_pdf, lobe_theta, row_dot,
                                                specular_probability, tangent_frame)
 
 CHUNK = 1 << 17          # photons per work unit

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from torchrefl.capture.observations import Observations
+from torchrefl.core.observations import Observations
 from torchrefl.transport.local import LocalTerms, local_terms, predict
 from torchrefl.transport.radiosity import _matmul, solve_radiosity
 

@@ -16,7 +16,7 @@ bounded), each traced with Embree to the texel u_k it hits:
 
     S_pt = 1/N sum_k D(theta_k; sigma_t) G(n.l_k, n.v_t) / pdf(l_k) * L_{p u_k}(t)
 
-(the photon level's specular entry in expectation: Ps D G is the specular part of f cos_l, torchrefl.brdf).
+(the photon level's specular entry in expectation: Ps D G is the specular part of f cos_l, torchrefl.core.brdf).
 The samples are emitted as entries of the photon cache's format (observation p T + t, theta_h, weight
 G L / (N pdf)), merged per theta_h bin with the bins of the photons' (photon_level.merge_entries), so D stays
 differentiable in sigma_t and the product with Ps in Ps; L is fixed until the next refresh, like the photons'.
@@ -36,10 +36,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from torchrefl import brdf as brdf_mod
+from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import ConfigError
-from torchrefl.rqmc import sobol_base, toroidal_shift
-from torchrefl.transport.lobe_sampling import row_dot, sample_mixture
+from torchrefl.core.rqmc import sobol_base, toroidal_shift
+from torchrefl.core.lobe_sampling import row_dot, sample_mixture
 from torchrefl.transport.photon_level import BIN_PER_SIGMA, LOBE_CUTOFF, THETA_BIN
 from torchrefl.transport.photon_trace import PhotonTracer
 

@@ -1,4 +1,4 @@
-"""torchrefl.results: a run's outputs for notebooks (load, relight, plot) and its errors."""
+"""torchrefl.report.run_result: a run's outputs for notebooks (load, relight, plot) and its errors."""
 
 import json
 import math
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from torchrefl.errors import TorchReflError
-from torchrefl.results import load_run
+from torchrefl.report.run_result import load_run
 
 matplotlib.use("Agg")
 

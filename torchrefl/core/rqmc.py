@@ -6,7 +6,7 @@ unbiased exactly as with independent uniforms, and the groups' errors are indepe
 shifts; within a group the points are stratified, so for a smooth integrand the error falls faster
 than 1/sqrt(n). grouped_points lets the members of a group (points whose estimates are averaged
 afterwards, such as a texel's sub-samples) take consecutive blocks of one larger set, so the group's mean is
-stratified over all of its points. Used by the renderer's first bounce (torchrefl.capture.synthetic_gi), the specular
+stratified over all of its points. Used by the renderer's first bounce (torchrefl.synthetic.path_tracer), the specular
 gather's directions (torchrefl.transport.specular_gather) and the form factors' hemisphere rays
 (torchrefl.transport.form_factors).
 """

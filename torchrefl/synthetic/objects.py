@@ -40,7 +40,7 @@ from typing import Callable
 import numpy as np
 import trimesh
 
-from torchrefl.capture.synthetic_materials import PAPER_GLOSSY, PAPER_WHITE, BowlMaterials, uniform_material
+from torchrefl.synthetic.materials import PAPER_GLOSSY, PAPER_WHITE, BowlMaterials, uniform_material
 from torchrefl.errors import GeometryError
 
 MESH_OBJECTS = ("object_e", "object_e_glossy", "bowl", "vase")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchrefl import brdf
+from torchrefl.core import brdf
 from torchrefl.errors import ConfigError
 
 MODELS = ["torrance_sparrow", "ward", "ward_normalised"]

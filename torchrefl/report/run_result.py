@@ -1,6 +1,6 @@
 """A finished run's outputs, for notebooks and other tools.
 
-    from torchrefl.results import load_run
+    from torchrefl.report.run_result import load_run
     run = load_run("outputs/default")
     print(run.summary())                 # the table the CLI prints at the end
     run.figure()                         # Pd, Ps, sigma and coverage maps (matplotlib)
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchrefl import brdf as brdf_mod
-from torchrefl.capture.observations import Observations
+from torchrefl.core import brdf as brdf_mod
+from torchrefl.core.observations import Observations
 from torchrefl.errors import CaptureError
 from torchrefl.transport.local import render_reference
 
@@ -73,7 +73,7 @@ class RunResult:
 
     def summary(self) -> str:
         """The summary table the command line prints at the end of the run."""
-        from torchrefl.train import summary_table
+        from torchrefl.report.summary import summary_table
 
         return summary_table(self.metrics)
 

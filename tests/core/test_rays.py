@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from torchrefl.errors import ConfigError, GeometryError
-from torchrefl.rays import RayTracer, aimed_rays, raw_embree_rate
+from torchrefl.core.rays import RayTracer, aimed_rays, raw_embree_rate
 
 EPS = 1e-4
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from torchrefl.rqmc import grouped_points, sobol_base, toroidal_shift
+from torchrefl.core.rqmc import grouped_points, sobol_base, toroidal_shift
 
 
 def test_points_are_uniform_and_grouped_by_shift():

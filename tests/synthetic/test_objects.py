@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from torchrefl.capture.synthetic_materials import region_materials
-from torchrefl.capture.synthetic_objects import vase
-from torchrefl.capture.synthetic_scan import SyntheticScan
+from torchrefl.synthetic.materials import region_materials
+from torchrefl.synthetic.objects import vase
+from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.config import SyntheticConfig
 
 LIGHT = np.array([0.0, 50.0, 300.0])

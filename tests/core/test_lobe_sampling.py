@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from torchrefl import brdf
-from torchrefl.transport.lobe_sampling import half_vector_pdf, lobe_constants, lobe_over_pdf, lobe_theta
+from torchrefl.core import brdf
+from torchrefl.core.lobe_sampling import half_vector_pdf, lobe_constants, lobe_over_pdf, lobe_theta
 
 
 @pytest.mark.parametrize("lobe,model", [("torrance_sparrow", "torrance_sparrow"), ("ward", "ward")])

@@ -171,7 +171,7 @@ def select_for_scan(geom, candidates: np.ndarray, selection_cfg, reflectance_cfg
     scan's Surface, with cast shadows from Embree (torchrefl.capture.cylindrical_scan.observation_geometry)."""
     import torch
 
-    from torchrefl.brdf import classification_angle
+    from torchrefl.core.brdf import classification_angle
     from torchrefl.capture.cylindrical_scan import observation_geometry
 
     og = observation_geometry(geom, candidates, shadow_offset=shadow_offset)

@@ -31,15 +31,15 @@ import torch
 import trimesh
 import yaml
 
-from torchrefl import brdf as brdf_mod
+from torchrefl.core import brdf as brdf_mod
 from torchrefl.capture.cylindrical_rig import CylindricalRig, light_grid_positions
 from torchrefl.capture.images import write_png
-from torchrefl.capture.synthetic_gi import IndirectRenderer
-from torchrefl.capture.synthetic_materials import region_materials
-from torchrefl.capture.synthetic_objects import MESH_OBJECTS, make_object
+from torchrefl.synthetic.path_tracer import IndirectRenderer
+from torchrefl.synthetic.materials import region_materials
+from torchrefl.synthetic.objects import MESH_OBJECTS, make_object
 from torchrefl.config import LightGridConfig, SyntheticConfig
 from torchrefl.errors import GeometryError
-from torchrefl.rays import RayTracer
+from torchrefl.core.rays import RayTracer
 
 
 class SyntheticScan:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from torchrefl.errors import ConfigError
-from torchrefl.planning import greedy_select, measurability, plot_coverage
+from torchrefl.planning.light_selection import greedy_select, measurability, plot_coverage
 
 
 def test_measurability_thresholds():

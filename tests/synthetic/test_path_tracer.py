@@ -8,12 +8,12 @@ import trimesh
 from scipy import stats
 
 from torchrefl.capture.cylindrical_rig import CylindricalRig
-from torchrefl.capture.synthetic_gi import IndirectRenderer
-from torchrefl.transport.lobe_sampling import lobe_pdf, sample_lobe
-from torchrefl.capture.synthetic_scan import SyntheticScan
+from torchrefl.synthetic.path_tracer import IndirectRenderer
+from torchrefl.core.lobe_sampling import lobe_pdf, sample_lobe
+from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.config import SyntheticConfig
 from torchrefl.errors import GeometryError
-from torchrefl.rays import RayTracer
+from torchrefl.core.rays import RayTracer
 
 LIGHTS = np.array([[0.0, 0.0, 300.0], [-150.0, 100.0, 300.0]])
 

@@ -8,14 +8,14 @@ the camera is direct light (computed elsewhere, analytically with a shadow ray) 
 
 one next-event (shadow-ray) term per path vertex y_k, where T_k is the product of g/pdf of the
 sampled directions before y_k (and of the Russian-roulette divisions), g = f * cos the
-cosine-weighted BRDF of torchrefl.brdf and C_k the distance from y_k to the light.
+cosine-weighted BRDF of torchrefl.core.brdf and C_k the distance from y_k to the light.
 
 Sampling at every vertex is a one-sample mixture: with probability q = mean(Ps) / (mean(Pd) + mean(Ps))
 the specular lobe (Torrance-Sparrow theta_h Gaussian or Ward), otherwise cosine-weighted; the
 weight uses the mixture pdf (1 - q) cos/pi + q p_lobe, so the estimator is unbiased for any q.
 The first bounce uses randomised QMC (a scrambled Sobol set with a random toroidal shift, unbiased):
 per origin, or per group of origins that are averaged afterwards (a texel's sub-samples, which then share
-one stratified set: torchrefl.rqmc.grouped_points); later bounces use independent uniforms (stratifying the
+one stratified set: torchrefl.core.rqmc.grouped_points); later bounces use independent uniforms (stratifying the
 second bounce too, with 6-dimensional points, measured no better). At least
 `min_bounces` bounces are traced, then Russian roulette with survival min(0.95, max_c T).
 
@@ -34,11 +34,11 @@ from typing import Callable
 import numpy as np
 import torch
 
-from torchrefl import brdf as brdf_mod
+from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import GeometryError
-from torchrefl.rays import RayTracer
-from torchrefl.rqmc import grouped_points
-from torchrefl.transport.lobe_sampling import LOBES, row_dot, sample_mixture
+from torchrefl.core.rays import RayTracer
+from torchrefl.core.rqmc import grouped_points
+from torchrefl.core.lobe_sampling import LOBES, row_dot, sample_mixture
 
 
 
@@ -71,7 +71,7 @@ class IndirectRenderer:
 
     tracer: the scene; normal_fn(points (N,3), triangles (N,)) -> (N, 3) unit normals (the exact
     geometry); material_fn(points, triangles) -> {'pd': (N,3), 'ps': (N,3), 'sigma': (N,)};
-    brdf: a torchrefl.brdf model name; offset: origin offset along the normal (mm).
+    brdf: a torchrefl.core.brdf model name; offset: origin offset along the normal (mm).
     """
 
     def __init__(self, tracer: RayTracer, normal_fn: NormalFn, material_fn: MaterialFn, brdf: str, *,
@@ -191,7 +191,7 @@ class IndirectRenderer:
 
         points, normals, view: (M, 3); pd, ps: (M, 3); sigma: (M,); lights: (P, M, 3) world positions.
         groups (M,) int, optional: origins whose values are averaged afterwards (a texel's sub-samples),
-        in contiguous runs: their first bounces are drawn from one stratified set (torchrefl.rqmc.grouped_points),
+        in contiguous runs: their first bounces are drawn from one stratified set (torchrefl.core.rqmc.grouped_points),
         so the group's mean is stratified over all its paths. Origins are processed in fixed chunks that
         never split a group (random numbers keyed by seed and chunk, so the result does not depend on which
         lights are rendered together or on the thread count).

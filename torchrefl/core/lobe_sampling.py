@@ -1,6 +1,6 @@
 """Direction sampling for Monte Carlo transport: cosine-weighted, specular-lobe and their mixture.
 
-Shared by the synthetic renderer (torchrefl.capture.synthetic_gi, camera paths) and the photon level
+Shared by the synthetic renderer (torchrefl.synthetic.path_tracer, camera paths) and the photon level
 (torchrefl.transport.photon_trace, light paths). numpy in, numpy out, vectorised over rays.
 
 Mixture: with probability q = mean(Ps) / (mean(Pd) + mean(Ps)) a direction from the specular lobe
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from torchrefl import brdf as brdf_mod
+from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import GeometryError
 
 LOBES = {"torrance_sparrow": "torrance_sparrow", "ward": "ward", "ward_normalised": "ward", "lambertian": None}
@@ -184,7 +184,7 @@ def sample_mixture(lobe: str | None, n, v, pd, ps, sigma, u, frame=None, q=None,
 
     The same distribution as sample_cosine / sample_lobe chosen by u[:, 2] < q with the pdf of
     mixture_pdf, fused into one pass (one tangent frame, one half vector): the path tracer's sampler
-    (torchrefl.capture.synthetic_gi; the photon tracer selects one component per sample instead).
+    (torchrefl.synthetic.path_tracer; the photon tracer selects one component per sample instead).
     frame: precomputed tangent_frame(n); q: precomputed specular_probability(lobe, pd, ps) (then pd and ps
     are not read); with_cos_h: also return n.h (N,) of the half vector h = normalize(l + v).
     """

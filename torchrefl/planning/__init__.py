@@ -1,0 +1,1 @@
+"""Automatic light-position selection (dissertation Ch.2)."""

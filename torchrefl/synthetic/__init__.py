@@ -1,0 +1,1 @@
+"""Synthetic scenes: objects with known reflectance, rendered (with interreflection) into capture folders the loaders read."""
