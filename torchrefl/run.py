@@ -70,7 +70,7 @@ def run(cfg: Config, quiet: bool = False) -> dict:
         else:
             with stages.stage("capture"):
                 cap = loader_for(cfg.capture.kind).load(resolve_path(cfg, cfg.capture.path), cfg, log)
-        res = fit_capture(cfg, cap.surface, cap.obs, stages, log, device)
+        res = fit_capture(cfg, cap, stages, log, device)
         metrics = write_outputs(cfg, out, cap, res, selection, stages, str(device))
         log(summary_table(metrics))
         return metrics

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from conftest import dome_scene, point_light_observations
-from torchrefl.fit.classify import INVALID, T_DIFF, T_NONE, T_SPEC, classify
+from torchrefl.core.observation_classes import INVALID, T_DIFF, T_NONE, T_SPEC, classify
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.transport.local import local_terms, predict
 

@@ -7,7 +7,7 @@ import torch
 
 from conftest import dome_scene, point_light_observations
 from torchrefl.errors import FitError
-from torchrefl.fit.classify import T_DIFF, classify
+from torchrefl.core.observation_classes import T_DIFF, classify
 from torchrefl.fit.diffuse_shape import fit_minnaert_exponent
 from torchrefl.transport.local import local_terms, render_reference
 

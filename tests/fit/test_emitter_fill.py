@@ -6,10 +6,11 @@ import torch
 
 from conftest import fold_surface, point_light_observations
 from torchrefl.config import Config
-from torchrefl.fit.classify import classify
 from torchrefl.fit.emitter_fill import nearest_fitted
-from torchrefl.fit.pipeline import _photon_setup, _radiosity_setup, _with_emitters
-from torchrefl.transport.local import local_terms
+from torchrefl.capture.base import Capture
+from torchrefl.fit.pipeline import level_inputs
+from torchrefl.transport.levels.photon import PhotonLevel
+from torchrefl.transport.levels.radiosity import RadiosityLevel
 
 
 def test_each_texel_maps_to_the_nearest_fitted_texel():
@@ -36,41 +37,42 @@ def fold_setup(hemisphere_samples=256, **photon):
     s = fold_surface(8, 16)
     obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
                                    torch.tensor([-150.0, 0.0, 150.0]))
-    terms = local_terms("torrance_sparrow", s.normals, obs)
-    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
     cfg = Config()
     cfg.reflectance.brdf = "torrance_sparrow"
     cfg.radiosity.hemisphere_samples = hemisphere_samples
     for k, v in photon.items():
         setattr(cfg.photon, k, v)
-    *_, indirect, radiance, _ = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
+    inputs, _ = level_inputs(cfg, Capture(s, obs), lambda *a: None)
+    radiosity = RadiosityLevel(inputs)
+    radiosity.prepare()
     # "unfitted": the wall's outer rim and two fold-line columns (as silhouette and crease texels would be)
     grid = torch.zeros(8, 16, dtype=torch.bool)
     grid[:, 14:] = True
     grid[:, 7:9] = True
     fitted = ~grid.reshape(-1)
-    return cfg, s, obs, indirect, radiance, fitted
+    return cfg, s, obs, radiosity, fitted
 
 
 def test_filled_emitters_give_back_the_interreflection_black_ones_lose():
     """Uniform Pd 0.7: with the unfitted texels' Pd at 0 the fitted texels' indirect light drops by several per
     cent; filled from the nearest fitted texel it is the all-known indirect light exactly (uniform Pd)."""
-    _, s, _, indirect, _, fitted = fold_setup()
+    _, s, _, radiosity, fitted = fold_setup()
     T = s.num_texels
     truth = torch.full((T, 3), 0.7, dtype=torch.float64)
     black = truth * fitted[:, None]
-    H_true = indirect(truth)[:, fitted]
-    H_black = indirect(black)[:, fitted]
-    H_fill = _with_emitters(indirect, nearest_fitted(s.positions, fitted))(black)[:, fitted]
+    H_true = radiosity.indirect(truth)[:, fitted]
+    H_black = radiosity.indirect(black)[:, fitted]
+    radiosity.use_emitters(nearest_fitted(s.positions, fitted))
+    H_fill = radiosity.indirect(black)[:, fitted]
     lost = float(1 - H_black.sum() / H_true.sum())
     assert lost > 0.05, lost
     torch.testing.assert_close(H_fill, H_true)
 
 
 def test_the_filled_indirect_light_has_float64_gradients_that_reach_the_source_texels():
-    _, s, _, indirect, _, fitted = fold_setup(hemisphere_samples=16)
-    src = nearest_fitted(s.positions, fitted)
-    filled = _with_emitters(indirect, src)
+    _, s, _, radiosity, fitted = fold_setup(hemisphere_samples=16)
+    radiosity.use_emitters(nearest_fitted(s.positions, fitted))
+    filled = radiosity.indirect
     rng = np.random.default_rng(0)
     pd = torch.tensor(rng.uniform(0.2, 0.9, (s.num_texels, 3)), requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: filled(x)[:, :, 0].sum(0), (pd,), eps=1e-6, atol=1e-6)
@@ -82,12 +84,19 @@ def test_the_photon_level_scatters_with_the_filled_parameters():
     """A PhotonLevel given the emitter source traces with Pd, Ps, sigma taken from the nearest fitted texel: its
     cache equals that of a level without it traced with the filled tensors (same seed), and differs from the
     cache of the black tensors."""
-    cfg, s, obs, indirect, radiance, fitted = fold_setup(photons_per_light=20_000)
+    cfg, s, obs, radiosity, fitted = fold_setup(photons_per_light=20_000)
     T = s.num_texels
     src = nearest_fitted(s.positions, fitted)
     pd = torch.full((T, 3), 0.6, dtype=torch.float64) * fitted[:, None]
     ps, sigma = torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64)
-    make = lambda source: _photon_setup(cfg, s, obs, obs.valid, torch.device("cpu"), torch.float64, emitter_source=source)
+
+    def make(source):
+        level = PhotonLevel(radiosity.inputs)
+        if source is not None:
+            level.use_emitters(source)
+        level.prepare()
+        return level.refresher
+
     with_fill = make(src).cache(pd, ps, sigma, refresh=0)
     pre_filled = make(None).cache(pd[src], ps[src], sigma[src], refresh=0)
     black = make(None).cache(pd, ps, sigma, refresh=0)
@@ -115,7 +124,7 @@ def test_the_fit_logs_the_filled_texels_and_black_leaves_them_out():
         cfg.radiosity.hemisphere_samples = 32
         cfg.output.progress = False
         log = []
-        fit_capture(cfg, s, obs, Stages(), log.append, torch.device("cpu"))
+        fit_capture(cfg, Capture(s, obs), Stages(), log.append, torch.device("cpu"))
         lines[fill] = [l for l in log if "fit.emitter_fill" in l]
     assert len(lines["nearest"]) == 1 and lines["nearest"][0].startswith("interreflection: 12 texels")
     assert lines["black"] == []

@@ -5,8 +5,11 @@ import math
 import torch
 
 from conftest import dome_scene, point_light_observations
+from torchrefl.capture.base import Capture
 from torchrefl.config import Config
-from torchrefl.fit.pipeline import fit_capture
+from torchrefl.fit.pipeline import fit_capture, level_inputs
+from torchrefl.transport.levels.photon import PhotonLevel
+from torchrefl.transport.levels.radiosity import RadiosityLevel
 from torchrefl.core.surface import Surface
 from torchrefl.core.progress import Stages
 from torchrefl.transport.local import local_terms, predict
@@ -29,33 +32,37 @@ def test_a_shared_lobe_is_not_pulled_to_the_floor_by_texels_without_highlights()
     cfg.fit.specular = "shared"
     cfg.fit.model = "local"
     cfg.output.progress = False
-    res = fit_capture(cfg, surface, obs, Stages(), lambda *a: None, torch.device("cpu"))
-    assert bool((~res["init"].known).any())           # some texel has no specular evidence of its own
-    ps = float(res["ps"][0].mean())
-    sigma = float(res["sigma"][0])
+    res = fit_capture(cfg, Capture(surface, obs), Stages(), lambda *a: None, torch.device("cpu"))
+    assert res.init_counts["spec_known"] < T           # some texel has no specular evidence of its own
+    ps = float(res.ps[0].mean())
+    sigma = float(res.sigma[0])
     assert abs(ps / ps_true - 1) < 0.1 and abs(sigma / sigma_true - 1) < 0.1, (ps, sigma)
+
+
+def radiosity_level(cfg, s, obs) -> RadiosityLevel:
+    """A prepared RadiosityLevel of surface s under obs (all observations fitted)."""
+    inputs, _ = level_inputs(cfg, Capture(s, obs), lambda *a: None)
+    level = RadiosityLevel(inputs)
+    level.prepare()
+    return level
 
 
 def test_the_radiosity_setup_splits_patches_at_the_configured_angle():
     """radiosity.patch_split_angle_deg reaches the patches: on a fold grid with 5 texel columns per plate the
     three 2 x 2 blocks on the fold line are split at 30 degrees (and the run log says so), not at 180."""
     from conftest import fold_surface
-    from torchrefl.fit.classify import classify
-    from torchrefl.fit.pipeline import _radiosity_setup
 
     s = fold_surface(6, 10)
     obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
                                    torch.tensor([-150.0, 0.0, 150.0]))
-    terms = local_terms("lambertian", s.normals, obs)
-    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
     counts = {}
     for angle in (30.0, 180.0):
         cfg = Config()
         cfg.radiosity.patch_size = 2
         cfg.radiosity.hemisphere_samples = 16
         cfg.radiosity.patch_split_angle_deg = angle
-        pmap, *_, note = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
-        counts[angle] = (pmap.num_patches, note)
+        level = radiosity_level(cfg, s, obs)
+        counts[angle] = (level.patches.num_patches, level.note)
     assert counts[180.0][0] == 15 and "straddles" not in counts[180.0][1]
     assert counts[30.0][0] == 18 and "3 more where a block straddles a crease of > 30 deg" in counts[30.0][1]
 
@@ -64,22 +71,18 @@ def test_the_radiosity_setup_builds_a_separate_solve_matrix_when_asked():
     """radiosity.solve_samples: a second F for the solve (its rays in the log); the indirect light then differs
     from the one-matrix setup's but stays close (same patches, both estimates of the same form factors)."""
     from conftest import fold_surface
-    from torchrefl.fit.classify import classify
-    from torchrefl.fit.pipeline import _radiosity_setup
 
     s = fold_surface(6, 10)
     obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
                                    torch.tensor([-150.0, 0.0, 150.0]))
-    terms = local_terms("lambertian", s.normals, obs)
-    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
     pd = torch.full((s.num_texels, 3), 0.7, dtype=obs.intensity.dtype)
     out = {}
     for solve in (None, 64):
         cfg = Config()
         cfg.radiosity.hemisphere_samples = 512
         cfg.radiosity.solve_samples = solve
-        *_, indirect, _, note = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
-        out[solve] = (indirect(pd), note)
+        level = radiosity_level(cfg, s, obs)
+        out[solve] = (level.indirect(pd), level.note)
     assert "the solve's: 64 rays" in out[64][1] and "the solve's" not in out[None][1]
     a, b = out[None][0], out[64][0]
     assert not torch.equal(a, b)
@@ -91,15 +94,12 @@ def test_the_photon_level_gathers_the_radiosity_radiance_when_asked():
     light, which the same call returns (static lights: one map); the photon level's cache then holds the flagged photons' specular entries plus
     the gathered ones (counted in its stats), and without the gather every photon's entries."""
     from conftest import fold_surface
-    from torchrefl.fit.classify import classify
-    from torchrefl.fit.pipeline import _photon_setup, _radiosity_setup
     from torchrefl.transport.radiosity_level import direct_irradiance
 
     s = fold_surface(8, 16)
     obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
                                    torch.tensor([-150.0, 0.0, 150.0]))
     terms = local_terms("torrance_sparrow", s.normals, obs)
-    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
     T = s.num_texels
     pd, ps, sigma = torch.full((T, 3), 0.5, dtype=torch.float64), torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64)
     stats = {}
@@ -110,14 +110,15 @@ def test_the_photon_level_gathers_the_radiosity_radiance_when_asked():
         cfg.photon.diffuse_paths = "radiosity"
         cfg.photon.specular_gather = gather
         cfg.photon.photons_per_light = 20_000
-        *_, indirect, radiance, _ = _radiosity_setup(cfg, s, obs, terms, cls, obs.valid, lambda *a: None)
+        radiosity = radiosity_level(cfg, s, obs)
+        indirect, radiance = radiosity.indirect, radiosity.radiance
         H, R, weights = radiance(pd)
         torch.testing.assert_close(H, indirect(pd))          # one solve serves the irradiance and the radiance
         torch.testing.assert_close(R[:, 0], pd[None] * (direct_irradiance(terms, obs.kappa) + indirect(pd)) / math.pi)
         assert weights.shape == (1, T) and bool((weights == 1).all())
-        level = _photon_setup(cfg, s, obs, obs.valid, torch.device("cpu"), torch.float64,
-                              radiosity_irradiance=indirect, radiosity_radiance=radiance)
-        stats[gather] = level.cache(pd, ps, sigma, refresh=0).stats
+        level = PhotonLevel(radiosity.inputs, radiosity)
+        level.prepare()
+        stats[gather] = level.refresher.cache(pd, ps, sigma, refresh=0).stats
     assert "gather_entries" not in stats[0] and stats[32]["gather_entries"] > 0 and stats[32]["gather_rays"] > 0
     assert 0 < stats[32]["specular_entries"] < stats[0]["specular_entries"]
 
@@ -142,7 +143,7 @@ def test_the_photon_level_logs_the_damping_it_uses():
             cfg.photon.damping = damping
         cfg.output.progress = False
         log = []
-        fit_capture(cfg, s, obs, Stages(), log.append, torch.device("cpu"))
+        fit_capture(cfg, Capture(s, obs), Stages(), log.append, torch.device("cpu"))
         said[damping] = [l for l in log if "Pd damping" in l][0]
     assert said[None].endswith("Pd damping 0.5 between refreshes")
     assert said[0.0].endswith("Pd damping 0 between refreshes")

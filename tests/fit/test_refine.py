@@ -4,9 +4,9 @@ import pytest
 import torch
 
 from conftest import dome_scene, point_light_observations
-from torchrefl.fit.classify import classify
+from torchrefl.core.observation_classes import classify
 from torchrefl.fit.closed_form import closed_form
-from torchrefl.fit.params import TexelParams
+from torchrefl.core.params import TexelParams
 from torchrefl.fit.refine import Objective, grid_neighbours, refine, robust_loss
 from torchrefl.transport.local import local_terms, predict
 

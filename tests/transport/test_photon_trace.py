@@ -14,7 +14,7 @@ from torchrefl.core.surface import Surface
 from torchrefl.core.rays import RayTracer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.local import local_terms
-from torchrefl.transport.photon_level import build_cache, indirect_radiance, light_sources
+from torchrefl.transport.photon_cache import build_cache, indirect_radiance, light_sources
 from torchrefl.core import brdf as brdf_mod
 from torchrefl.transport.photon_trace import PhotonTracer, ScatterTables, TexelMaterial
 from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance

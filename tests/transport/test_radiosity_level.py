@@ -109,7 +109,7 @@ def test_emitter_maps_give_each_texel_the_radiosity_lit_from_its_own_column():
     """With one map per column, the maps' E in a texel's own column is the local direct irradiance, and H at
     every texel equals a brute-force solve with all emitters lit from that texel's column light."""
     from torchrefl.core.rays import RayTracer
-    from torchrefl.transport.photon_level import light_sources
+    from torchrefl.transport.photon_cache import light_sources
     from torchrefl.transport.radiosity_level import direct_irradiance, emitter_maps
 
     s, obs, L = moving_light_fold()
@@ -141,7 +141,7 @@ def test_emitter_maps_give_each_texel_the_radiosity_lit_from_its_own_column():
 
 def test_one_emitter_map_of_static_lights_is_the_plain_level_and_gradcheck_with_maps():
     from torchrefl.core.rays import RayTracer
-    from torchrefl.transport.photon_level import light_sources
+    from torchrefl.transport.photon_cache import light_sources
     from torchrefl.transport.radiosity_level import emitter_maps
 
     s, obs, L = moving_light_fold(3, 6)
@@ -173,7 +173,7 @@ def test_fold_texels_get_their_own_irradiance_when_patches_split_at_the_fold():
     columns' H (smoothed over the texels like the pipeline does) matches a one-texel-per-patch reference."""
     from conftest import fold_surface
     from torchrefl.transport.form_factors import form_factors_for_surface
-    from torchrefl.transport.photon_level import apply_on_grid, smoothing_matrix
+    from torchrefl.transport.photon_cache import apply_on_grid, smoothing_matrix
 
     s = fold_surface(16, 66)                     # 33 columns per plate: blocks of columns 32-33 straddle the fold
     H, W = s.grid_shape

@@ -18,7 +18,7 @@ from torchrefl.errors import ConfigError
 from torchrefl.core.rays import RayTracer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.local import local_terms
-from torchrefl.transport.photon_level import build_cache, indirect_radiance, light_sources
+from torchrefl.transport.photon_cache import build_cache, indirect_radiance, light_sources
 from torchrefl.transport.photon_trace import TexelMaterial
 from torchrefl.transport.radiosity_level import PatchMap, direct_irradiance, indirect_irradiance
 from torchrefl.transport.specular_gather import SpecularGather

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import torch
 
 from torchrefl.core.brdf import specular_lobe
-from torchrefl.fit.classify import T_DIFF, T_SPEC
+from torchrefl.core.observation_classes import T_DIFF, T_SPEC
 from torchrefl.transport.local import LocalTerms
 
 

@@ -18,7 +18,7 @@ from typing import Callable, Optional
 import torch
 
 from torchrefl.errors import FitError
-from torchrefl.fit.params import TexelParams
+from torchrefl.core.params import TexelParams
 
 _LOG_EPS = 1e-3
 

@@ -1,7 +1,7 @@
 """Final gathering of the receiving texel's specular reflection of diffusely reflected light.
 
 The photon level predicts observation (p, t) as local + kappa (Pd_t / pi H_pt + Ps_t sum_e D(theta_e; sigma_t) c_e)
-(torchrefl.transport.photon_level). Its specular entries c_e come from the photons stored at t: a few per
+(torchrefl.transport.photon_cache). Its specular entries c_e come from the photons stored at t: a few per
 observation at full size, and most land far outside a glossy lobe, so the entries are a handful of spikes.
 That noise multiplies Ps in the fit and biases it down (errors in variables), and the lost specular
 reflection of the neighbouring surfaces then goes into Pd (Object E's lower plate mirrors the upper one).
@@ -40,7 +40,7 @@ from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import ConfigError
 from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.core.lobe_sampling import row_dot, sample_mixture
-from torchrefl.transport.photon_level import BIN_PER_SIGMA, LOBE_CUTOFF, THETA_BIN
+from torchrefl.transport.photon_cache import BIN_PER_SIGMA, LOBE_CUTOFF, THETA_BIN
 from torchrefl.transport.photon_trace import PhotonTracer
 
 WIDEN = 1.25         # sampling roughness over the texel's roughness at the refresh

@@ -2,7 +2,7 @@
 
 import torch
 
-from torchrefl.fit.params import TexelParams, inverse_softplus_b, softplus_b
+from torchrefl.core.params import TexelParams, inverse_softplus_b, softplus_b
 
 
 def test_round_trip_of_initial_values():

@@ -10,7 +10,7 @@ import torch
 from conftest import fold_surface, point_light_observations
 from torchrefl.core.rays import RayTracer
 from torchrefl.errors import ConfigError
-from torchrefl.transport.photon_level import (PhotonCache, build_cache, indirect_radiance, indirect_radiance_reference,
+from torchrefl.transport.photon_cache import (PhotonCache, build_cache, indirect_radiance, indirect_radiance_reference,
                                               light_sources, smooth_on_grid, spread_on_grid, texel_light_positions)
 from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
 
@@ -233,7 +233,7 @@ def test_specular_spreading_needs_the_grid(traced):
 def test_the_sparse_smoothing_operator_is_kornias_filter(sigma, normal_sigma):
     """smoothing_matrix (weights built once) applied to a field equals smooth_on_grid (kornia's Gaussian or
     joint bilateral filter, normalised over the texels present), on a fold with a hole in its texel set."""
-    from torchrefl.transport.photon_level import apply_on_grid, smoothing_matrix
+    from torchrefl.transport.photon_cache import apply_on_grid, smoothing_matrix
 
     s = fold_surface(12, 20)
     keep = torch.ones(s.num_texels, dtype=torch.bool)
@@ -307,7 +307,7 @@ def test_map_weights_reproduce_cubics_and_sum_to_one():
     """Cubic Lagrange weights over the four nearest maps reproduce any cubic in the map coordinate exactly, the
     extrapolation half a map step past the outer maps included, and each texel's weights sum to one; fewer maps
     fall back to the polynomial they can hold; order 1 is the tent between the two nearest."""
-    from torchrefl.transport.photon_level import map_weights
+    from torchrefl.transport.photon_cache import map_weights
 
     rng = np.random.default_rng(0)
     for K, degree in ((8, 3), (4, 3), (3, 2), (2, 1)):
@@ -331,7 +331,7 @@ def test_map_weights_reproduce_cubics_and_sum_to_one():
 def test_a_field_that_bends_with_the_light_is_interpolated_within_a_fraction_of_the_tents_error():
     """Indirect light that varies smoothly but not linearly across the columns (here exp of the map coordinate):
     the cubic weights' error is far below the tent's, the error Object E's lower plate showed at 8 maps."""
-    from torchrefl.transport.photon_level import map_weights
+    from torchrefl.transport.photon_cache import map_weights
 
     K = 8
     s = np.linspace(0, K - 1, 400)

@@ -9,15 +9,15 @@ import pytest
 import torch
 
 from conftest import fold_surface, point_light_observations
-from torchrefl.synthetic.path_tracer import IndirectRenderer
-from torchrefl.fit.classify import classify
-from torchrefl.fit.params import TexelParams
-from torchrefl.fit.photon_schedule import PhotonLevel, run_schedule
-from torchrefl.fit.refine import Objective, refine
+from torchrefl.capture.base import Capture
+from torchrefl.config import Config
+from torchrefl.core.params import TexelParams
 from torchrefl.core.rays import RayTracer
+from torchrefl.fit.pipeline import level_inputs, refit
+from torchrefl.fit.refine import Objective, refine
+from torchrefl.synthetic.path_tracer import IndirectRenderer
+from torchrefl.transport.levels.photon import PhotonLevel
 from torchrefl.transport.local import local_terms, predict
-from torchrefl.transport.photon_level import light_sources
-from torchrefl.transport.photon_trace import PhotonTracer
 
 LIGHTS = np.array([[-40.0, 5.0, 50.0], [-60.0, -20.0, 30.0], [-20.0, 25.0, 70.0]])
 CAMERA = np.array([-150.0, 0.0, 150.0])
@@ -44,25 +44,31 @@ def scene():
     return s, obs, terms
 
 
-def level_for(s, obs, photons=300_000, seed=0):
-    pt = PhotonTracer(RayTracer(s.mesh_vertices, s.mesh_faces), s.texel_index.numpy(), s.positions.numpy(),
-                      s.normals.numpy(), "lambertian", offset=1e-3)
-    return PhotonLevel(pt, light_sources(s, obs, 8), obs.view_dir, obs.valid, photons, 0.6, 0.02, seed,
-                       torch.float64, torch.device("cpu"), smoothing=1.0, grid=(s.texel_index, s.grid_shape))
+def photon_level(s, obs, schedule="joint", outer=2, seed=0, damping=0.0, iterations=30):
+    """A prepared PhotonLevel (every path from photons, Method I start) of the scene with this outer loop."""
+    cfg = Config()
+    cfg.seed = seed
+    cfg.reflectance.brdf = "lambertian"
+    cfg.fit.iterations = iterations
+    for key, value in dict(photons_per_light=300_000, schedule=schedule, outer_iterations=outer, damping=damping,
+                           start="local", smoothing=1.0).items():
+        setattr(cfg.photon, key, value)
+    cfg.output.progress = False
+    inputs, _ = level_inputs(cfg, Capture(s, obs), lambda *a: None)
+    level = PhotonLevel(inputs)
+    level.prepare()
+    return level
 
 
 def fit(s, obs, terms, schedule, seed=0, outer=2):
     T = s.num_texels
-    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
     start = (obs.intensity / terms.diffuse.clamp_min(1e-12))[0].clamp(0, 2)    # local closed form under light 0
     params = TexelParams(start, torch.full((T, 3), 0.01, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64),
                          0.01, 0.6)
     make = lambda model, weight: Objective(predict=model, intensity=obs.intensity, weight=weight, loss="l2")
-    local = lambda pd, ps, sg: predict(terms, pd, ps, sg)
-    out = run_schedule(params, level_for(s, obs, seed=seed), local, obs.kappa, make, obs.intensity, obs.valid, cls,
-                       schedule=schedule, outer=outer, optimizer="lbfgs", iterations=30, learning_rate=0.05,
-                       progress=False, log=lambda *a: None)
-    return params, out
+    level = photon_level(s, obs, schedule, outer, seed)
+    refit(level, params, make, level.inputs.cfg)
+    return params, level
 
 
 def away_from_fold(s, margin=3):
@@ -90,13 +96,14 @@ def test_local_fit_keeps_the_interreflection_bias(scene):
 @pytest.mark.parametrize("schedule", ["joint", "seed"])
 def test_photon_level_removes_the_bias(scene, schedule):
     s, obs, terms = scene
-    params, out = fit(s, obs, terms, schedule)
+    params, level = fit(s, obs, terms, schedule)
     keep = away_from_fold(s)
     err = pd_error(params.pd().detach(), keep)
     assert err < 0.05, err
     # the kept parameters are those of the best-scored refresh
-    assert out["best"] == int(np.argmin(out["scores"]))
-    assert out["scores"][out["best"]] < out["scores"][0]
+    out = level.report()
+    assert out["kept_refresh"] == int(np.argmin(out["image_difference_per_refresh"]))
+    assert out["image_difference_per_refresh"][out["kept_refresh"]] < out["image_difference_per_refresh"][0]
 
 
 def test_same_seed_same_result(scene):
@@ -111,20 +118,17 @@ def test_damping_moves_pd_part_of_the_way_and_leaves_the_lobe(scene):
     so a damped run ends between the start and the undamped refit; Ps and sigma are not re-clamped."""
     s, obs, terms = scene
     T = s.num_texels
-    cls = classify(terms.theta_h, obs.valid, 60.0, 20.0)
     make = lambda model, weight: Objective(predict=model, intensity=obs.intensity, weight=weight, loss="l2")
-    local = lambda pd, ps, sg: predict(terms, pd, ps, sg)
     ends = {}
     for d in (0.0, 0.5):
         params = TexelParams(torch.full((T, 3), 0.9, dtype=torch.float64), torch.full((T, 3), 0.002, dtype=torch.float64),
                              torch.full((T,), 0.1, dtype=torch.float64), 0.01, 0.6, init_floor=1e-4)
-        out = run_schedule(params, level_for(s, obs, seed=1), local, obs.kappa, make, obs.intensity, obs.valid, cls,
-                           schedule="seed", outer=1, optimizer="lbfgs", iterations=20, learning_rate=0.05,
-                           progress=False, log=lambda *a: None, damping=d)
-        ends[d] = (params, out)
+        level = photon_level(s, obs, "seed", outer=1, seed=1, damping=d, iterations=20)
+        refit(level, params, make, level.inputs.cfg)
+        ends[d] = (params, level.report())
     keep = away_from_fold(s)
     pd0, pd_half = ends[0.0][0].pd().detach()[keep, 0], ends[0.5][0].pd().detach()[keep, 0]
-    assert ends[0.0][1]["best"] == 1 and ends[0.5][1]["best"] == 1
+    assert ends[0.0][1]["kept_refresh"] == 1 and ends[0.5][1]["kept_refresh"] == 1
     torch.testing.assert_close(pd_half, 0.5 * 0.9 + 0.5 * pd0, rtol=0, atol=1e-6)
     # Ps (truth 0) stays where the refit put it: damping does not re-floor it at the starting floor 0.01
     assert float((ends[0.5][0].ps().detach() < 0.01).double().mean()) > 0.9

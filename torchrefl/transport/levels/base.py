@@ -1,0 +1,114 @@
+"""The interface every transport level implements, and what a level is built from.
+
+A level (local, radiosity, photon; transport/levels/) turns texel parameters into predicted images.
+The fit (torchrefl.fit.pipeline) drives every level through the same loop:
+
+    level.prepare()                       precompute for this capture (form factors, tracers, ...)
+    init = level.start(init)              correct the closed-form start (Method II's passes)
+    level.refresh(params, 0)              outer-iteration state (the photon cache)
+    for k in range(level.refits):
+        for step in level.steps(k):       which parameters are refit on which observations
+            refine(params, objective(level.predict, step.mask), ...)
+        level.refresh(params, k + 1)
+    level.finish(params)                  keep the best refresh (photon)
+
+Adding a level is one module with a TransportLevel subclass; `auto` chooses among level objects
+(torchrefl.transport.levels.auto).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar, Optional
+
+import torch
+
+from torchrefl.config import Config
+from torchrefl.core.observations import Observations
+from torchrefl.core.surface import Surface
+from torchrefl.transport.local import LocalTerms, predict
+
+
+@dataclass
+class LevelInputs:
+    """The capture as every level sees it: the local model's terms and the observation masks.
+
+    initialise(intensity (P, T, 3)) -> the closed-form start (Pd, Ps, sigma and what it knew) on these
+    intensities: a level that removes its predicted interreflection restarts the closed forms with it.
+    """
+
+    cfg: Config
+    surface: Surface
+    obs: Observations
+    terms: LocalTerms
+    classes: torch.Tensor          # (P, T) observation classes
+    fit_mask: torch.Tensor         # (P, T) fitted observations
+    eval_mask: torch.Tensor        # (P, T) held-out observations
+    device: torch.device
+    log: Callable[[str], None]
+    initialise: Callable[[torch.Tensor], Any]
+
+    def local_predict(self) -> Callable:
+        """(pd, ps, sigma) -> (P, T, 3) direct light on the fit's device."""
+        terms = self.terms
+        if self.device.type != "cpu":
+            terms = LocalTerms(terms.brdf, *(getattr(terms, k).to(self.device) for k in
+                                             ("theta_h", "cos_l", "cos_v", "diffuse", "specular")), terms.diffuse_exponent)
+        return lambda pd, ps, sigma: predict(terms, pd, ps, sigma)
+
+
+@dataclass
+class RefitStep:
+    """One refinement within an outer iteration: the raw tensors trained (None = all) on which observations."""
+
+    train: Optional[list]
+    mask: torch.Tensor
+    label: str
+    iterations: int
+
+
+class TransportLevel(ABC):
+    """A transport level: precompute, predict (differentiably), correct the start, refresh between refits."""
+
+    name: ClassVar[str]
+    #: outer iterations: refits separated by refreshes (1 for levels without an outer loop)
+    refits: int = 1
+
+    def __init__(self, inputs: LevelInputs):
+        self.inputs = inputs
+        self.model_numbers: dict = {}       # the measurements behind auto's choice (metrics.json model_numbers)
+
+    def prepare(self) -> None:
+        """Precompute what the level needs for this capture (called once, before the start)."""
+
+    @property
+    @abstractmethod
+    def reason(self) -> str:
+        """The sentence this level contributes to metrics.json's model_reason."""
+
+    def use_emitters(self, source: torch.Tensor) -> None:
+        """Texels without a fitted observation reflect with the parameters of texel source[t] (fit.emitter_fill)."""
+
+    def start(self, init):
+        """The start corrected for what this level models (default: the closed forms as they are)."""
+        return init
+
+    @abstractmethod
+    def predict(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+        """(P, T, 3) predicted images for texel parameters (differentiable in all three)."""
+
+    def steps(self, k: int) -> list[RefitStep]:
+        """The refinements of outer iteration k (default: all parameters on every fitted observation)."""
+        fc = self.inputs.cfg.fit
+        return [RefitStep(None, self.inputs.fit_mask, f"fit ({fc.optimizer})", fc.iterations)]
+
+    def refresh(self, params, k: int) -> None:
+        """Update the level's state for the parameters after k refits (default: nothing to refresh)."""
+
+    def finish(self, params) -> None:
+        """Called after the last refit (default: nothing)."""
+
+    def report(self) -> dict | None:
+        """The level's own block for metrics.json (None: none)."""
+        return None

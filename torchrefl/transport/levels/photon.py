@@ -1,0 +1,175 @@
+"""Method III (dissertation Ch.5): direct light plus diffuse and specular interreflection by photon mapping.
+
+Each refresh re-traces the photons with the current parameters into a cache of indirect light per
+(light, texel) (transport.photon_refresh); between refreshes the fit refines the texel tensors against
+local + cached indirect light (photon.schedule joint: all parameters on every fitted observation; seed:
+the dissertation's alternation, (a) Pd on T_diff, then (b) Ps and sigma on T_spec and T_none). After each
+refit Pd keeps photon.damping of the Pd the cache was traced with. Every refresh scores the parameters by
+the mean absolute image difference (8-bit) over the fitted observations, with the cache traced at exactly
+those parameters, and the best are kept: the start is scored at refresh 0, refit k at refresh k.
+
+With photon.diffuse_paths: radiosity the level composes a RadiosityLevel: the all-diffuse paths' irradiance
+comes from its solution at each refresh, the photons carry only the paths with a specular scattering.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from torchrefl.core.observation_classes import T_DIFF, T_NONE, T_SPEC
+from torchrefl.core.params import inverse_softplus_b
+from torchrefl.core.rays import RayTracer
+from torchrefl.errors import ConfigError
+from torchrefl.transport.levels.base import LevelInputs, RefitStep, TransportLevel
+from torchrefl.transport.levels.radiosity import RadiosityLevel
+from torchrefl.transport.photon_cache import indirect_radiance, light_sources
+from torchrefl.transport.photon_refresh import PhotonRefresh
+from torchrefl.transport.photon_trace import PhotonTracer
+from torchrefl.transport.specular_gather import SpecularGather
+
+#: share of photon rays ending on the back of the scanned surface that draws a warning
+BACK_HIT_WARNING = 0.03
+
+
+def image_score(pred: torch.Tensor, intensity: torch.Tensor, mask: torch.Tensor) -> float:
+    """Mean absolute difference in 8-bit DN over the masked observations."""
+    return float(((pred - intensity).abs() * 255.0)[mask].mean())
+
+
+class PhotonLevel(TransportLevel):
+    name = "photon"
+
+    def __init__(self, inputs: LevelInputs, radiosity: RadiosityLevel | None = None, reason: str | None = None):
+        """radiosity: a prepared RadiosityLevel for the start (photon.start: radiosity) and the all-diffuse paths
+        (photon.diffuse_paths: radiosity); reason: model_reason when another rule chose this level."""
+        super().__init__(inputs)
+        pc = inputs.cfg.photon
+        self.radiosity = radiosity
+        self.hybrid = pc.diffuse_paths == "radiosity"
+        if self.hybrid and radiosity is None:
+            raise ConfigError("photon.diffuse_paths: radiosity needs the radiosity level of the capture")
+        self.refits = pc.outer_iterations
+        self._reason = reason
+        self._local = inputs.local_predict()
+        self.emitter_source = None
+        self.scores: list[float] = []
+        self.cache = None
+        self._best = (math.inf, -1, None, None)
+
+    @property
+    def reason(self) -> str:
+        if self._reason is not None:
+            return self._reason
+        pc = self.inputs.cfg.photon
+        text = "fit.model is 'photon': direct light plus diffuse and specular interreflection by photon tracing"
+        if self.radiosity is None:
+            return text
+        return text + ("; started from Method II" if pc.start == "radiosity" else "; started from Method I") + (
+            "; all-diffuse paths from the radiosity solution" if self.hybrid else "") + " (" + self.radiosity.note + ")"
+
+    def use_emitters(self, source: torch.Tensor) -> None:
+        self.emitter_source = source
+        if self.radiosity is not None:
+            self.radiosity.use_emitters(source)
+
+    def start(self, init):
+        if self.radiosity is not None and self.inputs.cfg.photon.start == "radiosity":
+            return self.radiosity.start(init)
+        return init
+
+    def prepare(self) -> None:
+        """The photon tracer over the texel mesh and the light sources; logs the schedule."""
+        inp = self.inputs
+        cfg, surface, obs = inp.cfg, inp.surface, inp.obs
+        pc, rc = cfg.photon, cfg.reflectance
+        tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
+        offset = 1e-3 * math.sqrt(float(surface.areas.double().median()))
+        ptracer = PhotonTracer(tracer, surface.texel_index.numpy(), surface.positions.double().numpy(),
+                               surface.normals.double().numpy(), rc.brdf, offset=offset,
+                               min_bounces=pc.min_bounces, max_bounces=pc.max_bounces)
+        sources = light_sources(surface, obs, pc.light_maps)
+        view = obs.view_dirs_full() if obs.view_dir.dim() == 3 else obs.view_dir
+        keep = inp.fit_mask | inp.eval_mask
+        gather = None
+        if pc.specular_gather > 0:
+            gather = SpecularGather(ptracer, view.double().numpy(), keep.cpu().numpy(), rc.brdf, pc.specular_gather,
+                                    rc.min_cos_light, rc.sigma_max, seed=cfg.seed)
+        self.refresher = PhotonRefresh(
+            ptracer, sources, view.double(), keep, pc.photons_per_light, rc.sigma_max, rc.min_cos_light, cfg.seed,
+            obs.intensity.dtype, inp.device, smoothing=pc.smoothing,
+            grid=(surface.texel_index, surface.grid_shape, surface.normals.double()), smoothing_normal=pc.smoothing_normal,
+            specular_smoothing=pc.specular_smoothing, linear_emitters=pc.linear_emitters,
+            radiosity_irradiance=self.radiosity.indirect if self.hybrid else None, specular_gather=gather,
+            radiosity_radiance=self.radiosity.radiance if gather is not None else None,
+            emitter_source=self.emitter_source)
+        inp.log(f"photon level: {sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
+                f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}, "
+                + ("all-diffuse paths from the radiosity level, photons for the paths with a specular scattering"
+                   if self.hybrid else "every path from photons") + f", Pd damping {pc.damping:g} between refreshes")
+
+    def predict(self, pd, ps, sigma):
+        kappa = self.inputs.obs.kappa.to(pd.device)
+        return self._local(pd, ps, sigma) + indirect_radiance(self.cache, kappa, pd, ps, sigma)
+
+    def steps(self, k: int) -> list[RefitStep]:
+        inp, pc = self.inputs, self.inputs.cfg.photon
+        iterations = pc.iterations if pc.iterations is not None else inp.cfg.fit.iterations
+        device = inp.device
+        fit_mask, cls = inp.fit_mask.to(device), inp.classes.to(device)
+        outer = self.refits
+        if pc.schedule == "joint":
+            steps = [RefitStep(None, fit_mask, f"fit {k + 1}/{outer} joint", iterations)]
+        else:
+            diffuse = fit_mask & (cls == T_DIFF)
+            no_diffuse = ~diffuse.any(0)          # texels without a T_diff observation: Pd from all of theirs
+            steps = [RefitStep(["raw_pd"], diffuse | (fit_mask & no_diffuse[None]), f"fit {k + 1}/{outer} (a) Pd on T_diff",
+                               iterations),
+                     RefitStep(["raw_ps", "raw_sigma"], fit_mask & ((cls == T_SPEC) | (cls == T_NONE)),
+                               f"fit {k + 1}/{outer} (b) Ps, sigma on T_spec + T_none", iterations)]
+        kept = [s for s in steps if bool(s.mask.any())]
+        for s in steps:
+            if s not in kept:
+                inp.log(f"photon outer {k + 1}: {s.label.split(' ', 2)[2]} skipped (no observation)")
+        return kept
+
+    def refresh(self, params, k: int) -> None:
+        """Damp Pd towards the Pd the last cache was traced with, trace the cache at the parameters, score them."""
+        inp, pc = self.inputs, self.inputs.cfg.photon
+        if k > 0 and pc.damping > 0:           # Pd only: Ps and sigma keep their refit values exactly
+            with torch.no_grad():
+                params.raw_pd.copy_(inverse_softplus_b(pc.damping * self._traced_pd + (1.0 - pc.damping) * params.pd()))
+        with torch.no_grad():
+            values = params.values()
+            self._traced_pd = values[0]
+            self.cache = self.refresher.cache(*values, refresh=k, progress=inp.cfg.output.progress)
+            intensity = inp.obs.intensity.to(inp.device)
+            score = image_score(self.predict(*values), intensity, inp.fit_mask.to(inp.device))
+        self.scores.append(score)
+        stats = self.cache.stats
+        inp.log(f"photon refresh {k}: {stats['photons_emitted']} photons, {stats['stored_hits']} stored hits, "
+                f"{stats['specular_entries']} specular entries"
+                + (f" (+ {stats['gather_entries']} gathered from {stats['gather_rays']} rays)"
+                   if "gather_entries" in stats else "") + f"; image difference {score:.4f} DN")
+        back = stats.get("back_side_hits", 0) / max(stats.get("rays", 0), 1)
+        if k == 0 and back > BACK_HIT_WARNING:
+            inp.log(f"warning: {back:.0%} of the photon rays hit the back of the scanned surface: light reaches parts "
+                    "of the object the scan does not cover (holes, unscanned sides) and their interreflection is not "
+                    "modelled, so the fit attributes the missing indirect light to Pd (see metrics.json "
+                    "photon.cache.back_side_hits)")
+        if score < self._best[0]:
+            self._best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, self.cache)
+
+    def finish(self, params) -> None:
+        """Keep the parameters (and the cache) of the best-scored refresh."""
+        score, k_best, state, cache = self._best
+        with torch.no_grad():
+            for n, p in params.named_parameters():
+                p.copy_(state[n])
+        self.cache = cache
+        self.inputs.log(f"photon level: kept the parameters of refresh {k_best} (image difference {score:.4f} DN)")
+
+    def report(self) -> dict:
+        return {"image_difference_per_refresh": self.scores, "kept_refresh": self._best[1], "cache": self.cache.stats}
+

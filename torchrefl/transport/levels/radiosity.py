@@ -1,0 +1,149 @@
+"""Method II (dissertation Ch.4): direct light plus diffuse interreflection by radiosity.
+
+prepare: form factors between texel patches (Embree), the patch map, emitter maps for co-rotating
+lights and the patch-to-texel reconstruction. start: the closed-form inverse radiosity (eq. 4.7) for
+the patches' Pd, then the local closed forms on the intensities minus the predicted interreflection
+(eq. 4.9-4.11), radiosity.init_passes times. predict: local + kappa Pd / pi * H(Pd), differentiable
+through the linear solve.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from torchrefl.core.rays import RayTracer
+from torchrefl.core.observation_classes import T_DIFF
+from torchrefl.transport.form_factors import form_factors_for_surface
+from torchrefl.transport.levels.base import LevelInputs, TransportLevel
+from torchrefl.transport.patch_reconstruction import linear_reconstruction
+from torchrefl.transport.photon_cache import apply_on_grid, light_sources, smoothing_matrix
+from torchrefl.transport.radiosity_level import (PatchMap, direct_irradiance, emitter_maps, indirect_irradiance,
+                                                 inverse_radiosity)
+
+
+def _nonzeros(M: torch.Tensor) -> int:
+    return int(M._nnz()) if M.is_sparse else int((M != 0).sum())
+
+
+class RadiosityLevel(TransportLevel):
+    name = "radiosity"
+
+    def __init__(self, inputs: LevelInputs):
+        super().__init__(inputs)
+        self.note = ""
+        self.chosen_reason: str | None = None      # set when another rule (auto) chose this level
+        self.emitter_source = None
+        self._local = inputs.local_predict()
+
+    @property
+    def reason(self) -> str:
+        if self.chosen_reason is not None:
+            return self.chosen_reason
+        return "fit.model is 'radiosity': direct light plus diffuse interreflection (" + self.note + ")"
+
+    def prepare(self) -> None:
+        inp, rc = self.inputs, self.inputs.cfg.radiosity
+        cfg, surface, obs = inp.cfg, inp.surface, inp.obs
+        tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
+        patches, F = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size,
+                                              samples_per_patch=rc.hemisphere_samples, seed=cfg.seed,
+                                              split_angle_deg=rc.patch_split_angle_deg)
+        self.patches = PatchMap(patches.texel_patch, surface.areas.double(), patches.num_patches)
+        self.F = F.to(obs.intensity.dtype)
+        self.F_solve = None
+        if rc.solve_samples is not None and rc.solve_samples != rc.hemisphere_samples:
+            _, F_solve = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size,
+                                                  samples_per_patch=rc.solve_samples, seed=cfg.seed + 1,
+                                                  split_angle_deg=rc.patch_split_angle_deg)
+            self.F_solve = F_solve.to(obs.intensity.dtype)
+        self.solver = {"method": rc.solver, "tol": rc.tolerance, "max_iter": rc.max_iterations, "direct_max": rc.direct_max}
+        self.maps = None
+        if obs.light_positions is not None and rc.light_maps > 1:
+            sources = light_sources(surface, obs, rc.light_maps)
+            if sources.num_maps > 1:                                       # the lights move with the scan
+                self.maps = emitter_maps(sources, surface.positions, surface.normals, tracer,
+                                         cfg.geometry.shadow_offset_mm, obs.kappa)
+        self._spread, self._reconstruct = (lambda H: H), None
+        self.note = self._describe(patches, rc) + self._reconstruction(patches, rc)
+        inp.log(self.note)
+
+    def _describe(self, patches, rc) -> str:
+        blocks = int(torch.unique(patches.block[:, 0] * (self.inputs.surface.grid_shape[1] + 1)
+                                  + patches.block[:, 1]).numel())
+        split = (f" ({patches.num_patches - blocks} more where a block straddles a crease of > "
+                 f"{rc.patch_split_angle_deg:g} deg)" if patches.num_patches > blocks else "")
+        self._rho, self._determined = inverse_radiosity(self.inputs.terms, self.inputs.obs.kappa, self.inputs.obs.intensity,
+                                                        (self.inputs.classes == T_DIFF) & self.inputs.fit_mask,
+                                                        self.patches, self.F)
+        return (f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels{split}, "
+                f"{rc.hemisphere_samples} hemisphere rays each, {_nonzeros(self.F)} non-zero form factors"
+                + (f" (the solve's: {rc.solve_samples} rays, {_nonzeros(self.F_solve)})" if self.F_solve is not None else "")
+                + (f", {self.maps.weights.shape[0]} emitter maps per light" if self.maps is not None else "")
+                + f"; inverse radiosity (eq. 4.7) determined {int(self._determined.sum())} patches")
+
+    def _reconstruction(self, patches, rc) -> str:
+        s = self.inputs.surface
+        smooth = rc.smoothing if rc.smoothing is not None else (rc.patch_size / 2.0 if rc.patch_size > 1 else 0.0)
+        if rc.reconstruction == "linear" and rc.patch_size > 1:
+            self._reconstruct = linear_reconstruction(s.texel_index.numpy(), s.grid_shape, s.positions.double().numpy(),
+                                                      s.normals.double().numpy(), patches.texel_patch.numpy(),
+                                                      patches.centres.numpy(), patches.normals.numpy(), rc.patch_size,
+                                                      rc.patch_split_angle_deg)
+            if rc.smoothing is not None:
+                self.inputs.log(f"radiosity.smoothing ({rc.smoothing:g}) is not used with radiosity.reconstruction: "
+                                "linear (set reconstruction: constant to spread patch values with it)")
+            return "; texel irradiance from a plane through the neighbouring patches' (radiosity.reconstruction)"
+        if smooth > 0:
+            M = smoothing_matrix(s.texel_index.numpy(), s.grid_shape, smooth, s.normals.numpy(),
+                                 self.inputs.cfg.photon.smoothing_normal)
+            self._spread = lambda H: apply_on_grid(M, H)
+            return f"; patch irradiance spread over the texels (std {smooth:g} texels)"
+        return ""
+
+    def use_emitters(self, source: torch.Tensor) -> None:
+        self.emitter_source = source
+
+    def _emitting(self, pd: torch.Tensor) -> torch.Tensor:
+        return pd if self.emitter_source is None else pd[self.emitter_source.to(pd.device)]
+
+    def indirect(self, pd: torch.Tensor, per_map: bool = False) -> torch.Tensor:
+        """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3); per_map: (P, K, T, 3)
+        before the interpolation between emitter maps and the spread over the texel grid."""
+        H = indirect_irradiance(self.inputs.terms, self.inputs.obs.kappa, self._emitting(pd), self.patches, self.F,
+                                self.maps, self.F_solve, per_map=per_map, reconstruct=self._reconstruct, **self.solver)
+        return H if per_map else self._spread(H)
+
+    def radiance(self, pd: torch.Tensor):
+        """One solve for photon.specular_gather: (H, R, weights) with H (P, T, 3) what indirect(pd) gives, R
+        (P, K, T, 3) every texel's outgoing all-diffuse radiance Pd (E + H) / pi with light p at map k's source,
+        and the maps' (K, T) weights (K = 1 for static lights)."""
+        pd = self._emitting(pd)
+        H_maps = indirect_irradiance(self.inputs.terms, self.inputs.obs.kappa, pd, self.patches, self.F, self.maps,
+                                     self.F_solve, per_map=True, reconstruct=self._reconstruct, **self.solver)
+        if self.maps is None:
+            E = direct_irradiance(self.inputs.terms, self.inputs.obs.kappa)[:, None]
+            weights = torch.ones(1, pd.shape[0], dtype=torch.float64)
+        else:
+            E, weights = self.maps.irradiance, self.maps.weights
+        H = self._spread((H_maps * weights.to(H_maps.dtype)[None, :, :, None]).sum(1))
+        R = pd[None, None] * (E.to(H_maps.dtype) + self._spread(H_maps)) / math.pi
+        return H, R, weights
+
+    def start(self, init):
+        """Method II's start: the patches' Pd from eq. 4.7 where determined, then the local closed forms on the
+        intensities without the interreflection predicted from the previous pass's Pd (eq. 4.9-4.11)."""
+        obs, texel_patch = self.inputs.obs, self.patches.texel_patch
+        pd0 = torch.where(self._determined[texel_patch][:, None], self._rho[texel_patch].to(init.pd.dtype), init.pd)
+        for _ in range(self.inputs.cfg.radiosity.init_passes):
+            with torch.no_grad():
+                H = self.indirect(pd0.to(obs.intensity.dtype))
+                direct_only = obs.intensity - (obs.kappa / math.pi) * pd0[None].to(H.dtype) * H
+            init = self.inputs.initialise(direct_only)
+            pd0 = init.pd
+        return init
+
+    def predict(self, pd, ps, sigma):
+        kappa = self.inputs.obs.kappa.to(pd.device)
+        return self._local(pd, ps, sigma) + (kappa / math.pi) * pd[None] * self.indirect(pd)

@@ -1,0 +1,118 @@
+"""One refresh of Method III's photon cache: trace photons with the current parameters, reduce them to the cache."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import torch
+
+from torchrefl.core.progress import bar
+from torchrefl.transport.photon_cache import LightSources, PhotonCache, build_cache, smoothing_matrix
+from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
+from torchrefl.transport.specular_gather import SpecularGather
+
+
+@dataclass
+class PhotonRefresh:
+    """Everything a photon cache refresh needs besides the parameters: traces photons at given Pd, Ps, sigma
+    and reduces them to the cache of indirect light per (light, texel)."""
+
+    tracer: PhotonTracer
+    sources: LightSources
+    view_dirs: torch.Tensor
+    keep: torch.Tensor
+    photons_per_light: int
+    sigma_max: float
+    min_cos_light: float
+    seed: int
+    dtype: torch.dtype
+    device: torch.device
+    smoothing: float = 0.0
+    grid: tuple | None = None
+    linear_emitters: bool = False
+    smoothing_normal: float = 0.0
+    specular_smoothing: float = 0.0
+    # photon.diffuse_paths 'radiosity': H(pd) -> (P, T, 3) the all-diffuse paths' irradiance from the radiosity
+    # level (noise-free; the photons then carry only paths with a specular scattering into H)
+    radiosity_irradiance: Callable | None = None
+    # photon.specular_gather: the gatherer and pd -> (H (P, T, 3) as radiosity_irradiance gives it, radiance
+    # (P, K, T, 3), map weights (K, T)) from one radiosity solve: the level's outgoing all-diffuse radiance per
+    # emitter map (the photons' specular entries then keep only the paths with a specular scattering)
+    specular_gather: SpecularGather | None = None
+    radiosity_radiance: Callable | None = None
+    # fit.emitter_fill: (T,) index of the texel whose parameters each texel scatters with (None = its own)
+    emitter_source: torch.Tensor | None = None
+
+    def smoother(self) -> torch.Tensor | None:
+        """The density-estimation kernel as a sparse operator, built on first use and kept for every refresh."""
+        if self.smoothing <= 0 or self.grid is None:
+            return None
+        if getattr(self, "_smoother", None) is None:
+            index, shape = self.grid[0], self.grid[1]
+            normals = self.grid[2] if len(self.grid) > 2 else None
+            self._smoother = smoothing_matrix(np.asarray(index), shape, self.smoothing,
+                                              None if normals is None else np.asarray(normals, dtype=np.float64),
+                                              self.smoothing_normal)
+        return self._smoother
+
+    def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
+        """Trace photons with these parameters and reduce them to the cache."""
+        if self.emitter_source is not None:
+            src = self.emitter_source.to(pd.device)
+            pd, ps, sigma = (x[src] if x.shape[0] == src.shape[0] else x for x in (pd, ps, sigma))   # a shared lobe stays
+        P, K = self.sources.positions.shape[:2]
+        per_map = max(1, math.ceil(self.photons_per_light / K))
+        mat = TexelMaterial.from_tensors(pd, ps, sigma)
+        with bar(P * K * per_map, f"photons (refresh {refresh})", progress, unit="ph") as pb:
+            last = [0]
+
+            def tick(done, total):
+                pb.update(done - last[0])
+                last[0] = done
+
+            start = time.perf_counter()
+            hits = self.tracer.trace(self.sources.positions.reshape(-1, 3), np.repeat(self.sources.intensity, K, 0),
+                                     per_map, mat, seed=self.seed, refresh=refresh, progress=tick)
+            traced = time.perf_counter()
+        cache = build_cache(hits, self.sources, self.tracer.areas, self.tracer.normals, self.view_dirs, self.keep,
+                            self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
+                            self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
+                            emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal,
+                            specular_smoothing=self.specular_smoothing, threads=self.tracer.tracer.threads,
+                            smoother=self.smoother(), diffuse_paths=self.radiosity_irradiance is None,
+                            specular_paths_only=self.specular_gather is not None)
+        if self.radiosity_irradiance is not None:
+            pd_cpu = pd.detach().cpu().to(cache.irradiance.dtype)
+            with torch.no_grad():
+                if self.specular_gather is not None:
+                    H_rad, radiance, weights = self.radiosity_radiance(pd_cpu)
+                else:
+                    H_rad = self.radiosity_irradiance(pd_cpu)
+            cache.stats["radiosity_irradiance_mean"] = float(H_rad.mean())
+            cache.stats["photon_irradiance_mean"] = float(cache.irradiance.mean())
+            cache.irradiance = cache.irradiance + H_rad.to(cache.irradiance.dtype)
+            if self.specular_gather is not None:
+                cache = self._add_gather(cache, radiance, weights, sigma, refresh)
+        cache.stats["trace_s"] = round(traced - start, 3)
+        cache.stats["reduce_s"] = round(time.perf_counter() - traced, 3)
+        return cache.to(self.dtype, self.device)
+
+
+    def _add_gather(self, cache: PhotonCache, radiance, weights, sigma, refresh: int) -> PhotonCache:
+        """The cache with the gathered specular entries of the all-diffuse paths appended (specular_gather), from
+        the radiosity level's radiance (P, K, T, 3) and map weights (K, T)."""
+        start = time.perf_counter()
+        sig = sigma.detach().cpu().double().numpy()
+        samples = self.specular_gather.directions(sig, refresh)
+        obs, theta, weight = self.specular_gather.entries(samples, radiance.double().numpy(), weights.double().numpy(), sig)
+        dt = cache.entry_theta_h.dtype
+        cache.entry_obs = torch.cat([cache.entry_obs, torch.from_numpy(obs)])
+        cache.entry_theta_h = torch.cat([cache.entry_theta_h, torch.from_numpy(theta).to(dt)])
+        cache.entry_weight = torch.cat([cache.entry_weight, torch.from_numpy(weight).to(dt)])
+        cache.stats.update(gather_rays=int(samples.rays), gather_entries=int(obs.size),
+                           gather_s=round(time.perf_counter() - start, 3))
+        return cache
