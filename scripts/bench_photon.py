@@ -31,7 +31,12 @@ import torch
 
 from torchrefl.config import load_config
 from torchrefl.core.rays import _check_mesh, _scene, aimed_rays
-from torchrefl.train import load_capture, run
+from torchrefl.capture.base import Capture
+from torchrefl.core.progress import Stages
+from torchrefl.fit.pipeline import level_inputs
+from torchrefl.run import run
+from torchrefl.synthetic.capture import synthetic_capture
+from torchrefl.transport.levels.photon import PhotonLevel
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,14 +86,14 @@ def overrides(out: Path, args, columns=512, rows=450, angle=0.7, height=0.56, li
 def refresh_time(cfg, out: Path, photons: int, lights: int | None = None, record: list | None = None) -> tuple[float, dict]:
     """Seconds of one cache refresh (photon tracing + cache reduction) with fixed parameters (Object E's truth);
     with `record`, the rays of a second, identical refresh are appended to it."""
-    from torchrefl.fit.pipeline import _photon_setup
-    from torchrefl.core.progress import Stages
-
-    cap = load_capture(cfg, out, Stages(lambda *a: None), lambda *a: None)
-    surface, obs = cap["surface"], cap["obs"]
+    quiet = lambda *a: None
+    cap, _ = synthetic_capture(cfg, out, Stages(quiet), quiet)
+    surface, obs = cap.surface, cap.obs
     if lights is not None:
         obs = obs.subset_lights(list(range(lights)))
-    level = _photon_setup(cfg, surface, obs, obs.valid, torch.device("cpu"), torch.float32)
+    photon = PhotonLevel(level_inputs(cfg, Capture(surface, obs), quiet)[0])
+    photon.prepare()
+    level = photon.refresher
     level.photons_per_light = photons
     T = surface.num_texels
     pd = torch.full((T, 3), 0.55)

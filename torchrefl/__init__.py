@@ -8,11 +8,10 @@
 The data flow: config -> capture (Surface + Observations) -> transport level -> fit -> outputs.
 """
 
-__version__ = "0.1.0"
-
 from torchrefl.config import Config, load_config  # noqa: E402
 from torchrefl.errors import TorchReflError  # noqa: E402
 from torchrefl.report.run_result import RunResult, load_run  # noqa: E402
 from torchrefl.run import fit  # noqa: E402
+from torchrefl.version import __version__  # noqa: E402
 
 __all__ = ["Config", "RunResult", "TorchReflError", "__version__", "fit", "load_config", "load_run"]

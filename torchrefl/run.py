@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from torchrefl import __version__
+from torchrefl.version import __version__
 from torchrefl.capture.base import loader_for
 from torchrefl.config import Config, dump_config, load_config, resolve_path
 from torchrefl.core.progress import Stages

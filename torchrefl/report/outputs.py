@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchrefl import __version__
+from torchrefl.version import __version__
 from torchrefl.capture.base import Capture
 from torchrefl.config import Config
 from torchrefl.core.progress import Stages

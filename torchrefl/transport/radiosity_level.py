@@ -144,11 +144,16 @@ def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: Pat
     return (H.reshape(P, K, T, C) * maps.weights.to(H.dtype)[None, :, :, None]).sum(1)
 
 
+def reflected_indirect(kappa, pd: torch.Tensor, H: torch.Tensor) -> torch.Tensor:
+    """(P, T, 3) the measured value of indirect irradiance H (P, T, 3) reflected diffusely: kappa Pd / pi * H."""
+    return (kappa / math.pi) * pd[None].to(H.dtype) * H
+
+
 def predict_radiosity(terms: LocalTerms, kappa, pd, ps, sigma, patches: PatchMap, F, maps: EmitterMaps | None = None,
                       **solver) -> torch.Tensor:
     """(P, T, 3) local prediction plus the diffusely reflected interreflection."""
-    H = indirect_irradiance(terms, kappa, pd, patches, F, maps, **solver)
-    return predict(terms, pd, ps, sigma) + (kappa / math.pi) * pd[None] * H
+    return predict(terms, pd, ps, sigma) + reflected_indirect(kappa, pd, indirect_irradiance(terms, kappa, pd, patches, F,
+                                                                                            maps, **solver))
 
 
 def inverse_radiosity(terms: LocalTerms, kappa, intensity: torch.Tensor, diffuse_mask: torch.Tensor,

@@ -1,4 +1,4 @@
-"""`auto`: the cheapest transport level that explains the data (DESIGN.md "One model").
+"""`auto`: the cheapest transport level that explains the data (docs/methods.md, "auto").
 
 Rules, in order, each with the numbers behind it:
 1. the capture has no depth (no mesh) or no texel sees another (no form factor above zero)
@@ -13,10 +13,11 @@ Rules, in order, each with the numbers behind it:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
+
+from torchrefl.transport.radiosity_level import reflected_indirect
 
 
 @dataclass
@@ -73,8 +74,8 @@ def predicted_interreflection_dn(terms, kappa, pd, ps, indirect_fn, fit_mask) ->
     """
     with torch.no_grad():
         H = indirect_fn(pd)
-        diffuse = (kappa / math.pi) * pd[None] * H * 255.0
+        diffuse = reflected_indirect(kappa, pd, H) * 255.0
         Hs = indirect_fn(specular_albedo_estimate(ps).expand_as(pd).contiguous())
-        specular = (kappa / math.pi) * pd[None] * Hs * 255.0
+        specular = reflected_indirect(kappa, pd, Hs) * 255.0
     m = fit_mask[..., None].expand_as(diffuse)
     return diffuse[m], specular[m]

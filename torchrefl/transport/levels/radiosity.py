@@ -20,7 +20,7 @@ from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
 from torchrefl.transport.photon_cache import apply_on_grid, light_sources, smoothing_matrix
 from torchrefl.transport.radiosity_level import (PatchMap, direct_irradiance, emitter_maps, indirect_irradiance,
-                                                 inverse_radiosity)
+                                                 inverse_radiosity, reflected_indirect)
 
 
 def _nonzeros(M: torch.Tensor) -> int:
@@ -139,11 +139,11 @@ class RadiosityLevel(TransportLevel):
         for _ in range(self.inputs.cfg.radiosity.init_passes):
             with torch.no_grad():
                 H = self.indirect(pd0.to(obs.intensity.dtype))
-                direct_only = obs.intensity - (obs.kappa / math.pi) * pd0[None].to(H.dtype) * H
+                direct_only = obs.intensity - reflected_indirect(obs.kappa, pd0, H)
             init = self.inputs.initialise(direct_only)
             pd0 = init.pd
         return init
 
     def predict(self, pd, ps, sigma):
         kappa = self.inputs.obs.kappa.to(pd.device)
-        return self._local(pd, ps, sigma) + (kappa / math.pi) * pd[None] * self.indirect(pd)
+        return self._local(pd, ps, sigma) + reflected_indirect(kappa, pd, self.indirect(pd))
