@@ -58,8 +58,8 @@ def test_wrong_type_and_choice_and_range(tmp_path):
         load_config(write(tmp_path, "reflectance:\n  theta_specular_deg: 120\n"))
     with pytest.raises(ConfigError, match="sigma_min"):
         load_config(write(tmp_path, "reflectance:\n  sigma_min: 0.5\n  sigma_max: 0.1\n"))
-    with pytest.raises(ConfigError, match="radiosity.patch_split_angle_deg.*<= 180"):
-        load_config(write(tmp_path, "radiosity:\n  patch_split_angle_deg: 200\n"))
+    with pytest.raises(ConfigError, match="radiosity.light_maps.*>= 1"):
+        load_config(write(tmp_path, "radiosity:\n  light_maps: 0\n"))
     with pytest.raises(ConfigError, match="radiosity.solve_samples.*>= 1"):
         load_config(write(tmp_path, "radiosity:\n  solve_samples: 0\n"))
     with pytest.raises(ConfigError, match="geometry.crease_angle_deg.*<= 179"):
@@ -75,7 +75,6 @@ def test_wrong_type_and_choice_and_range(tmp_path):
 def test_object_e_configs_load_with_their_form_factor_settings(name):
     cfg = load_config(ROOT / "configs" / name)
     assert cfg.radiosity.hemisphere_samples == 2048 and cfg.radiosity.solve_samples == 256
-    assert cfg.radiosity.patch_split_angle_deg == 30.0
     assert cfg.geometry.median_size == 1 and cfg.synthetic.range_noise_mm == 0     # exact ranges need no median
     assert cfg.photon.specular_gather == (64 if name == "object_e_setup2.yaml" else 0)
 

@@ -65,15 +65,3 @@ def test_the_radiosity_paths_predict_the_held_out_lights_better_than_photons_alo
     hybrid, photons = vase_runs["hybrid"]["holdout"], vase_runs["photons"]["holdout"]
     assert hybrid["mean_abs_diff_8bit"] < 0.9 * photons["mean_abs_diff_8bit"]
     assert hybrid["var_diff_8bit"] < photons["var_diff_8bit"]
-
-
-def test_the_radiosity_paths_with_a_local_start(vase_runs):
-    """photon.start: local with diffuse_paths: radiosity: the radiosity level is set up for the paths only, the
-    start is Method I's (no Method II start passes), and the reason says both."""
-    tmp, cfg, capture = vase_runs["paths"]
-    out = tmp / "local_start"
-    assert main([str(cfg), f"output.dir={out}", "fit.model=photon", "photon.start=local", "photon.diffuse_paths=radiosity",
-                 "photon.outer_iterations=1", "capture.kind=cylindrical_scan", f"capture.path={capture}", "--quiet"]) == 0
-    m = json.loads((out / "metrics.json").read_text())
-    assert "started from Method I;" in m["model_reason"] and "all-diffuse paths from the radiosity solution" in m["model_reason"]
-    assert m["photon"]["cache"]["radiosity_irradiance_mean"] > 0

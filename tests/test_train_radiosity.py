@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from torchrefl.train import main
+from torchrefl.transport.levels import radiosity as radiosity_level
 
 SMALL_E = {
     "seed": 0,
@@ -78,7 +79,7 @@ def test_auto_picks_the_photon_level_for_glossy_interreflection(glossy):
     assert len(p["image_difference_per_refresh"]) == 2 and p["cache"]["stored_hits"] > 0
 
 
-def test_more_start_passes_leave_less_interreflection_in_the_start(runs):
+def test_more_start_passes_leave_less_interreflection_in_the_start(runs, monkeypatch):
     """Method II's start (no refinement: fit.optimizer=none): the local closed forms on the intensities minus
     the interreflection predicted from the previous pass's Pd. A second and third pass bring the start's Pd
     closer to the truth than the single pass from eq. 4.7's Pd."""
@@ -86,9 +87,9 @@ def test_more_start_passes_leave_less_interreflection_in_the_start(runs):
     start = {}
     for passes in (1, 3):
         out = tmp / f"start{passes}"
+        monkeypatch.setattr(radiosity_level, "INIT_PASSES", passes)
         assert main([str(cfg), f"output.dir={out}", "fit.model=radiosity", "fit.optimizer=none", "fit.specular=shared",
-                     f"radiosity.init_passes={passes}", "capture.kind=cylindrical_scan", f"capture.path={capture}",
-                     "--quiet"]) == 0
+                     "capture.kind=cylindrical_scan", f"capture.path={capture}", "--quiet"]) == 0
         m = json.loads((out / "metrics.json").read_text())
         start[passes] = m["ground_truth"]["pd_rmse"]
     assert start[3] < 0.8 * start[1], start

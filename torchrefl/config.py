@@ -50,7 +50,7 @@ class LightGridConfig:
 class SyntheticConfig:
     """A synthetic object scanned by the seed's cylindrical rig (capture.kind: synthetic_cylindrical)."""
 
-    object: str = opt("ellipsoid", "synthetic object shape: analytic ellipsoid/sphere/blob, or a mesh object with interreflection: object_e (the seed's Object E, two plates at 90 deg, setup 1: white diffuse paper), object_e_glossy (Object E, setup 2: glossy paper), bowl (concave, non-uniform inside, a third of which the scanner sees), vase (a solid of revolution with a deep concave neck, non-uniform, scanned whole); see torchrefl/synthetic/objects.py", choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl", "vase"))
+    object: str = opt("ellipsoid", "synthetic object: ellipsoid, sphere, blob (analytic), or object_e, object_e_glossy, bowl, vase (meshes with interreflection)", choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl", "vase"))
     size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
     materials: str = opt("regions", "ground-truth material layout", choices=("regions", "uniform"))
     brdf: str = opt("torrance_sparrow", "BRDF used to render the synthetic images", choices=("torrance_sparrow", "ward", "ward_normalised"))
@@ -60,7 +60,6 @@ class SyntheticConfig:
     angle_step_deg: float = opt(0.7, "scan angle step in degrees; the seed: 0.7", low=0.0)
     height_step_mm: float = opt(0.56, "scan height step in mm; the seed: 0.56", low=0.0)
     camera_distance_mm: float = opt(300.0, "radial distance of the virtual camera from the axis, mm", low=0.0)
-    camera_height_mm: float = opt(0.0, "height (world y) of the virtual camera, mm")
     light_intensity: float = opt(60000.0, "radiant intensity Y of the light (sensor full range x mm^2)", low=0.0)
     supersample: int = opt(3, "sub-samples per texel side used to render textures (finer than the fitter)", low=1)
     mesh_subdivisions: int = opt(6, "icosphere subdivisions of the object mesh (the truth geometry)", low=1)
@@ -69,8 +68,6 @@ class SyntheticConfig:
     range_bits: Optional[int] = opt(None, "quantise the range image to this many bits (the seed's scanner: 8); null = no quantisation")
     texture_bits: int = opt(8, "bit depth of the texture images (the seed: 8)", choices=(8, 16))
     indirect_samples: int = opt(0, "interreflection paths per visible sub-sample (Monte Carlo path tracing with Embree; 0 = direct light only)", low=0)
-    indirect_min_bounces: int = opt(2, "interreflection bounces always traced before Russian roulette", low=1)
-    indirect_max_bounces: int = opt(32, "hard cap on interreflection bounces (Russian roulette ends paths long before)", low=1)
 
 
 @dataclass
@@ -94,10 +91,9 @@ class GeometryConfig:
 
     median_size: int = opt(5, "median filter window (odd)", low=1)
     fit_window: int = opt(5, "Yokoya-Levine quadratic fit window (odd)", low=3)
-    noise_tolerance: float = opt(2.0, "Yokoya-Levine window choice: most centred window within this factor of the median residual of the best (0 = the seed's strict smallest residual, poor on quantised ranges)", low=0.0)
     shadow_offset_mm: float = opt(0.05, "origin offset along the normal for shadow rays, mm", low=0.0)
-    edge_width: int = opt(1, "texels within this many texels of the scanned surface's boundary (silhouettes, depth discontinuities: mixed pixels) are not fitted or evaluated (0 = use them)", low=0)
-    crease_angle_deg: Optional[float] = opt(None, "texels on a crease sharper than this (a mesh face around the texel is more than this far from its normal: its footprint spans two faces, a mixed pixel) are not fitted or evaluated, like edge_width's; null = use them. 60 catches a 90-degree fold's or rim's texels and spares their neighbours", low=1.0, high=179.0)
+    edge_width: int = opt(1, "texels within this many texels of the scanned surface's boundary (mixed pixels) are not fitted (0 = use them)", low=0)
+    crease_angle_deg: Optional[float] = opt(None, "texels on a crease sharper than this many degrees (mixed pixels) are not fitted; null = use them", low=1.0, high=179.0)
 
 
 @dataclass
@@ -119,7 +115,6 @@ class ReflectanceConfig:
     diffuse: str = opt("lambert", "diffuse part: lambert (Pd/pi, eq. 2.9) or minnaert (Pd/pi (cos_l cos_v)^(k-1), darker than Lambert towards grazing for k > 1; local transport only)", choices=("lambert", "minnaert"))
     minnaert_k: Optional[float] = opt(None, "Minnaert exponent k with diffuse: minnaert; null = fitted on the diffuse-only (T_diff) observations, one k for the object", low=0.5, high=2.0)
     ps_channels: int = opt(3, "specular reflectance channels: 3 = RGB, 1 = grey", choices=(1, 3))
-    class_angle: str = opt("half", "angle the classes threshold: half = n vs half vector (dissertation eq. 2.15), mirror = view vs mirror direction (conference papers)", choices=("half", "mirror"))
     theta_diffuse_deg: float = opt(60.0, "theta_th1: half-angle above which an observation is diffuse only (eq. 2.20)", low=0.0, high=90.0)
     theta_specular_deg: float = opt(20.0, "theta_th2: half-angle at or below which specular is strong (eq. 2.21)", low=0.0, high=90.0)
     sigma_min: float = opt(0.01, "lower bound of the roughness sigma (radians)", low=1e-4)
@@ -133,7 +128,7 @@ class ReflectanceConfig:
 class FitConfig:
     """Fitting of the texel parameter tensors."""
 
-    model: str = opt("local", "transport level: local (Method I), radiosity (Method II, diffuse interreflection), photon (Method III, diffuse and specular interreflection) or auto (the cheapest that explains the data)", choices=("local", "radiosity", "photon", "auto"))
+    model: str = opt("local", "transport level: local (Method I), radiosity (II), photon (III) or auto (the cheapest that explains the data)", choices=("local", "radiosity", "photon", "auto"))
     noise_floor_dn: float = opt(0.5, "auto: interreflection below this many 8-bit DN is not modelled", low=0.0)
     optimizer: str = opt("lbfgs", "refinement optimiser", choices=("lbfgs", "adam", "none"))
     iterations: int = opt(60, "refinement iterations (LBFGS outer steps or Adam steps)", low=0)
@@ -141,7 +136,6 @@ class FitConfig:
     loss: str = opt("huber", "robust loss on 8-bit residuals", choices=("l2", "huber", "cauchy"))
     loss_scale_8bit: float = opt(3.0, "robust loss scale, in 8-bit digital numbers", low=1e-6)
     holdout: list = opt([], "light indices excluded from fitting and evaluated afterwards")
-    emitter_fill: str = opt("nearest", "what texels without a fitted observation (silhouette, crease, never lit) reflect when the interreflection levels light the object with them: nearest (the parameters of the nearest fitted texel in 3-D) or black (Pd 0: their share of the interreflected light is lost and the texels that see them come out too bright; Object E at full size: +0.2 % on the lower plate)", choices=("nearest", "black"))
     interpolation_window: int = opt(5, "W: window for interpolating undetermined texels (W x W)", low=1)
     sigma_search: int = opt(32, "sigma values of the variable-projection search that can replace the closed-form start (0 = off)", low=0)
     specular: str = opt("texel", "Ps, sigma per texel (texel), one lobe for the whole object (shared), or per texel pulled towards the shared lobe (pooled)", choices=("texel", "shared", "pooled"))
@@ -155,17 +149,9 @@ class RadiosityConfig:
     """The radiosity level (Method II): patches, form factors, the linear solve."""
 
     patch_size: int = opt(2, "patch side in texels (patches are patch_size x patch_size texel blocks; 1 = one texel per patch)", low=1)
-    patch_split_angle_deg: float = opt(30.0, "a patch's texels stay within this angle (degrees) of one another's normals: a block straddling a fold or crease is split into one patch per side (a shared patch gives the texels on both sides one irradiance, too low on the side that faces the other across the fold; Object E at full size: +3 % Pd within 2 mm of the fold); 180 = plain blocks", low=0.0, high=180.0)
     hemisphere_samples: int = opt(256, "cosine-weighted hemisphere rays per patch for the form factors", low=1)
-    solve_samples: Optional[int] = opt(None, "hemisphere rays per patch for a second, cheaper set of form factors used only by the solve B = rho (E + F B), the hemisphere_samples ones then only gathering H = F B at the texels (null = one set for both). The solve costs (non-zeros of F) x (iterations); B's noise averages out over the emitters each patch gathers from, so the gather is where the rays count", low=1)
-    solver: str = opt("auto", "linear solver: direct (dense LU), iterative (fixed point, sparse) or auto (by size)", choices=("auto", "direct", "iterative"))
-    direct_max: int = opt(800, "auto uses the direct solver up to this many patches (the iterative one above)", low=1)
-    tolerance: float = opt(1e-7, "relative tolerance of the iterative solver", low=0.0)
-    max_iterations: int = opt(500, "iteration cap of the iterative solver", low=1)
-    reconstruction: str = opt("linear", "from the patches' indirect irradiance to the texels': linear (a plane through the neighbouring patches' values, fitted per texel, normal-tested: keeps H's gradient up to a fold or a rim, where a patch's or a Gaussian's average gives the edge texels the interior's value) or constant (the texel's patch value, spread by radiosity.smoothing)", choices=("linear", "constant"))
-    smoothing: Optional[float] = opt(None, "with reconstruction: constant, std in texels of the Gaussian (normal-tested like photon.smoothing_normal) that spreads each patch's indirect irradiance over the texel grid, so that the texels of a patch do not share one value (which a fit answers with alternating Pd along a gradient); null = half the patch size, 0 = constant within a patch", low=0.0)
-    init_passes: int = opt(3, "passes of the Method II start: the local closed forms on the intensities minus the interreflection predicted from the previous pass's Pd (the first from eq. 4.7); each pass starts from a Pd with less interreflection in it (Object E at full size: 3 passes let the fit converge in 60 iterations where 1 pass needed 180)", low=1)
-    light_maps: int = opt(8, "emitter maps per light when the lights move with the scan (co-rotating rig): the patches' radiosity is solved with the light at K evenly spaced columns' positions and each texel interpolates cubically between the four nearest (like photon.light_maps; the tent between two nearest left Object E's lower plate 1.3 % short of indirect light at 8 maps, the cubic 0.1 %); 1 = every patch lit as in its own column's image", low=1)
+    solve_samples: Optional[int] = opt(None, "hemisphere rays per patch of a cheaper second form-factor set used only by the radiosity solve (null = one set)", low=1)
+    light_maps: int = opt(8, "emitter maps per light for lights that move with the scan, interpolated cubically per texel (1 = none)", low=1)
 
 
 @dataclass
@@ -174,20 +160,13 @@ class PhotonConfig:
 
     photons_per_light: int = opt(400_000, "photons traced per light and cache refresh (shared by its light maps)", low=1)
     light_maps: int = opt(8, "photon maps per light when the lights move with the scan (co-rotating rig); texels interpolate cubically between the four nearest", low=1)
-    start: str = opt("radiosity", "initial parameters: radiosity (Method II's closed forms: the first cache starts near the solution) or local (Method I's)", choices=("radiosity", "local"))
     outer_iterations: int = opt(3, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0)
     schedule: str = opt("joint", "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation", choices=("joint", "seed"))
-    iterations: Optional[int] = opt(None, "refinement iterations per outer iteration and process (None = fit.iterations)")
-    damping: float = opt(0.5, "after each refit Pd keeps this fraction of the Pd the cache was traced with (under-relaxation against oscillation and photon noise where texels light each other strongly; it also slows convergence there, to about damping + (1 - damping) x the interreflected share per refresh). Scene dependent: Object E with diffuse_paths: radiosity is best at 0 (98.8 % of the texels within 2 % at full size, 97.0 % at 0.5); the vase, whose photons carry more of its light, at 0.2 (pd_rmse 0.0079; 0.0106 at 0)", low=0.0, high=0.95)
-    linear_emitters: bool = opt(False, "keep the cached irradiance linear in the Pd of each photon's last emitter (exact last bounce between refreshes; about 3x slower fits)")
-    reinitialise: bool = opt(False, "start every outer iteration from the closed forms on the images minus the cached indirect light")
+    damping: float = opt(0.5, "fraction of the previous refresh's Pd that Pd keeps after each photon refit (under-relaxation; 0 = none)", low=0.0, high=0.95)
     smoothing: float = opt(1.0, "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each texel's own photons)", low=0.0)
-    diffuse_paths: str = opt("photons", "where the indirect irradiance of the all-diffuse light paths comes from: photons (every path traced), or radiosity (the radiosity level's solution at the current Pd, recomputed at every refresh, noise-free; the photons then carry only the paths with a specular scattering, and still give the receiving texel's specular reflection of all indirect light unless specular_gather is set). radiosity removes most photon noise where the interreflection is mostly diffuse (the vase: README)", choices=("photons", "radiosity"))
-    specular_smoothing: float = opt(0.0, "density estimation of the specular entries: each photon's entry is spread over the neighbouring texels (3 x 3, Gaussian of this std in texels, normal-tested like smoothing); 0 = per texel. Per-texel entries are so noisy that they bias Ps down when highlights are observed (errors in variables); 1.0 removes most of that bias at ~2.5x the photon level's fit time (4-7x the entries)", low=0.0)
-    specular_gather: int = opt(0, "with diffuse_paths: radiosity, directions per texel for gathering the texel's specular reflection of the all-diffuse paths' light (traced from its lobe to the texels they hit, whose radiance the radiosity level gives); the photons' specular entries then carry only the paths with a specular scattering. Removes the photon noise that biases Ps down (errors in variables) where a glossy surface mirrors its lit neighbours (Object E: README); 0 = photons for all of it", low=0)
-    smoothing_normal: float = opt(0.1, "density estimation: a neighbour's weight also falls as exp(-|n - n'|^2 / (2 s^2)) with its normal's distance from the texel's (s ~ radians), so the kernel does not gather across folds and creases; 0 = plain Gaussian", low=0.0)
-    min_bounces: int = opt(1, "scatterings before Russian roulette starts", low=0)
-    max_bounces: int = opt(16, "cap on scatterings per photon", low=1)
+    diffuse_paths: str = opt("photons", "source of the all-diffuse paths' indirect light: photons, or radiosity (the radiosity solution, noise-free)", choices=("photons", "radiosity"))
+    specular_smoothing: float = opt(0.0, "std in texels of the 3 x 3 Gaussian that spreads each photon's specular entry (0 = per texel)", low=0.0)
+    specular_gather: int = opt(0, "with diffuse_paths radiosity: lobe directions per texel that gather the specular reflection of diffuse light (0 = off)", low=0)
 
 
 @dataclass

@@ -172,18 +172,6 @@ def test_unknown_brdf_is_a_config_error():
         brdf.check_brdf_name("phong", "reflectance.brdf")
 
 
-def test_mirror_angle_is_twice_the_half_angle_in_the_plane():
-    n = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)
-    for a, b in ((10.0, 30.0), (-20.0, 50.0)):
-        l = torch.tensor([[math.sin(math.radians(a)), 0.0, math.cos(math.radians(a))]], dtype=torch.float64)
-        v = torch.tensor([[math.sin(math.radians(b)), 0.0, math.cos(math.radians(b))]], dtype=torch.float64)
-        th = brdf.classification_angle("half", n, l, v)
-        mr = brdf.classification_angle("mirror", n, l, v)
-        assert abs(float(mr) - 2 * float(th)) < 1e-9
-    with pytest.raises(ConfigError, match="class_angle"):
-        brdf.classification_angle("other", n, n, n)
-
-
 # ------------------------------------------------------------------ Minnaert diffuse part
 
 def minnaert_written_out(nrm, l, v, pd, k):

@@ -1,4 +1,4 @@
-"""fit.emitter_fill: texels without a fitted observation emit with the nearest fitted texel's parameters."""
+"""Texels without a fitted observation emit with the nearest fitted texel's parameters."""
 
 import numpy as np
 import pytest
@@ -91,7 +91,7 @@ def test_the_photon_level_scatters_with_the_filled_parameters():
     ps, sigma = torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64)
 
     def make(source):
-        level = PhotonLevel(radiosity.inputs)
+        level = PhotonLevel(radiosity.inputs, radiosity)
         if source is not None:
             level.use_emitters(source)
         level.prepare()
@@ -104,9 +104,9 @@ def test_the_photon_level_scatters_with_the_filled_parameters():
     assert float(with_fill.irradiance[:, fitted].sum()) > 1.02 * float(black.irradiance[:, fitted].sum())
 
 
-def test_the_fit_logs_the_filled_texels_and_black_leaves_them_out():
-    """End to end on a small fold: with fit.emitter_fill nearest the log names the texels filled (the wall's
-    rim is never lit here), with black it says nothing of them."""
+def test_the_fit_logs_the_filled_texels_at_the_interreflection_levels_only():
+    """End to end on a small fold: at the radiosity level the log names the texels filled (the wall's rim is never
+    lit here); at the local level nothing is filled (no interreflection)."""
     from torchrefl.fit.pipeline import fit_capture
     from torchrefl.core.progress import Stages
 
@@ -116,15 +116,14 @@ def test_the_fit_logs_the_filled_texels_and_black_leaves_them_out():
     col = s.texel_index % 12
     obs.valid[:, col >= 10] = False                       # two wall columns without a fitted observation
     lines = {}
-    for fill in ("nearest", "black"):
+    for model in ("radiosity", "local"):
         cfg = Config()
-        cfg.fit.model = "radiosity"
-        cfg.fit.emitter_fill = fill
+        cfg.fit.model = model
         cfg.fit.iterations = 2
         cfg.radiosity.hemisphere_samples = 32
         cfg.output.progress = False
         log = []
         fit_capture(cfg, Capture(s, obs), Stages(), log.append, torch.device("cpu"))
-        lines[fill] = [l for l in log if "fit.emitter_fill" in l]
-    assert len(lines["nearest"]) == 1 and lines["nearest"][0].startswith("interreflection: 12 texels")
-    assert lines["black"] == []
+        lines[model] = [l for l in log if "nearest fitted texel" in l]
+    assert len(lines["radiosity"]) == 1 and lines["radiosity"][0].startswith("interreflection: 12 texels")
+    assert lines["local"] == []

@@ -47,24 +47,20 @@ def radiosity_level(cfg, s, obs) -> RadiosityLevel:
     return level
 
 
-def test_the_radiosity_setup_splits_patches_at_the_configured_angle():
-    """radiosity.patch_split_angle_deg reaches the patches: on a fold grid with 5 texel columns per plate the
-    three 2 x 2 blocks on the fold line are split at 30 degrees (and the run log says so), not at 180."""
+def test_the_radiosity_level_splits_patches_at_a_fold():
+    """The radiosity level splits patches at a fold: on a fold grid with 5 texel columns per plate the three 2 x 2
+    blocks on the fold line are split (18 patches, not 15) and the run log says so."""
     from conftest import fold_surface
 
     s = fold_surface(6, 10)
     obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
                                    torch.tensor([-150.0, 0.0, 150.0]))
-    counts = {}
-    for angle in (30.0, 180.0):
-        cfg = Config()
-        cfg.radiosity.patch_size = 2
-        cfg.radiosity.hemisphere_samples = 16
-        cfg.radiosity.patch_split_angle_deg = angle
-        level = radiosity_level(cfg, s, obs)
-        counts[angle] = (level.patches.num_patches, level.note)
-    assert counts[180.0][0] == 15 and "straddles" not in counts[180.0][1]
-    assert counts[30.0][0] == 18 and "3 more where a block straddles a crease of > 30 deg" in counts[30.0][1]
+    cfg = Config()
+    cfg.radiosity.patch_size = 2
+    cfg.radiosity.hemisphere_samples = 16
+    level = radiosity_level(cfg, s, obs)
+    assert level.patches.num_patches == 18
+    assert "3 more where a block straddles a crease of > 30 deg" in level.note
 
 
 def test_the_radiosity_setup_builds_a_separate_solve_matrix_when_asked():

@@ -349,7 +349,7 @@ class CylindricalScanLoader(CaptureLoader):
         """The range image's Surface and the rig geometry (what light selection needs before any texture)."""
         g = cfg.geometry
         return load_scan_geometry(folder, median_size=g.median_size, fit_window=g.fit_window,
-                                  noise_tolerance=g.noise_tolerance, threads=cfg.threads, dtype=cfg.torch_dtype)
+                                  threads=cfg.threads, dtype=cfg.torch_dtype)
 
     def load(self, folder: Path, cfg: Config, log: Log, geometry: ScanGeometry | None = None) -> Capture:
         geom = geometry if geometry is not None else self.load_geometry(folder, cfg)

@@ -86,26 +86,6 @@ def half_angle(n: torch.Tensor, l: torch.Tensor, v: torch.Tensor) -> torch.Tenso
     return angle_between(n, half_vector(l, v))
 
 
-def mirror_angle(n: torch.Tensor, l: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """(...) angle between the view direction and the mirror direction of l about n
-    (the conference paper's theta_r; about twice theta_h near the specular peak)."""
-    r = 2.0 * dot(n, l).unsqueeze(-1) * n - l
-    return angle_between(v, r)
-
-
-def classification_angle(kind: str, n: torch.Tensor, l: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """The angle the observation classes and light selection threshold (eq. 2.20, 2.21).
-
-    'half': theta_h between n and the half vector (dissertation eq. 2.15-2.16, the default);
-    'mirror': between v and the mirror direction of l (the conference papers' theta_r).
-    """
-    if kind == "half":
-        return half_angle(n, l, v)
-    if kind == "mirror":
-        return mirror_angle(n, l, v)
-    raise ConfigError(f"reflectance.class_angle: unknown angle '{kind}', expected half or mirror")
-
-
 def specular_lobe(model: str, theta_h: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
     """The specular distribution D so that the specular part of f*cos_l is Ps * D * geometric factor.
 

@@ -7,7 +7,6 @@ from dataclasses import dataclass
 import torch
 
 from torchrefl.config import Config
-from torchrefl.core.brdf import classification_angle
 from torchrefl.core.observation_classes import T_DIFF, class_counts, classify
 from torchrefl.core.observations import Observations
 from torchrefl.core.surface import Surface
@@ -37,9 +36,7 @@ def observe(cfg: Config, surface: Surface, obs: Observations, held: torch.Tensor
     geometric_ok = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light)
     fit_mask = geometric_ok & ~held[:, None]
     eval_mask = geometric_ok & held[:, None]
-    angle = terms.theta_h if rc.class_angle == "half" else classification_angle(
-        rc.class_angle, surface.normals[None], obs.light_dir, obs.view_dirs_full())
-    classes = classify(angle, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
+    classes = classify(terms.theta_h, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
     diffuse = DiffuseModel(rc.diffuse)
     if rc.diffuse == "minnaert":
         if rc.minnaert_k is None:

@@ -5,11 +5,10 @@ For every candidate light p and texel x:
   unblocked (Embree occlusion rays);
 - diffuse only (eq. 2.20): measurable and theta > theta_th1 (60 deg);
 - strong specular (eq. 2.21): measurable and theta <= theta_th2 (20 deg);
-with theta the half-angle of eq. 2.15 (reflectance.class_angle = half, the default) or the
-conference papers' angle between the view and mirror directions (class_angle = mirror). With
-lights near the camera the half-angle rarely exceeds 60 deg (it needs l and v more than 120 deg
-apart), so diffuse-only coverage is low under the dissertation's literal definition; the mirror
-angle reproduces the seed's near-100 % diffuse coverage.
+with theta the half-angle of eq. 2.15. With lights near the camera the half-angle rarely exceeds
+60 deg (it needs l and v more than 120 deg apart), so diffuse-only coverage is low under the
+dissertation's literal definition (the conference papers' view-to-mirror angle gave the seed its
+near-100 % diffuse coverage).
 A texel is covered diffusely once it has one diffuse-only observation and specularly once it
 has two strong-specular observations (eq. 3.5 needs two). Greedy selection: each round adds
 the candidate that covers the most still-uncovered texels diffusely (while diffuse coverage
@@ -171,13 +170,12 @@ def select_for_scan(geom, candidates: np.ndarray, selection_cfg, reflectance_cfg
     scan's Surface, with cast shadows from Embree (torchrefl.capture.cylindrical_scan.observation_geometry)."""
     import torch
 
-    from torchrefl.core.brdf import classification_angle
+    from torchrefl.core.brdf import half_angle
     from torchrefl.capture.cylindrical_scan import observation_geometry
 
     og = observation_geometry(geom, candidates, shadow_offset=shadow_offset)
     n = geom.surface.normals.float()[None]
-    th = classification_angle(reflectance_cfg.class_angle, n, torch.from_numpy(og["light_dir"]),
-                              torch.from_numpy(og["view_dir"])[None]).numpy()
+    th = half_angle(n, torch.from_numpy(og["light_dir"]), torch.from_numpy(og["view_dir"])[None]).numpy()
     measurable = og["seen"][None] & (og["cos_l"] > 0) & ~og["shadowed"]
     dmask, smask = measurability(th, measurable, reflectance_cfg.theta_diffuse_deg, reflectance_cfg.theta_specular_deg)
     sel = greedy_select(dmask, smask, og["seen"], selection_cfg.stop_ratio, selection_cfg.max_lights,

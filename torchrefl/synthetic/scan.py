@@ -64,7 +64,7 @@ class SyntheticScan:
             rows=cfg.rows, columns=cfg.columns,
             angle0=0.0, angle_step=math.radians(cfg.angle_step_deg),
             height0=-height / 2.0 + cfg.height_step_mm / 2.0, height_step=cfg.height_step_mm,
-            camera_distance=cfg.camera_distance_mm, camera_height=cfg.camera_height_mm,
+            camera_distance=cfg.camera_distance_mm, camera_height=0.0,
         )
         if self.object is not None:
             lo, hi = self.object.extent_y
@@ -284,7 +284,6 @@ class SyntheticScan:
         if self._gi is None:
             cfg = self.cfg
             self._gi = IndirectRenderer(self.tracer, self._normal_at, self._material_at, cfg.brdf, offset=0.01,
-                                        min_bounces=cfg.indirect_min_bounces, max_bounces=cfg.indirect_max_bounces,
                                         seed=self.seed)
         return self._gi
 

@@ -102,7 +102,8 @@ def _iterate(rho, E, F, tol, max_iter, transpose=False):
         if delta <= tol * scale:
             return X, it + 1
     raise FitError(f"radiosity: the iterative solver did not reach tolerance {tol} in {max_iter} iterations "
-                   f"(last change {float(delta / scale):.3g}); raise radiosity.max_iterations or set radiosity.solver: direct")
+                   f"(last change {float(delta / scale):.3g}): Pd near 1 where texels face each other converges slowly; "
+                   "a larger radiosity.patch_size gives fewer patches, which the direct solver takes")
 
 
 class _Solve(torch.autograd.Function):

@@ -17,6 +17,7 @@ from torchrefl.fit.pipeline import level_inputs, refit
 from torchrefl.fit.refine import Objective, refine
 from torchrefl.synthetic.path_tracer import IndirectRenderer
 from torchrefl.transport.levels.photon import PhotonLevel
+from torchrefl.transport.levels.radiosity import RadiosityLevel
 from torchrefl.transport.local import local_terms, predict
 
 LIGHTS = np.array([[-40.0, 5.0, 50.0], [-60.0, -20.0, 30.0], [-20.0, 25.0, 70.0]])
@@ -45,17 +46,17 @@ def scene():
 
 
 def photon_level(s, obs, schedule="joint", outer=2, seed=0, damping=0.0, iterations=30):
-    """A prepared PhotonLevel (every path from photons, Method I start) of the scene with this outer loop."""
+    """A prepared PhotonLevel (every path from photons) of the scene with this outer loop."""
     cfg = Config()
     cfg.seed = seed
     cfg.reflectance.brdf = "lambertian"
     cfg.fit.iterations = iterations
     for key, value in dict(photons_per_light=300_000, schedule=schedule, outer_iterations=outer, damping=damping,
-                           start="local", smoothing=1.0).items():
+                           smoothing=1.0).items():
         setattr(cfg.photon, key, value)
     cfg.output.progress = False
     inputs, _ = level_inputs(cfg, Capture(s, obs), lambda *a: None)
-    level = PhotonLevel(inputs)
+    level = PhotonLevel(inputs, RadiosityLevel(inputs))     # every path from photons: the radiosity level unused
     level.prepare()
     return level
 

@@ -29,7 +29,7 @@ def check_level(model: str, inputs: LevelInputs) -> None:
 
 def named_level(inputs: LevelInputs) -> TransportLevel:
     """The level fit.model names (auto: a RadiosityLevel to choose from, or local without depth)."""
-    model, pc = inputs.cfg.fit.model, inputs.cfg.photon
+    model = inputs.cfg.fit.model
     check_level(model, inputs)
     if model == "local":
         return LocalLevel(inputs)
@@ -42,13 +42,12 @@ def named_level(inputs: LevelInputs) -> TransportLevel:
         return RadiosityLevel(inputs)
     if model == "radiosity":
         return RadiosityLevel(inputs)
-    needs_radiosity = pc.start == "radiosity" or pc.diffuse_paths == "radiosity"
-    return PhotonLevel(inputs, RadiosityLevel(inputs) if needs_radiosity else None)
+    return PhotonLevel(inputs, RadiosityLevel(inputs))
 
 
 def prepare(level: TransportLevel) -> None:
     """Precompute a level and the radiosity level it composes."""
-    if isinstance(level, PhotonLevel) and level.radiosity is not None:
+    if isinstance(level, PhotonLevel):
         level.radiosity.prepare()
     level.prepare()
 

@@ -21,9 +21,8 @@ import torch
 from torchrefl.core.observation_classes import T_DIFF, T_NONE, T_SPEC
 from torchrefl.core.params import inverse_softplus_b
 from torchrefl.core.rays import RayTracer
-from torchrefl.errors import ConfigError
 from torchrefl.transport.levels.base import LevelInputs, RefitStep, TransportLevel
-from torchrefl.transport.levels.radiosity import RadiosityLevel
+from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
 from torchrefl.transport.photon_cache import indirect_radiance, light_sources
 from torchrefl.transport.photon_refresh import PhotonRefresh
 from torchrefl.transport.photon_trace import PhotonTracer
@@ -41,15 +40,13 @@ def image_score(pred: torch.Tensor, intensity: torch.Tensor, mask: torch.Tensor)
 class PhotonLevel(TransportLevel):
     name = "photon"
 
-    def __init__(self, inputs: LevelInputs, radiosity: RadiosityLevel | None = None, reason: str | None = None):
-        """radiosity: a prepared RadiosityLevel for the start (photon.start: radiosity) and the all-diffuse paths
-        (photon.diffuse_paths: radiosity); reason: model_reason when another rule chose this level."""
+    def __init__(self, inputs: LevelInputs, radiosity: RadiosityLevel, reason: str | None = None):
+        """radiosity: the capture's RadiosityLevel (prepared before this level), for Method II's start and, with
+        photon.diffuse_paths: radiosity, the all-diffuse paths; reason: model_reason when another rule chose this level."""
         super().__init__(inputs)
         pc = inputs.cfg.photon
         self.radiosity = radiosity
         self.hybrid = pc.diffuse_paths == "radiosity"
-        if self.hybrid and radiosity is None:
-            raise ConfigError("photon.diffuse_paths: radiosity needs the radiosity level of the capture")
         self.refits = pc.outer_iterations
         self._reason = reason
         self._local = inputs.local_predict()
@@ -62,22 +59,16 @@ class PhotonLevel(TransportLevel):
     def reason(self) -> str:
         if self._reason is not None:
             return self._reason
-        pc = self.inputs.cfg.photon
         text = "fit.model is 'photon': direct light plus diffuse and specular interreflection by photon tracing"
-        if self.radiosity is None:
-            return text
-        return text + ("; started from Method II" if pc.start == "radiosity" else "; started from Method I") + (
+        return text + "; started from Method II" + (
             "; all-diffuse paths from the radiosity solution" if self.hybrid else "") + " (" + self.radiosity.note + ")"
 
     def use_emitters(self, source: torch.Tensor) -> None:
         self.emitter_source = source
-        if self.radiosity is not None:
-            self.radiosity.use_emitters(source)
+        self.radiosity.use_emitters(source)
 
     def start(self, init):
-        if self.radiosity is not None and self.inputs.cfg.photon.start == "radiosity":
-            return self.radiosity.start(init)
-        return init
+        return self.radiosity.start(init)
 
     def prepare(self) -> None:
         """The photon tracer over the texel mesh and the light sources; logs the schedule."""
@@ -88,7 +79,7 @@ class PhotonLevel(TransportLevel):
         offset = 1e-3 * math.sqrt(float(surface.areas.double().median()))
         ptracer = PhotonTracer(tracer, surface.texel_index.numpy(), surface.positions.double().numpy(),
                                surface.normals.double().numpy(), rc.brdf, offset=offset,
-                               min_bounces=pc.min_bounces, max_bounces=pc.max_bounces)
+                               min_bounces=1, max_bounces=16)
         sources = light_sources(surface, obs, pc.light_maps)
         view = obs.view_dirs_full() if obs.view_dir.dim() == 3 else obs.view_dir
         keep = inp.fit_mask | inp.eval_mask
@@ -99,8 +90,8 @@ class PhotonLevel(TransportLevel):
         self.refresher = PhotonRefresh(
             ptracer, sources, view.double(), keep, pc.photons_per_light, rc.sigma_max, rc.min_cos_light, cfg.seed,
             obs.intensity.dtype, inp.device, smoothing=pc.smoothing,
-            grid=(surface.texel_index, surface.grid_shape, surface.normals.double()), smoothing_normal=pc.smoothing_normal,
-            specular_smoothing=pc.specular_smoothing, linear_emitters=pc.linear_emitters,
+            grid=(surface.texel_index, surface.grid_shape, surface.normals.double()), smoothing_normal=SMOOTHING_NORMAL,
+            specular_smoothing=pc.specular_smoothing,
             radiosity_irradiance=self.radiosity.indirect if self.hybrid else None, specular_gather=gather,
             radiosity_radiance=self.radiosity.radiance if gather is not None else None,
             emitter_source=self.emitter_source)
@@ -115,7 +106,7 @@ class PhotonLevel(TransportLevel):
 
     def steps(self, k: int) -> list[RefitStep]:
         inp, pc = self.inputs, self.inputs.cfg.photon
-        iterations = pc.iterations if pc.iterations is not None else inp.cfg.fit.iterations
+        iterations = inp.cfg.fit.iterations
         device = inp.device
         fit_mask, cls = inp.fit_mask.to(device), inp.classes.to(device)
         outer = self.refits

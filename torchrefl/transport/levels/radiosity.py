@@ -3,7 +3,7 @@
 prepare: form factors between texel patches (Embree), the patch map, emitter maps for co-rotating
 lights and the patch-to-texel reconstruction. start: the closed-form inverse radiosity (eq. 4.7) for
 the patches' Pd, then the local closed forms on the intensities minus the predicted interreflection
-(eq. 4.9-4.11), radiosity.init_passes times. predict: local + kappa Pd / pi * H(Pd), differentiable
+(eq. 4.9-4.11), INIT_PASSES times. predict: local + kappa Pd / pi * H(Pd), differentiable
 through the linear solve.
 """
 
@@ -18,9 +18,21 @@ from torchrefl.core.observation_classes import T_DIFF
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
-from torchrefl.transport.photon_cache import apply_on_grid, light_sources, smoothing_matrix
+from torchrefl.transport.photon_cache import light_sources
 from torchrefl.transport.radiosity_level import (PatchMap, direct_irradiance, emitter_maps, indirect_irradiance,
                                                  inverse_radiosity, reflected_indirect)
+
+
+#: a patch's texels stay within this angle of one another's normals: a block straddling a fold is split per side
+#: (a shared patch gave Object E +3 % Pd within 2 mm of the fold: docs/results/object_e.md)
+SPLIT_ANGLE_DEG = 30.0
+#: passes of Method II's start; each starts from a Pd with less interreflection in it (1 pass left a start the fit
+#: needed ~180 iterations to undo on Object E, 3 converge in 60)
+INIT_PASSES = 3
+#: the radiosity solve: direct LU up to 800 patches, the sparse fixed point above (relative tolerance, iteration cap)
+SOLVER = {"method": "auto", "tol": 1e-7, "max_iter": 500, "direct_max": 800}
+#: the density kernel's normal test (radians): neighbours across a fold or crease do not share irradiance
+SMOOTHING_NORMAL = 0.1
 
 
 def _nonzeros(M: torch.Tensor) -> int:
@@ -49,31 +61,31 @@ class RadiosityLevel(TransportLevel):
         tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
         patches, F = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size,
                                               samples_per_patch=rc.hemisphere_samples, seed=cfg.seed,
-                                              split_angle_deg=rc.patch_split_angle_deg)
+                                              split_angle_deg=SPLIT_ANGLE_DEG)
         self.patches = PatchMap(patches.texel_patch, surface.areas.double(), patches.num_patches)
         self.F = F.to(obs.intensity.dtype)
         self.F_solve = None
         if rc.solve_samples is not None and rc.solve_samples != rc.hemisphere_samples:
             _, F_solve = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size,
                                                   samples_per_patch=rc.solve_samples, seed=cfg.seed + 1,
-                                                  split_angle_deg=rc.patch_split_angle_deg)
+                                                  split_angle_deg=SPLIT_ANGLE_DEG)
             self.F_solve = F_solve.to(obs.intensity.dtype)
-        self.solver = {"method": rc.solver, "tol": rc.tolerance, "max_iter": rc.max_iterations, "direct_max": rc.direct_max}
+        self.solver = SOLVER
         self.maps = None
         if obs.light_positions is not None and rc.light_maps > 1:
             sources = light_sources(surface, obs, rc.light_maps)
             if sources.num_maps > 1:                                       # the lights move with the scan
                 self.maps = emitter_maps(sources, surface.positions, surface.normals, tracer,
                                          cfg.geometry.shadow_offset_mm, obs.kappa)
-        self._spread, self._reconstruct = (lambda H: H), None
-        self.note = self._describe(patches, rc) + self._reconstruction(patches, rc)
+        self._reconstruct = None
+        self.note = self._describe(patches, rc) + self._reconstruction(patches)
         inp.log(self.note)
 
     def _describe(self, patches, rc) -> str:
         blocks = int(torch.unique(patches.block[:, 0] * (self.inputs.surface.grid_shape[1] + 1)
                                   + patches.block[:, 1]).numel())
         split = (f" ({patches.num_patches - blocks} more where a block straddles a crease of > "
-                 f"{rc.patch_split_angle_deg:g} deg)" if patches.num_patches > blocks else "")
+                 f"{SPLIT_ANGLE_DEG:g} deg)" if patches.num_patches > blocks else "")
         self._rho, self._determined = inverse_radiosity(self.inputs.terms, self.inputs.obs.kappa, self.inputs.obs.intensity,
                                                         (self.inputs.classes == T_DIFF) & self.inputs.fit_mask,
                                                         self.patches, self.F)
@@ -83,24 +95,15 @@ class RadiosityLevel(TransportLevel):
                 + (f", {self.maps.weights.shape[0]} emitter maps per light" if self.maps is not None else "")
                 + f"; inverse radiosity (eq. 4.7) determined {int(self._determined.sum())} patches")
 
-    def _reconstruction(self, patches, rc) -> str:
-        s = self.inputs.surface
-        smooth = rc.smoothing if rc.smoothing is not None else (rc.patch_size / 2.0 if rc.patch_size > 1 else 0.0)
-        if rc.reconstruction == "linear" and rc.patch_size > 1:
-            self._reconstruct = linear_reconstruction(s.texel_index.numpy(), s.grid_shape, s.positions.double().numpy(),
-                                                      s.normals.double().numpy(), patches.texel_patch.numpy(),
-                                                      patches.centres.numpy(), patches.normals.numpy(), rc.patch_size,
-                                                      rc.patch_split_angle_deg)
-            if rc.smoothing is not None:
-                self.inputs.log(f"radiosity.smoothing ({rc.smoothing:g}) is not used with radiosity.reconstruction: "
-                                "linear (set reconstruction: constant to spread patch values with it)")
-            return "; texel irradiance from a plane through the neighbouring patches' (radiosity.reconstruction)"
-        if smooth > 0:
-            M = smoothing_matrix(s.texel_index.numpy(), s.grid_shape, smooth, s.normals.numpy(),
-                                 self.inputs.cfg.photon.smoothing_normal)
-            self._spread = lambda H: apply_on_grid(M, H)
-            return f"; patch irradiance spread over the texels (std {smooth:g} texels)"
-        return ""
+    def _reconstruction(self, patches) -> str:
+        """Texel irradiance from a plane through the neighbouring patches' (patches larger than one texel)."""
+        s, size = self.inputs.surface, self.inputs.cfg.radiosity.patch_size
+        if size == 1:
+            return ""
+        self._reconstruct = linear_reconstruction(s.texel_index.numpy(), s.grid_shape, s.positions.double().numpy(),
+                                                  s.normals.double().numpy(), patches.texel_patch.numpy(),
+                                                  patches.centres.numpy(), patches.normals.numpy(), size, SPLIT_ANGLE_DEG)
+        return "; texel irradiance from a plane through the neighbouring patches' (radiosity.reconstruction)"
 
     def use_emitters(self, source: torch.Tensor) -> None:
         self.emitter_source = source
@@ -113,7 +116,7 @@ class RadiosityLevel(TransportLevel):
         before the interpolation between emitter maps and the spread over the texel grid."""
         H = indirect_irradiance(self.inputs.terms, self.inputs.obs.kappa, self._emitting(pd), self.patches, self.F,
                                 self.maps, self.F_solve, per_map=per_map, reconstruct=self._reconstruct, **self.solver)
-        return H if per_map else self._spread(H)
+        return H
 
     def radiance(self, pd: torch.Tensor):
         """One solve for photon.specular_gather: (H, R, weights) with H (P, T, 3) what indirect(pd) gives, R
@@ -127,8 +130,8 @@ class RadiosityLevel(TransportLevel):
             weights = torch.ones(1, pd.shape[0], dtype=torch.float64)
         else:
             E, weights = self.maps.irradiance, self.maps.weights
-        H = self._spread((H_maps * weights.to(H_maps.dtype)[None, :, :, None]).sum(1))
-        R = pd[None, None] * (E.to(H_maps.dtype) + self._spread(H_maps)) / math.pi
+        H = (H_maps * weights.to(H_maps.dtype)[None, :, :, None]).sum(1)
+        R = pd[None, None] * (E.to(H_maps.dtype) + H_maps) / math.pi
         return H, R, weights
 
     def start(self, init):
@@ -136,7 +139,7 @@ class RadiosityLevel(TransportLevel):
         intensities without the interreflection predicted from the previous pass's Pd (eq. 4.9-4.11)."""
         obs, texel_patch = self.inputs.obs, self.patches.texel_patch
         pd0 = torch.where(self._determined[texel_patch][:, None], self._rho[texel_patch].to(init.pd.dtype), init.pd)
-        for _ in range(self.inputs.cfg.radiosity.init_passes):
+        for _ in range(INIT_PASSES):
             with torch.no_grad():
                 H = self.indirect(pd0.to(obs.intensity.dtype))
                 direct_only = obs.intensity - reflected_indirect(obs.kappa, pd0, H)
