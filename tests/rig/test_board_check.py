@@ -2,7 +2,13 @@
 command that fixes it, and nothing moves; probe prints the checks; the no-switch override warns."""
 
 import pytest
-from rig_helpers import CountingCamera, assert_consistent, client_for, fake_device, fast_settings
+from rig_helpers import (
+    CountingCamera,
+    assert_consistent,
+    client_for,
+    fake_device,
+    fast_settings,
+)
 
 from torchrefl.errors import ConfigError, RigError
 from torchrefl.rig.__main__ import main
@@ -30,8 +36,8 @@ def test_default_board_fits_the_default_config():
     ({"s20": 0}, r"\$20 \(soft limits\) is 0, expected 1: send `\$20=1`"),
     ({"s22": 0, "s20": 0}, r"\$22 \(homing\) is 0.*send `\$22=1`.*board.limit_switches: false.*\$20 .*after `\$22=1`"),
     ({"s13": 1}, r"\$13 \(report inches\) is 1, expected 0: send `\$13=0`"),
-    ({"s130": 300}, r"\$130 .* is 300, expected \[-300, -1\].*set lateral.min_mm >= -300 in the rig config, or send "
-                    r"`\$130=495`"),
+    ({"s130": 300}, (r"\$130 .* is 300, expected \[-300, -1\].*set lateral.min_mm >= -300 in the rig config, "
+                     r"or send `\$130=495`")),
     ({"s27": 10}, r"set lateral.max_mm <= -10 .*set vertical.max_mm <= -10"),
 ])
 def test_refusals_name_setting_key_and_command(changes, message):

@@ -122,15 +122,21 @@ class LineCommands:
     def _outside_travel(self, target) -> bool:
         return any(not (-float(self.settings[130 + i]) - 1e-9 <= target[i] <= 1e-9) for i in range(len(AXES)))
 
+    def _plan_end(self) -> list[float]:
+        """Where the machine will stand once the queued blocks are done (the next block's start)."""
+        if self._planner:
+            return self._planner[-1].target
+        return self._move.target if self._move is not None else self.mpos
+
     def _plan(self, target, feed_mm_min: float | None, jog: bool = False) -> None:
         """Queue a straight block to target at feed_mm_min (None: the rapid rate)."""
-        start = self._planner[-1].target if self._planner else (self._move.target if self._move else self.mpos)
-        length, rapid, accel = block_limits(start, target, self.settings)
+        start = self._plan_end()
+        _, rapid, accel = block_limits(start, target, self.settings)
         speed = rapid if feed_mm_min is None else min(feed_mm_min / 60.0, rapid)
         self._planner.append(Move(start, target, speed, accel, jog=jog))
 
     def _jog(self, text: str) -> str:
-        start = self._planner[-1].target if self._planner else (self._move.target if self._move else self.mpos)
+        start = self._plan_end()
         block = parse_block(text, self._modal, start, self.wco, jog=True)
         if isinstance(block, str):
             return block
@@ -141,7 +147,7 @@ class LineCommands:
         return "ok"
 
     def _gcode(self, line: str) -> str | None:
-        start = self._planner[-1].target if self._planner else (self._move.target if self._move else self.mpos)
+        start = self._plan_end()
         block = parse_block(line, self._modal, start, self.wco)
         if isinstance(block, str):
             return block

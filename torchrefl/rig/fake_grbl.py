@@ -239,8 +239,12 @@ class FakeGrbl(LineCommands):
         if self._hold is not None:
             return f"Hold:{self._hold}"
         if self._move is not None or self._planner:
-            return "Jog" if (self._move or self._planner[0]).jog else "Run"
+            return "Jog" if self._jogging() else "Run"
         return "Idle"
+
+    def _jogging(self) -> bool:
+        block = self._move if self._move is not None else (self._planner[0] if self._planner else None)
+        return block is not None and block.jog
 
     def _home_position(self) -> list[float]:
         """MPos after homing: -$27, or -$13x + $27 on an axis homing towards negative ($23 bit set)."""
@@ -441,7 +445,7 @@ class FakeGrbl(LineCommands):
         self._move.fault = self._move_faults.pop(self.moves_started, None)
 
     def _hold_complete(self) -> None:
-        if self._move is not None and self._move.jog or (self._move is None and self._planner and self._planner[0].jog):
+        if self._jogging():
             self._move = None             # a feed hold cancels a jog: the rest of it is dropped
             self._planner.clear()
             self._hold = None

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from torchrefl.errors import RigError
 from torchrefl.rig.grbl_codes import POSITION_LOST_ALARMS, alarm_message, error_message
 from torchrefl.rig.grbl_homing import homing_timeout_s
-from torchrefl.rig.grbl_stream import RX_BUFFER_SIZE, stream_lines
 from torchrefl.rig.grbl_status import Status, parse_status
+from torchrefl.rig.grbl_stream import RX_BUFFER_SIZE, stream_lines
 from torchrefl.rig.link import NoReply, SerialLink
 
 __all__ = ["ControllerReset", "GrblAlarm", "GrblClient", "GrblErrorReply", "Status", "parse_status"]
