@@ -14,7 +14,20 @@ from torchrefl.rig.grbl import GrblClient
 from torchrefl.rig.link import SerialLink
 from torchrefl.rig.settings import load_rig_settings
 
-FAST = dict(time_scale=0.01, home_time_s=1.0)
+FAST = dict(time_scale=0.01)
+
+
+class ManualClock:
+    """A clock for FakeGrbl(clock=...): simulated time moves only when a test calls advance()."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+    def advance(self, seconds: float) -> None:
+        self.t += seconds
 
 
 @contextmanager

@@ -19,11 +19,11 @@ from torchrefl.rig.runner import CaptureRunner
 NODES = [(0, 0), (3, 1), (9, 5), (5, 2), (1, 4), (7, 0), (2, 2), (8, 3)]
 
 
-def _run(fake, folder, camera, settings=None, nodes=NODES):
+def _run(fake, folder, camera, settings=None, nodes=NODES, progress=None):
     settings = settings or fast_settings()
     model = RigModel(settings)
     client = client_for(fake)
-    runner = CaptureRunner(client, model, camera, CaptureFolder(folder), settings, progress=lambda m: None)
+    runner = CaptureRunner(client, model, camera, CaptureFolder(folder), settings, progress=progress or (lambda m: None))
     try:
         return runner.run(targets_from_grid(model, nodes)), model
     finally:
@@ -138,6 +138,18 @@ def test_reset_banner_mid_plan_is_detected(tmp_path):
         _run(fake, tmp_path, cam, settings)
     assert len(assert_consistent(tmp_path)) == len(NODES)
     _each_shot_once(cam, settings)
+
+
+def test_after_a_reboot_nothing_is_sent_to_the_locked_board_and_the_message_says_what_resume_does(tmp_path):
+    notes = []
+    with fake_device() as fake:
+        fake.reboot_during_move(5)
+        with pytest.raises(ControllerReset, match="outputs .*off.*locked until homed"):
+            _run(fake, tmp_path, CountingCamera(), progress=notes.append)
+        after_reboot = fake.lines[[k for k, s in enumerate(fake.lines) if s.startswith("G21 G90 G53")][4] + 1:]
+        assert after_reboot == [] and not fake.coolant           # no M9 (error:9) to the locked board
+    assert "light off failed" not in notes[-1]
+    assert "the controller rebooted" in notes[-1] and "it homes ($H) first, then shoots the 4 positions" in notes[-1]
 
 
 def test_reset_banner_mid_plan_rehome_option_continues(tmp_path):

@@ -213,3 +213,76 @@ def test_streaming_stops_at_the_first_error():
         sent = [s for s in fake.lines if s.startswith("G1")]
         assert "G1 X-15.125 Y-25.5 F6000" in sent and len(sent) < 12
         c.link.close()
+
+
+def test_garbled_status_report_is_retried_and_counted():
+    notes = []
+    with fake_device() as fake:
+        c = connected(fake, log=notes.append)
+        c.home()
+        c.move_to({"X": -50.0}, 3000)
+        fake.garble_reports(2)                         # as seen: '-98:613' in the MPos field
+        st = c.wait_idle()
+        assert st.mpos[0] == pytest.approx(-50.0)
+        assert c.status_retried == 2
+        assert sum("status query retried" in n for n in notes) == 2
+        assert any("-" in g.decode() and ":" in g.decode() for g in c.garbage)
+        c.link.close()
+
+
+def test_board_that_stops_answering_status_is_held_then_an_error():
+    with fake_device(time_scale=0.05) as fake:
+        c = connected(fake, reply_s=0.2, status_retries=2)
+        c.home()
+        c.move_to({"X": -400.0}, 600)
+        fake.drop_reports(3)
+        with pytest.raises(NoReply, match=r"status query '\?' \(3 queries.*sent a feed hold '!'"):
+            c.status()
+        assert c.status_retried == 2
+        for _ in range(1000):                          # until the board has read the '!'
+            if b"!" in fake.received:
+                break
+            time.sleep(0.001)
+        assert fake.received.count(b"!") == 1 and fake.machine_state().startswith("Hold")
+        c.link.close()
+
+
+def test_a_missing_status_report_is_retried():
+    with fake_device() as fake:
+        c = connected(fake, reply_s=0.2)
+        fake.drop_reports(1)
+        assert c.status().state == "Alarm" and c.status_retried == 1
+        c.link.close()
+
+
+def test_feed_hold_waits_for_hold_0_so_an_immediate_resume_works():
+    # 10 mm/s braking at 10 mm/s^2: Hold:1 lasts 1 s simulated (0.2 s here); a `~` then is ignored
+    with fake_device(settings={120: 10.0}, time_scale=0.2) as fake:
+        c = connected(fake, move_s=20.0)
+        c.home()
+        c.move_to({"X": -61.0}, 600)
+        while c.status().mpos[0] > -20.0:
+            pass
+        st = c.feed_hold()
+        assert (st.state, st.substate) == ("Hold", 0)
+        held = st.mpos[0]
+        st = c.resume()
+        assert st.state == "Run"
+        st = c.wait_idle()
+        assert st.mpos[0] == pytest.approx(-61.0) and -61.0 < held < -20.0
+        c.link.close()
+
+
+def test_homing_timeout_is_computed_from_the_settings_with_progress_notes():
+    from torchrefl.rig.grbl_homing import homing_timeout_s
+
+    notes = []
+    with fake_device(time_scale=0.02, carriage_mm=(-450.0, -250.0, -150.0)) as fake:
+        c = connected(fake, home_s=None, progress_s=0.1)
+        assert c.homing_timeout() == pytest.approx(homing_timeout_s(c.settings))
+        assert c.homing_timeout() > 150.0              # 500 mm at $25=500 mm/min can outlast 90 s
+        st = c.home(progress=notes.append)             # about 86 s simulated, 1.7 s here
+        assert st.mpos == (-1.0, -1.0, -1.0)
+        assert "computed from $130-$132" in notes[0]
+        assert any("homing... " in n for n in notes[1:])
+        c.link.close()

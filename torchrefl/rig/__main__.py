@@ -17,6 +17,7 @@ import sys
 import numpy as np
 
 from torchrefl.errors import TorchReflError
+from torchrefl.rig.board_check import check_board, check_connected_board
 from torchrefl.rig.camera import ExternalCommandCamera
 from torchrefl.rig.folder import CaptureFolder
 from torchrefl.rig.grbl import GrblClient
@@ -74,8 +75,22 @@ def build_parser() -> argparse.ArgumentParser:
 def _client(settings: RigSettings) -> GrblClient:
     t = settings.timeouts
     link = SerialLink(settings.port, settings.baudrate)
-    return GrblClient(link, reply_s=t.reply_s, home_s=t.home_s, move_s=t.move_s, poll_s=t.poll_s,
-                      banner_s=t.banner_s, log=lambda m: print(f"  {m}"))
+    return GrblClient(link, reply_s=t.reply_s, home_s=t.home_s or None, move_s=t.move_s, poll_s=t.poll_s,
+                      banner_s=t.banner_s, status_retries=t.status_retries, log=lambda m: print(f"  {m}"))
+
+
+def _probe(client: GrblClient, settings: RigSettings, state: str) -> int:
+    """Print GRBL's settings and the checks of board_check, then fail when a check failed."""
+    board = client.read_settings()
+    for k, v in sorted(board.items()):
+        print(f"  ${k}={v:g}")
+    print("board settings checked against the rig config:")
+    for check in check_board(board, settings):
+        print(f"  {check.line()}")
+    if state == "Alarm":
+        print("  locked in Alarm: run `python -m torchrefl.rig home` (or unlock with $X)")
+    check_connected_board(client, settings, board=board)
+    return 0
 
 
 def _targets(args, model: RigModel):
@@ -118,13 +133,10 @@ def run(args, settings: RigSettings) -> int:
         st = client.last_status
         print(f"{settings.port}: {banner or '(no banner)'}; state {st.state}, MPos {list(st.mpos)}")
         if args.cmd == "probe":
-            for k, v in sorted(client.read_settings().items()):
-                print(f"  ${k}={v:g}")
-            if st.state == "Alarm":
-                print("  locked in Alarm: run `python -m torchrefl.rig home` (or unlock with $X)")
-            return 0
+            return _probe(client, settings, st.state)
+        check_connected_board(client, settings)
         if args.cmd == "home" or not args.no_home:
-            client.home()
+            client.home(progress=print)
             print(f"homed: MPos {list(client.last_status.mpos)}")
         if axes is not None:
             client.move_to(axes, settings.feed_mm_min)
@@ -151,8 +163,10 @@ def _capture(args, settings, model, client, scan) -> int:
         summary = runner.run(targets)
     finally:
         client.link.close()
+    retried = summary.get("status_retries", 0)
     print(f"capture complete: {summary['captured']} new, {summary['skipped']} already recorded, "
-          f"{len(folder.entries)} images in {folder.manifest}; travel {summary.get('path_mm', 0):.0f} mm")
+          f"{len(folder.entries)} images in {folder.manifest}; travel {summary.get('path_mm', 0):.0f} mm"
+          + (f"; {retried} status queries retried" if retried else ""))
     return 0
 
 

@@ -41,7 +41,7 @@ def fake_device_for(settings: RigSettings, time_scale: float = 0.01) -> FakeGrbl
             raise RigError(f"dry run: {ax.axis} travel max_mm {ax.max_mm} > 0; GRBL's machine space after homing is "
                            f"[-max travel, 0]")
         travel[130 + k] = float(max(-ax.min_mm + 1.0, 1.0))
-    return FakeGrbl(travel, time_scale=time_scale, home_time_s=2.0)
+    return FakeGrbl(travel, time_scale=time_scale)
 
 
 def prepare_folder(scan, out) -> Path:

@@ -11,18 +11,20 @@ from __future__ import annotations
 
 import re
 import time
-from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from torchrefl.errors import RigError
 from torchrefl.rig.grbl_codes import POSITION_LOST_ALARMS, alarm_message, error_message
+from torchrefl.rig.grbl_homing import homing_timeout_s
+from torchrefl.rig.grbl_status import Status, parse_status
+from torchrefl.rig.grbl_stream import RX_BUFFER_SIZE, stream_lines
 from torchrefl.rig.link import NoReply, SerialLink
 
-RX_BUFFER_SIZE = 128        # GRBL's serial receive buffer (a ring buffer: 127 bytes usable)
+__all__ = ["ControllerReset", "GrblAlarm", "GrblClient", "GrblErrorReply", "Status", "parse_status"]
+
 SOFT_RESET = b"\x18"
 BANNER_RE = re.compile(r"^Grbl (\S+) \['\$' for help\]$")
 SETTING_RE = re.compile(r"^\$(\d+)=([-+]?\d*\.?\d+)$")
-STATES = ("Idle", "Run", "Hold", "Jog", "Alarm", "Door", "Check", "Home", "Sleep")
 
 
 class GrblErrorReply(RigError):
@@ -49,87 +51,37 @@ class ControllerReset(RigError):
     """An unrequested start-up banner: the controller rebooted, its position is lost (re-home)."""
 
 
+class _MalformedReport(RigError):
+    """A status report arrived but could not be parsed (line noise); the query is worth repeating."""
+
+
 @dataclass
 class _Deadline:
     end: float      # time.monotonic() value
     span: float     # the allowed seconds, for messages
 
 
-@dataclass
-class Status:
-    """One real-time status report. mpos: machine position (X, Y, Z[, A]) in mm (derived from
-    WPos + WCO when the controller reports work positions)."""
-
-    state: str
-    substate: int | None
-    mpos: tuple
-    wpos: tuple | None = None
-    feed: float | None = None
-    fields: dict = field(default_factory=dict)
-    raw: str = ""
-
-
-def _floats(text: str, what: str, raw: str) -> tuple:
-    try:
-        return tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise RigError(f"status report {raw!r}: field {what} is not a list of numbers") from None
-
-
-def parse_status(raw: str, wco: tuple | None = None) -> tuple[Status, tuple | None]:
-    """Parse `<State[:n]|MPos:x,y,z|...>`; returns (Status, the WCO in force after this report).
-
-    WPos reports need a WCO (sent by GRBL in the first report after reset and every 10-30 reports);
-    mpos is None when only WPos is known and no WCO has been seen yet.
-    """
-    if not (raw.startswith("<") and raw.endswith(">")):
-        raise RigError(f"status report {raw!r}: expected '<State|MPos:...|...>'")
-    parts = raw[1:-1].split("|")
-    state, _, sub = parts[0].partition(":")
-    if state not in STATES:
-        raise RigError(f"status report {raw!r}: unknown machine state '{state}' (expected one of {', '.join(STATES)})")
-    fields = {}
-    for p in parts[1:]:
-        key, sep, val = p.partition(":")
-        if not sep:
-            raise RigError(f"status report {raw!r}: field {p!r} has no ':'")
-        fields[key] = val
-    if "WCO" in fields:
-        wco = _floats(fields["WCO"], "WCO", raw)
-    mpos = wpos = None
-    if "MPos" in fields:
-        mpos = _floats(fields["MPos"], "MPos", raw)
-        if wco is not None:
-            wpos = tuple(m - o for m, o in zip(mpos, wco))
-    elif "WPos" in fields:
-        wpos = _floats(fields["WPos"], "WPos", raw)
-        if wco is not None:
-            mpos = tuple(w + o for w, o in zip(wpos, wco))
-    else:
-        raise RigError(f"status report {raw!r}: neither MPos nor WPos present")
-    feed = None
-    for key in ("FS", "F"):
-        if key in fields:
-            feed = _floats(fields[key], key, raw)[0]
-    st = Status(state=state, substate=int(sub) if sub.isdigit() else None, mpos=mpos, wpos=wpos,
-                feed=feed, fields=fields, raw=raw)
-    return st, wco
-
-
 class GrblClient:
     """Talks GRBL 1.1 over an open SerialLink.
 
-    reply_s: how long any command may take to answer (homing and motion have their own limits);
+    reply_s: how long any command or status query may take to answer; home_s: the longest homing
+    cycle (None: computed from the board's `$$`, see grbl_homing); move_s: the longest wait for Idle;
     poll_s: pause between `?` polls while waiting for Idle; banner_s: how long to wait for the
-    start-up banner after opening before sending a soft reset; log: callable(str) for notes
-    (garbage lines, [MSG:...] feedback).
+    start-up banner after opening before sending a soft reset; status_retries: how many times a `?`
+    is sent again after a malformed or missing report; progress_s: seconds between progress notes
+    while homing; log: callable(str) for notes (garbage lines, [MSG:...] feedback, retries).
     """
 
-    def __init__(self, link: SerialLink, *, reply_s: float = 2.0, home_s: float = 60.0, move_s: float = 120.0,
-                 poll_s: float = 0.05, banner_s: float = 2.5, log=None):
+    def __init__(self, link: SerialLink, *, reply_s: float = 2.0, home_s: float | None = None,
+                 move_s: float = 120.0, poll_s: float = 0.05, banner_s: float = 2.5, status_retries: int = 3,
+                 progress_s: float = 10.0, log=None):
         self.link = link
-        self.reply_s, self.home_s, self.move_s = float(reply_s), float(home_s), float(move_s)
+        self.reply_s, self.move_s = float(reply_s), float(move_s)
+        self.home_s = None if not home_s else float(home_s)
         self.poll_s, self.banner_s = float(poll_s), float(banner_s)
+        self.status_retries, self.progress_s = int(status_retries), float(progress_s)
+        self.status_retried = 0            # status queries sent again (malformed or missing report)
+        self.rebooted = False              # an unrequested banner came: outputs off, locked until homed
         self.log = log or (lambda msg: None)
         self.banner: str | None = None
         self.version: str | None = None
@@ -176,6 +128,8 @@ class GrblClient:
                 st, self._wco = parse_status(text, self._wco)
             except RigError as exc:
                 self.garbage.append(raw)
+                if want_status:
+                    raise _MalformedReport(str(exc)) from None
                 self.log(f"{self.port}: ignored a malformed status report ({exc})")
                 return None
             self.last_status = st
@@ -187,9 +141,11 @@ class GrblClient:
             if self._expect_banner:
                 self._expect_banner = False
                 return text
+            self.rebooted = True
             raise ControllerReset(
                 f"{self.port}: the controller reset unexpectedly ('{text}' arrived while waiting for a reply {what}): "
-                f"machine position is lost, home the rig again ($H) before moving")
+                f"machine position is lost and Grbl switched its outputs (the light) off; it is locked until "
+                f"homed, so home the rig again ($H) before moving")
         if text.startswith("ALARM:"):
             code = text[6:]
             self.alarm = int(code) if code.isdigit() else None
@@ -208,7 +164,7 @@ class GrblClient:
         self.log(f"{self.port}: ignored an unrecognised line: {text[:60]!r}")
         return None
 
-    def _next(self, deadline: "_Deadline", what: str, *, want_status: bool = False) -> str:
+    def next_reply(self, deadline: "_Deadline", what: str, *, want_status: bool = False) -> str:
         """The next reply line for the caller (see _handle); silence raises NoReply naming `what`."""
         while True:
             raw = self.link.readline(max(deadline.end - time.monotonic(), 0.0))
@@ -217,6 +173,19 @@ class GrblClient:
             text = self._handle(raw, what, want_status)
             if text is not None:
                 return text
+
+    def _next_or_tick(self, deadline: "_Deadline", what: str, waiting=None) -> str:
+        """next_reply, calling waiting(elapsed, limit) every progress_s seconds of silence."""
+        if waiting is None:
+            return self.next_reply(deadline, what)
+        while True:
+            tick = min(deadline.end, time.monotonic() + self.progress_s)
+            try:
+                return self.next_reply(_Deadline(tick, deadline.span), what)
+            except NoReply:
+                if time.monotonic() >= deadline.end:
+                    raise
+                waiting(deadline.span - (deadline.end - time.monotonic()), deadline.span)
 
     def pump(self, what: str = "to the next command") -> None:
         """Process what already arrived, without waiting: an alarm or a reset banner pushed since
@@ -231,10 +200,10 @@ class GrblClient:
                 self.log(f"{self.port}: dropped a reply nobody waited for: {text!r}")
 
     @staticmethod
-    def _deadline(seconds: float) -> "_Deadline":
+    def deadline(seconds: float) -> "_Deadline":
         return _Deadline(time.monotonic() + float(seconds), float(seconds))
 
-    def _error(self, reply: str, command: str) -> GrblErrorReply:
+    def error_reply(self, reply: str, command: str) -> GrblErrorReply:
         code = reply[6:]
         n = int(code) if code.isdigit() else -1
         return GrblErrorReply(f"{self.port}: GRBL refused {command!r}: {error_message(n)}", n, command)
@@ -251,19 +220,20 @@ class GrblClient:
             raise RigError(f"{self.port}: command {line!r} is not ASCII") from None
         self.link.write(payload)
 
-    def command(self, line: str, timeout_s: float | None = None) -> list[str]:
+    def command(self, line: str, timeout_s: float | None = None, waiting=None) -> list[str]:
         """Send one line, wait for `ok`; returns the lines that came before it ($n=v, $N...).
-        Raises GrblErrorReply on `error:N`, NoReply naming the command on silence."""
+        Raises GrblErrorReply on `error:N`, NoReply naming the command on silence. waiting:
+        callable(elapsed s, limit s), called every progress_s seconds while no reply has come."""
         self.pump(f"before sending {line.strip()!r}")
         self.write_line(line)
-        deadline = self._deadline(self.reply_s if timeout_s is None else timeout_s)
+        deadline = self.deadline(self.reply_s if timeout_s is None else timeout_s)
         out = []
         while True:
-            reply = self._next(deadline, f"to {line.strip()!r}")
+            reply = self._next_or_tick(deadline, f"to {line.strip()!r}", waiting)
             if reply == "ok":
                 return out
             if reply.startswith("error:"):
-                raise self._error(reply, line.strip())
+                raise self.error_reply(reply, line.strip())
             out.append(reply)
 
     def realtime(self, char: bytes) -> None:
@@ -278,11 +248,11 @@ class GrblClient:
         self.banner = None
         self._wco = None
         self._expect_banner = True
-        deadline = self._deadline(self.banner_s)
+        deadline = self.deadline(self.banner_s)
         got = False
         while not got:
             try:
-                got = BANNER_RE.match(self._next(deadline, "after opening the port (expected the start-up banner)")) is not None
+                got = BANNER_RE.match(self.next_reply(deadline, "after opening the port (expected the start-up banner)")) is not None
             except GrblAlarm:
                 continue    # ALARM:3 before the banner: the board was reset while moving
             except NoReply:
@@ -313,11 +283,11 @@ class GrblClient:
         switches spindle and coolant off, clears buffers; returns the banner."""
         self._expect_banner = True
         self.realtime(SOFT_RESET)
-        deadline = self._deadline(self.reply_s)
+        deadline = self.deadline(self.reply_s)
         try:
             while True:
                 try:
-                    line = self._next(deadline, "to the soft reset Ctrl-X (expected the start-up banner)")
+                    line = self.next_reply(deadline, "to the soft reset Ctrl-X (expected the start-up banner)")
                 except GrblAlarm:
                     continue        # ALARM:3 precedes the banner when a reset stops motion
                 if BANNER_RE.match(line):
@@ -328,19 +298,46 @@ class GrblClient:
         return self.banner
 
     def status(self, timeout_s: float | None = None) -> Status:
-        """Send `?` and return the next status report (no `ok` follows a report)."""
-        self.realtime(b"?")
-        deadline = self._deadline(self.reply_s if timeout_s is None else timeout_s)
-        while True:
-            self._next(deadline, "to the status query '?'", want_status=True)
-            st = self.last_status
-            if st.mpos is None:        # WPos without a known WCO yet: ask again
-                time.sleep(self.poll_s)
-                self.realtime(b"?")
-                continue
+        """Send `?` and return the next status report (no `ok` follows a report). A malformed report
+        (line noise) or none within timeout_s (default reply_s) is retried up to status_retries
+        times, each retry counted in status_retried and logged. When the board still does not
+        answer, a feed hold (`!`: the machine brakes to a stop and keeps its position) is sent and
+        NoReply is raised."""
+        wait = self.reply_s if timeout_s is None else float(timeout_s)
+        for attempt in range(self.status_retries + 1):
+            try:
+                st = self._one_status(wait)
+            except (_MalformedReport, NoReply) as exc:
+                if attempt < self.status_retries:
+                    self.status_retried += 1
+                    self.log(f"{self.port}: status query retried ({attempt + 1} of {self.status_retries}, "
+                             f"{self.status_retried} in this session): {exc}")
+                    continue
+                self._stop_motion()
+                raise NoReply(f"no reply from {self.port} within {wait:.1f} s to the status query '?' "
+                              f"({self.status_retries + 1} queries, the last: {exc}); sent a feed hold '!' to stop "
+                              f"motion (the position is kept: check the machine, then `~` resumes or Ctrl-X resets)"
+                              ) from None
             if st.state != "Alarm":
                 self.alarm = None
             return st
+
+    def _one_status(self, wait_s: float) -> Status:
+        self.realtime(b"?")
+        deadline = self.deadline(wait_s)
+        while True:
+            self.next_reply(deadline, "to the status query '?'", want_status=True)
+            st = self.last_status
+            if st.mpos is not None:
+                return st
+            time.sleep(self.poll_s)       # WPos without a known WCO yet: ask again
+            self.realtime(b"?")
+
+    def _stop_motion(self) -> None:
+        try:
+            self.realtime(b"!")
+        except RigError:
+            pass                          # the port is gone: nothing can be sent
 
     def read_settings(self) -> dict[int, float]:
         """`$$` -> {setting number: value}, also kept in self.settings."""
@@ -360,10 +357,26 @@ class GrblClient:
         self.command("$X")
         self.alarm = None
 
-    def home(self) -> Status:
-        """`$H`: run the homing cycle (GRBL answers `ok` when it has finished); returns the status after."""
-        self.command("$H", timeout_s=self.home_s)
+    def homing_timeout(self) -> float:
+        """home_s when given, else the bound grbl_homing computes from the board's `$$` (read now
+        when not read yet)."""
+        if self.home_s is not None:
+            return self.home_s
+        if not self.settings:
+            self.read_settings()
+        return homing_timeout_s(self.settings)
+
+    def home(self, progress=None) -> Status:
+        """`$H`: run the homing cycle (GRBL answers `ok` when it has finished, and no `?` meanwhile);
+        progress (default: log) gets a note every progress_s seconds. Returns the status after."""
+        limit = self.homing_timeout()
+        note = progress or self.log
+        source = "timeouts.home_s" if self.home_s is not None else "computed from $130-$132, $24, $25, $27"
+        note(f"{self.port}: homing ($H), at most {limit:.0f} s ({source})")
+        self.command("$H", timeout_s=limit,
+                     waiting=lambda t, span: note(f"{self.port}: homing... {t:.0f} s of at most {span:.0f} s"))
         self.alarm = None
+        self.rebooted = False
         return self.wait_idle()
 
     def move_to(self, axes: dict, feed_mm_min: float | None = None, rapid: bool = False) -> None:
@@ -396,55 +409,50 @@ class GrblClient:
                 raise RigError(f"{self.port}: not Idle within {limit:.1f} s (last status {st.raw})")
             time.sleep(self.poll_s)
 
-    def feed_hold(self) -> None:
-        """`!`: decelerate to a stop (state Hold:1 then Hold:0); resume with `~`."""
-        self.realtime(b"!")
+    def hold_timeout(self) -> float:
+        """The longest a feed hold may brake: the slowest axis from its top speed ($11x / $12x),
+        doubled, plus reply_s; move_s when the settings were not read."""
+        if not self.settings:
+            return self.move_s
+        brake = max(self.settings[110 + k] / 60.0 / self.settings[120 + k] for k in range(3))
+        return 2.0 * brake + self.reply_s
 
-    def resume(self) -> None:
-        """`~`: cycle start / resume after a feed hold."""
+    def _wait_held(self, limit: float, what: str) -> Status:
+        """Poll `?` until the hold has completed (Hold:0) or the machine is not holding at all."""
+        end = time.monotonic() + limit
+        while True:
+            st = self.status()
+            if st.state == "Alarm":
+                raise GrblAlarm(f"{self.port}: the controller is in the Alarm state ({st.raw}) {what}", self.alarm)
+            if not (st.state == "Hold" and st.substate != 0):
+                return st
+            if time.monotonic() >= end:
+                raise RigError(f"{self.port}: the feed hold did not complete (Hold:0) within {limit:.1f} s {what} "
+                               f"(last status {st.raw})")
+            time.sleep(self.poll_s)
+
+    def feed_hold(self) -> Status:
+        """`!`: brake to a stop; returns once the machine is held (Hold:0, within hold_timeout())."""
+        self.realtime(b"!")
+        return self._wait_held(self.hold_timeout(), "after the feed hold '!'")
+
+    def resume(self) -> Status:
+        """`~` after a feed hold: waits for the hold to complete first (Grbl ignores a `~` sent while
+        still braking, Hold:1), then resumes; returns the first status that is no longer Hold."""
+        st = self._wait_held(self.hold_timeout(), "before resuming")
+        if st.state != "Hold":
+            return st
         self.realtime(b"~")
+        end = time.monotonic() + self.reply_s
+        while st.state == "Hold":
+            if time.monotonic() >= end:
+                raise RigError(f"{self.port}: still {st.raw} {self.reply_s:.1f} s after the resume '~'")
+            time.sleep(self.poll_s)
+            st = self.status()
+        return st
 
     # ---------------------------------------------------------------- streaming
 
     def stream(self, lines, timeout_s: float | None = None, rx_size: int = RX_BUFFER_SIZE) -> int:
-        """Send many lines with GRBL's character-counting protocol: keep the bytes of unanswered
-        lines (each with its newline) within the receive buffer (rx_size - 1 usable bytes), popping
-        one line per `ok`/`error`. On the first error no further line is sent; the replies to the
-        lines already in the buffer are read, then GrblErrorReply names the line. Returns the count."""
-        limit = self.reply_s if timeout_s is None else float(timeout_s)
-        cap = rx_size - 1
-        sent: deque = deque()
-        used = 0
-        failure = None
-
-        def pop():
-            nonlocal used, failure
-            line, n = sent.popleft()
-            reply = self._next(self._deadline(limit), f"to {line!r}")
-            while reply != "ok" and not reply.startswith("error:"):
-                reply = self._next(self._deadline(limit), f"to {line!r}")
-            used -= n
-            if reply.startswith("error:") and failure is None:
-                failure = (line, reply)
-
-        count = 0
-        for k, raw in enumerate(lines):
-            line = raw.strip()
-            n = len(line) + 1
-            if n > cap:
-                raise RigError(f"{self.port}: line {k + 1} ({line[:40]!r}...) has {n} bytes, more than GRBL's "
-                               f"{cap}-byte receive buffer")
-            while sent and used + n > cap:
-                pop()
-            if failure is not None:
-                break
-            self.write_line(line)
-            sent.append((line, n))
-            used += n
-            count += 1
-        while sent:
-            pop()
-        if failure is not None:
-            line, reply = failure
-            raise self._error(reply, line)
-        return count
+        """Send many lines through the receive buffer (character counting, see grbl_stream)."""
+        return stream_lines(self, lines, timeout_s, rx_size)

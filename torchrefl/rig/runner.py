@@ -12,6 +12,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from torchrefl.errors import RigError
+from torchrefl.rig.board_check import check_connected_board
 from torchrefl.rig.camera import Camera
 from torchrefl.rig.folder import CaptureFolder
 from torchrefl.rig.grbl import ControllerReset, GrblAlarm, GrblClient
@@ -44,19 +45,22 @@ class CaptureRunner:
         if not self.client.link.is_open:
             self.client.link.open()
         self.client.connect()
+        check_connected_board(self.client, self.s, self.progress)
         st = self.client.last_status
         if self.s.home_on_start or st.state == "Alarm":
             if st.state == "Alarm" and not self.s.home_on_start:
                 raise GrblAlarm(f"{self.client.port}: the controller is locked in the Alarm state ({st.raw}); home it "
                                 f"(home_on_start: true, or `python -m torchrefl.rig home`) before capturing", None)
-            self.progress(f"homing ($H) on {self.client.port}")
-            self.client.home()
+            self.client.home(progress=self.progress)
 
     def _light_off_quietly(self) -> str:
         """Switch the light off if the controller can hear us; returns a note for the report."""
         c = self.client
         if not c.link.is_open:
             return "light not switched off: the port is gone (GRBL switches its outputs off when it resets)"
+        if c.rebooted:
+            return ("light not switched off by the rig: the controller rebooted, which switched its outputs off, "
+                    "and it stays locked (it would refuse M9) until homed")
         if c.alarm is not None:
             return "light not switched off by the rig: GRBL switched spindle and coolant off with the alarm"
         try:
@@ -112,14 +116,16 @@ class CaptureRunner:
             self.progress(f"port lost ({exc}); reopening {c.port} within {self.s.timeouts.reconnect_s:.1f} s")
             c.link.reopen(self.s.timeouts.reconnect_s)
             c.connect()
+            check_connected_board(c, self.s, self.progress)
             self.progress("reconnected; the controller restarted, so the rig is homed again ($H)")
-            c.home()
+            c.home(progress=self.progress)
             self.summary["reconnects"] += 1
             return True
         if isinstance(exc, ControllerReset) and self.s.rehome_on_reset:
-            self.progress(f"{exc}; homing again ($H) as rehome_on_reset is set")
+            self.progress(f"{exc}; homing again ($H) as rehome_on_reset is set, then the capture goes on")
             c._settle(0.1)
-            c.home()
+            check_connected_board(c, self.s, self.progress)
+            c.home(progress=self.progress)
             self.summary["rehomes"] += 1
             return True
         return False
@@ -171,9 +177,16 @@ class CaptureRunner:
                 self.progress(f"[{n}/{len(targets)}] {entry['image']}{grid} requested "
                               f"{np.round(t.requested_mm, 3).tolist()} reached {np.round(entry['position_mm'], 3).tolist()} "
                               f"(MPos {np.round(entry['mpos'], 3).tolist()})")
-        except BaseException:
+        except BaseException as exc:
             notes.append(self._light_off_quietly())
+            left = len(remaining) - self.summary["captured"]
+            then = "it homes ($H) first, then shoots" if self.s.home_on_start else "it shoots"
             self.progress(f"capture stopped after {self.summary['captured']} new images; the folder is consistent "
-                          f"({len(self.folder.entries)} recorded); {notes[-1]}; run the same command again to resume")
+                          f"({len(self.folder.entries)} recorded); {notes[-1]}; run the same command again to resume: "
+                          f"{then} the {left} positions not yet recorded"
+                          + (" (the controller rebooted: its position is lost until homed)"
+                             if isinstance(exc, ControllerReset) else ""))
             raise
+        finally:
+            self.summary["status_retries"] = self.client.status_retried
         return self.summary

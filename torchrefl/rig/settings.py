@@ -57,10 +57,21 @@ class LightSettings:
 
 
 @dataclass
+class BoardSettings:
+    """What the rig requires of the Grbl board's `$$` settings, checked on every connect (docs/rig.md)."""
+
+    limit_switches: bool = opt(True, "true: the board must home ($22=1) with soft limits ($20=1) and a travel "
+                                     "($130-$132) containing every axis's min_mm..max_mm; false: a machine "
+                                     "without limit switches: those checks are skipped, with a warning each time")
+
+
+@dataclass
 class TimeoutSettings:
     reply_s: float = opt(2.0, "longest wait for GRBL's reply to a command or a '?' query, s")
     banner_s: float = opt(2.5, "wait for the start-up banner after opening the port before sending Ctrl-X, s")
-    home_s: float = opt(90.0, "longest homing cycle, s")
+    home_s: float = opt(0.0, "longest homing cycle, s; 0 = computed from the board's $130-$132, $24, $25, $27")
+    status_retries: int = opt(3, "times a '?' is sent again after a malformed or missing status report before "
+                                 "the rig stops motion (feed hold) and gives up")
     move_s: float = opt(120.0, "longest wait for Idle after a move, s")
     poll_s: float = opt(0.05, "pause between '?' status polls, s")
     reconnect_s: float = opt(0.0, "after the port vanishes mid-capture, keep trying to reopen it this long "
@@ -94,6 +105,7 @@ class RigSettings:
                                            axis="Z", origin_mm=0.0, min_mm=-360.0, max_mm=360.0)
     grid: GridSettings = section(GridSettings, "light grid")
     light: LightSettings = section(LightSettings, "light switch")
+    board: BoardSettings = section(BoardSettings, "Grbl settings the rig requires")
     timeouts: TimeoutSettings = section(TimeoutSettings, "timeouts")
     camera: CameraSettings = section(CameraSettings, "camera trigger")
 
@@ -111,9 +123,17 @@ def _check(cfg: RigSettings, where: str) -> None:
             raise ConfigError(f"{where}: key '{key}' must be positive, got {getattr(cfg, key)}")
     if cfg.grid.columns < 1 or cfg.grid.rows < 1 or cfg.grid.spacing_mm <= 0:
         raise ConfigError(f"{where}: grid.columns and grid.rows must be >= 1 and grid.spacing_mm > 0")
-    for key in ("reply_s", "banner_s", "home_s", "move_s", "poll_s"):
+    for key in ("reply_s", "banner_s", "move_s", "poll_s"):
         if getattr(cfg.timeouts, key) <= 0:
             raise ConfigError(f"{where}: key 'timeouts.{key}' must be positive")
+    if cfg.timeouts.home_s < 0 or cfg.timeouts.status_retries < 0:
+        raise ConfigError(f"{where}: keys 'timeouts.home_s' and 'timeouts.status_retries' must be >= 0")
+    homes = [k for k, on in (("home_on_start", cfg.home_on_start), ("rehome_on_reset", cfg.rehome_on_reset),
+                             ("timeouts.reconnect_s", cfg.timeouts.reconnect_s > 0)) if on]
+    if not cfg.board.limit_switches and homes:
+        raise ConfigError(f"{where}: board.limit_switches is false (no switches, so no homing) but {', '.join(homes)} "
+                          f"asks the rig to home: set home_on_start: false, rehome_on_reset: false, "
+                          f"timeouts.reconnect_s: 0")
 
 
 def load_rig_settings(path=None, overrides=(), data: dict | None = None) -> RigSettings:
