@@ -1,6 +1,6 @@
 """Loader of the `cylindrical_scan` capture kind (the seed's Cyberware-style rig).
 
-Folder layout (written by the synthetic scanner and by the rig, see README "Capture folders"):
+Folder layout (written by the synthetic scanner and by the rig, the contract: docs/capture-formats.md):
     scan.yaml         grid, camera, light intensity, kappa, saturation level, lights
     range.npy         (H, W) float range r(s, t) in mm, NaN where nothing was measured
     textures/*.png    one texture image (H, W, 3) per light position

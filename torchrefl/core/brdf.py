@@ -11,7 +11,7 @@ so that the measured value of a point light is i = kappa * Y / C^2 * g. Keeping
 the cosine inside lets the Torrance-Sparrow 1/cos(theta_l) cancel analytically,
 which keeps grazing lights finite.
 
-Models (DESIGN.md "One model"):
+Models (docs/model.md):
 - "torrance_sparrow" (eq. 2.9): f = Pd/pi + Ps exp(-theta_h^2 / (2 sigma^2)) / (pi cos_l cos_v).
   With kappa = pi: i = Y/C^2 (Pd cos_l + Ps exp(-theta_h^2/(2 sigma^2)) / cos_v)  (eq. 2.9).
 - "ward" (eq. 5.9): f = Pd/pi + Ps exp(-tan^2 theta_h / sigma^2) / (4 pi sigma^2),

@@ -6,7 +6,7 @@
     run.figure()                         # Pd, Ps, sigma and coverage maps (matplotlib)
     img = run.render(light_position=(0, 200, 400), camera=(0, 0, 300))   # relight the estimate
 
-`load_run` reads the outputs contract of the README (params.npz, metrics.json, config.yaml) and
+`load_run` reads the outputs contract (docs/outputs.md) (params.npz, metrics.json, config.yaml) and
 checks it: a missing file or key is a CaptureError naming the file and what was expected.
 Maps are on the texel grid (H, W); texels outside `mask` (no estimate) are 0 in the arrays and
 blank in the figure.

@@ -20,7 +20,7 @@ inside of the bowl) are placed in front of the axis, facing outwards, towards sc
 - bowl: a hemispherical shell (inner radius 45 mm, 4 mm wall) lying on its side with its opening
   towards the scanner (tilted 10 degrees upwards, turned 20 degrees about the vertical), its centre
   62 mm in front of the axis, so the scanner looks into it; the inside carries non-uniform
-  materials (synthetic_materials.BowlMaterials), the outside and the rim a uniform matte paint.
+  materials (synthetic.materials.BowlMaterials), the outside and the rim a uniform matte paint.
   A cylindrical scanner sees only about a third of that inside (its lines of sight converge on the
   axis), so most of the surface that lights the scanned part is missing from the scan.
 - vase: a solid of revolution about the rotation axis (a vase shape: a cylindrical body, a deep
@@ -28,7 +28,7 @@ inside of the bowl) are placed in front of the axis, facing outwards, towards sc
   surface of revolution about the axis faces outwards along the scanner's line of sight, so the
   scan captures all of the concave neck and every surface that lights it: the fitter sees the whole
   interreflecting geometry. Its materials are texel-aligned region maps of the scan grid
-  (synthetic_materials.region_materials, as the analytic ellipsoid's), given by the scanner
+  (synthetic.materials.region_materials, as the analytic ellipsoid's), given by the scanner
   (material None here): every texel has one true value.
 """
 

@@ -79,7 +79,7 @@ class IndirectRenderer:
                  chunk_paths: int = 1 << 17):
         brdf_mod.check_brdf_name(brdf, "synthetic.brdf")
         if min_bounces < 1 or max_bounces < min_bounces:
-            raise GeometryError(f"synthetic.indirect_min_bounces/max_bounces: need 1 <= min ({min_bounces}) <= max ({max_bounces})")
+            raise GeometryError(f"IndirectRenderer min_bounces/max_bounces: need 1 <= min ({min_bounces}) <= max ({max_bounces})")
         self.tracer = tracer
         self.normal_fn = normal_fn
         self.material_fn = material_fn

@@ -9,14 +9,14 @@ the (optionally quantised, noisy) range image, median-filtered and quadratic-fit
 so tests do not just invert their own forward model.
 
 Objects: the analytic ellipsoid / sphere (texel-aligned region materials), or a mesh object of
-synthetic_objects (Object E setups 1 and 2, a bowl), whose scanner hits come from Embree on the
+synthetic.objects (Object E setups 1 and 2, a bowl), whose scanner hits come from Embree on the
 object's mesh, normals from its exact geometry, and materials from functions of the surface
 point (truth.npz holds them at the texel centres' scanner hits; sub-samples are rendered with
 their texel's truth so every texel has one true value). A texel is scanned only where the
 scanner's ray hits the object in front of the rotation axis; elsewhere range.npy is NaN.
 
 With synthetic.indirect_samples > 0 the textures also carry interreflection, path traced with
-Embree (synthetic_gi.IndirectRenderer: BRDF/lobe sampling, next-event estimation with the true
+Embree (synthetic.path_tracer.IndirectRenderer: BRDF/lobe sampling, next-event estimation with the true
 material at every path vertex, Russian roulette); 0 renders direct light only, exactly as before.
 """
 
@@ -43,7 +43,7 @@ from torchrefl.core.rays import RayTracer
 
 
 class SyntheticScan:
-    """A synthetic ellipsoid, sphere or mesh object (synthetic_objects) on the cylindrical rig with
+    """A synthetic ellipsoid, sphere or mesh object (synthetic.objects) on the cylindrical rig with
     ground-truth maps."""
 
     def __init__(self, cfg: SyntheticConfig, grid: LightGridConfig | None = None, seed: int = 0,

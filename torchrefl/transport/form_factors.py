@@ -17,7 +17,7 @@ an independent one, so the estimate is unbiased, but the origins and directions 
 independent rays an entry would have the binomial standard error sqrt(F (1 - F) / N) (`sampling_error`);
 the stratified rays stay below it (on a closed box: 0.47 of it at 2 000 rays per patch, 0.27 at 32 000,
 the error falling like N^-0.7 instead of N^-0.5). On Object E at full size they cut the fitter's own
-per-texel Pd noise on the lower plate from 0.45-0.55 % to 0.14-0.27 % (README, "Texel by texel"). The (deterministic) discretisation of u
+per-texel Pd noise on the lower plate from 0.45-0.55 % to 0.14-0.27 % (docs/results/object_e_texel_by_texel.md). The (deterministic) discretisation of u
 into its candidate origins comes on top. Rays that escape, hit a face that belongs to no patch (a blocker), or
 reach the back side of a patch count nowhere: energy arriving at the back of a range-image surface
 does not feed the radiosity B of its observed front side (`count_back_hits=True` counts them).

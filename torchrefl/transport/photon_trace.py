@@ -119,7 +119,7 @@ class PhotonTracer:
                  offset: float = 0.01, min_bounces: int = 1, max_bounces: int = 16):
         brdf_mod.check_brdf_name(brdf, "reflectance.brdf")
         if min_bounces < 0 or max_bounces < max(1, min_bounces):
-            raise GeometryError(f"photon.min_bounces/max_bounces: need 0 <= min ({min_bounces}) <= max ({max_bounces}), max >= 1")
+            raise GeometryError(f"PhotonTracer min_bounces/max_bounces: need 0 <= min ({min_bounces}) <= max ({max_bounces}), max >= 1")
         self.tracer = tracer
         self.brdf = brdf
         self.lobe = LOBES[brdf]
