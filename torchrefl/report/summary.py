@@ -21,4 +21,6 @@ def summary_table(metrics: dict) -> str:
     if "selection" in metrics:
         s = metrics["selection"]
         lines.append(f"  selection: {s['lights_selected']} lights, diffuse {s['diffuse_coverage']:.1%}, specular {s['specular_coverage']:.1%}")
+    for warning in (metrics.get("capture") or {}).get("warnings") or []:
+        lines.append(f"  WARNING: {warning}")
     return "\n".join(lines)
