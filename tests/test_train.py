@@ -98,7 +98,7 @@ def test_holdout_is_evaluated_and_out_of_range_is_an_error(small_run, tmp_path, 
     assert main([str(cfg), f"output.dir={out}", "fit.holdout=[1]", "--quiet"]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["holdout"]["count"] > 0 and m["holdout"]["mean_abs_diff_8bit"] < 2.0
-    assert main([str(cfg), f"output.dir={out}", "fit.holdout=[99]", "--quiet"]) == 2
+    assert main([str(cfg), f"output.dir={tmp_path / 'hold99'}", "fit.holdout=[99]", "--quiet"]) == 2
     assert "fit.holdout" in capsys.readouterr().err
 
 
@@ -194,7 +194,7 @@ def test_diligent_ball_subset(tmp_path):
 def test_auto_on_photometric_stereo_is_local_and_radiosity_and_photon_are_refused(tmp_path, capsys):
     out = tmp_path / "ball_auto"
     base = [str(ROOT / "configs" / "diligent_ball.yaml"), f"output.dir={out}", "capture.light_subset=[0,10,20,30,40]",
-            "fit.holdout=[]", "fit.iterations=5", "output.progress=false", "--quiet"]
+            "fit.holdout=[]", "fit.iterations=5", "output.progress=false", "--quiet", "--overwrite"]
     assert main(base + ["fit.model=radiosity"]) == 2           # the bundled config's Minnaert diffuse part
     assert "reflectance.diffuse 'minnaert' is for local transport only" in capsys.readouterr().err
     base.append("reflectance.diffuse=lambert")
