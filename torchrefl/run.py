@@ -19,7 +19,7 @@ from torchrefl.config import Config, load_config, resolve_path, to_dict
 from torchrefl.core.progress import Stages
 from torchrefl.errors import ConfigError, TorchReflError
 from torchrefl.fit.pipeline import fit_capture
-from torchrefl.report.atomic_files import atomic_write_text
+from torchrefl.core.atomic_files import atomic_write_text
 from torchrefl.report.outputs import write_outputs
 from torchrefl.report.run_folder import StagedRunFolder, output_folder
 from torchrefl.report.run_result import RunResult, load_run

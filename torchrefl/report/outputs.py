@@ -13,7 +13,7 @@ from torchrefl.config import Config
 from torchrefl.core.progress import Stages
 from torchrefl.fit.result import FitResult
 from torchrefl.planning.light_selection import SelectionResult
-from torchrefl.report.atomic_files import atomic_file, atomic_write_text
+from torchrefl.core.atomic_files import atomic_file, atomic_write_text
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference, strict_json
 

@@ -17,7 +17,7 @@ import shutil
 from pathlib import Path
 
 from torchrefl.errors import OutputError
-from torchrefl.report.atomic_files import fsync_dir
+from torchrefl.core.atomic_files import fsync_dir
 from torchrefl.report.run_marker import CONFIG, LOG, MARKER, write_marker
 
 STAGING = ".{name}.staging-{pid}"

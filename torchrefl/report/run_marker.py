@@ -15,7 +15,7 @@ from pathlib import Path
 
 from torchrefl import __version__
 from torchrefl.errors import RunFolderError
-from torchrefl.report.atomic_files import atomic_write_text, fsync_dir, sha256_of
+from torchrefl.core.atomic_files import atomic_write_text, fsync_dir, sha256_of
 
 MARKER = "run_complete.json"
 MARKER_FORMAT = 1

@@ -26,8 +26,8 @@ def fsync_dir(path: Path) -> None:
 
 @contextmanager
 def atomic_file(path) -> Iterator[BinaryIO]:
-    """Open a temporary file beside `path` for binary writing; on success it is fsynced and renamed to `path`,
-    on an exception it is removed and `path` is left as it was."""
+    """Open a temporary file beside `path` for binary writing; on success it is fsynced and renamed to `path`
+    (the folder fsynced too), on an exception it is removed and `path` is left as it was."""
     path = Path(path)
     tmp = path.with_name(f"{TEMP_PREFIX}{path.name}")
     try:
@@ -36,6 +36,7 @@ def atomic_file(path) -> Iterator[BinaryIO]:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+        fsync_dir(path.parent)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
