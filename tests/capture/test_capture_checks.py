@@ -133,17 +133,10 @@ def test_a_grey_photograph_among_rgb_is_refused(ps):
         load("photometric_stereo", ps)
 
 
-def test_a_texture_of_another_size_is_refused(scan):
-    write_png(scan / "textures" / "002.png", np.full((80, 95, 3), 0.3), bits=8)
-    with pytest.raises(CaptureError, match=r"002\.png is 95x80, expected 96x80"):
-        load("cylindrical_scan", scan)
-
-
 # ------------------------------------------------------------------ light subsets
 
 @pytest.mark.parametrize("kind", ["cylindrical_scan", "photometric_stereo"])
-@pytest.mark.parametrize("subset,match", [([0, 0], r"indices \[0\] repeated"), ([], "is empty"),
-                                          ([0, 9], r"indices \[9\] out of range")])
+@pytest.mark.parametrize("subset,match", [([0, 0], r"indices \[0\] repeated"), ([], "is empty")])
 def test_bad_light_subsets_are_refused_for_both_kinds(scan, ps, kind, subset, match):
     folder = scan if kind == "cylindrical_scan" else ps
     with pytest.raises(CaptureError, match=f"capture.light_subset.*{match}|{match}"):
@@ -182,9 +175,11 @@ def test_range_maps_that_cannot_be_millimetres_are_refused(scan, change, match):
         load("cylindrical_scan", scan)
 
 
-def test_integer_ranges_with_a_scale_are_millimetres(scan):
+def test_integer_ranges_need_a_scale(scan):
     r = np.load(scan / "range.npy")
     np.save(scan / "range.npy", np.where(np.isfinite(r), r * 100, 0).round().astype(np.int32))
+    with pytest.raises(CaptureError, match=r"int32.*give range\.scale_mm"):
+        load("cylindrical_scan", scan)
     edit_scan_yaml(scan, lambda d: d["range"].update(scale_mm=0.01))
     cap = load("cylindrical_scan", scan)
     assert cap.obs.num_lights == 3
