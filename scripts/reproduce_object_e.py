@@ -166,7 +166,7 @@ def main():
                 over += ["capture.kind=cylindrical_scan", f"capture.path={capture}"]
             cfg = load_config(config, over)
             print(f"setup {setup}, Method {name} ({level}) ...", flush=True)
-            m = run(cfg, quiet=True)
+            m = run(cfg, quiet=True, overwrite=True)      # the script owns its output folders
             if capture is None:
                 capture = out / f"setup{setup}_method{name}" / "capture"
             obj = make_object(cfg.synthetic.object, cfg.seed, cfg.synthetic.materials)
@@ -186,7 +186,7 @@ def main():
             print(f"setup {setup}, capture floor (the scene rendered again with seed {cfg.seed + 1}) ...", flush=True)
             twin_dir = out / f"setup{setup}_twin"
             run(load_config(config, extra + [f"output.dir={twin_dir}", "fit.model=local", "fit.iterations=1",
-                                             f"seed={cfg.seed + 1}", "output.progress=false"]), quiet=True)
+                                             f"seed={cfg.seed + 1}", "output.progress=false"]), quiet=True, overwrite=True)
             floor = capture_floor(capture, twin_dir / "capture", out / f"setup{setup}_methodI" / "params.npz", obj.info)
             floors[setup] = floor
             for r in rows:

@@ -157,3 +157,32 @@ def test_minnaert_keys_are_checked():
         load_config(None, ["synthetic.minnaert_k=1.2", "synthetic.indirect_samples=8"])
     cfg = load_config(None, ["reflectance.diffuse=minnaert", "reflectance.minnaert_k=1.1"])
     assert cfg.reflectance.minnaert_k == 1.1
+
+
+def test_a_bad_override_is_named_as_an_override(tmp_path):
+    """Issue 19: a bad value given on the command line was reported as an error in the config file."""
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("fit:\n  holdout: [1]\n")
+    with pytest.raises(ConfigError, match=r"^fit\.holdout=\[-1\] on the command line: key 'fit.holdout'"):
+        load_config(cfg, ["fit.holdout=[-1]"])
+    with pytest.raises(ConfigError, match=r"^reflectance\.theta_specular_deg=70 on the command line"):
+        load_config(cfg, ["reflectance.theta_specular_deg=70"])
+    with pytest.raises(ConfigError, match=r"^capture\.kappa=\[1, 2\] on the command line"):
+        load_config(cfg, ["capture.kappa=[1, 2]"])
+    cfg.write_text("fit:\n  holdout: [-1]\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml: key 'fit.holdout'"):
+        load_config(cfg)
+
+
+def test_an_empty_light_subset_is_a_config_error(tmp_path):
+    """capture.light_subset=[] reported `read_images: no image paths given`."""
+    with pytest.raises(ConfigError, match=r"capture\.light_subset=\[\] on the command line.*selects no light"):
+        load_config(None, ["capture.light_subset=[]"])
+
+
+def test_a_binary_config_file_is_a_named_error(tmp_path):
+    """A binary file given as the config ended in UnicodeDecodeError."""
+    cfg = tmp_path / "c.yaml"
+    cfg.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe\x00binary")
+    with pytest.raises(ConfigError, match=r"c\.yaml: not a text file"):
+        load_config(cfg)

@@ -63,6 +63,8 @@ def test_outputs_contract(small_run):
     assert (out / "selection" / "coverage.png").is_file()
     resolved = yaml.safe_load((out / "config.yaml").read_text())
     assert resolved["synthetic"]["columns"] == 128
+    assert (out / "run_complete.json").is_file() and m["capture"]["warnings"] == []
+    json.loads((out / "metrics.json").read_text(), parse_constant=lambda c: pytest.fail(f"metrics.json holds {c}"))
 
 
 def test_small_synthetic_accuracy(small_run):
@@ -98,7 +100,7 @@ def test_holdout_is_evaluated_and_out_of_range_is_an_error(small_run, tmp_path, 
     assert main([str(cfg), f"output.dir={out}", "fit.holdout=[1]", "--quiet"]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["holdout"]["count"] > 0 and m["holdout"]["mean_abs_diff_8bit"] < 2.0
-    assert main([str(cfg), f"output.dir={out}", "fit.holdout=[99]", "--quiet"]) == 2
+    assert main([str(cfg), f"output.dir={tmp_path / 'hold99'}", "fit.holdout=[99]", "--quiet"]) == 2
     assert "fit.holdout" in capsys.readouterr().err
 
 
@@ -194,7 +196,7 @@ def test_diligent_ball_subset(tmp_path):
 def test_auto_on_photometric_stereo_is_local_and_radiosity_and_photon_are_refused(tmp_path, capsys):
     out = tmp_path / "ball_auto"
     base = [str(ROOT / "configs" / "diligent_ball.yaml"), f"output.dir={out}", "capture.light_subset=[0,10,20,30,40]",
-            "fit.holdout=[]", "fit.iterations=5", "output.progress=false", "--quiet"]
+            "fit.holdout=[]", "fit.iterations=5", "output.progress=false", "--quiet", "--overwrite"]
     assert main(base + ["fit.model=radiosity"]) == 2           # the bundled config's Minnaert diffuse part
     assert "reflectance.diffuse 'minnaert' is for local transport only" in capsys.readouterr().err
     base.append("reflectance.diffuse=lambert")
@@ -219,3 +221,26 @@ def test_relative_errors_skip_texels_without_a_true_lobe():
                             torch.ones(T, dtype=torch.bool), torch.ones(T, dtype=torch.bool))
     assert m["ps_median_rel_err"] is None and m["sigma_median_rel_err"] is None
     assert abs(m["ps_rmse"] - 0.01) < 1e-6
+
+
+def test_capture_warnings_reach_metrics_and_the_summary(small_run, tmp_path, capsys):
+    """A texture no light lists: the run goes on, and the warning is in metrics.json (capture.warnings), the
+    summary table and log.txt. Run again with --overwrite into the same folder: one whole run results."""
+    import shutil
+
+    capture = tmp_path / "capture"
+    shutil.copytree(small_run / "capture", capture)
+    shutil.copy(capture / "textures" / "000.png", capture / "textures" / "099.png")
+    cfg = write_config(tmp_path, dict(SMALL, capture={"kind": "cylindrical_scan", "path": str(capture)},
+                                      fit={"iterations": 2}))
+    out = tmp_path / "warned"
+    assert main([str(cfg), f"output.dir={out}", "--quiet"]) == 0
+    warnings = json.loads((out / "metrics.json").read_text())["capture"]["warnings"]
+    assert len(warnings) == 1 and "099.png" in warnings[0]
+    assert "WARNING: " in capsys.readouterr().out and "warning: " in (out / "log.txt").read_text()
+    (capture / "textures" / "099.png").unlink()
+    assert main([str(cfg), f"output.dir={out}", "output.map_lights=0", "--quiet", "--overwrite"]) == 0
+    from torchrefl.report.run_result import load_run
+
+    run = load_run(out)
+    assert run.metrics["capture"]["warnings"] == [] and not list((out / "maps").glob("light_*"))

@@ -267,7 +267,7 @@ def _coerce(value: Any, tp, key: str, where: str, meta: dict) -> Any:
     return value
 
 
-def _apply(obj, data: dict, prefix: str, where: str) -> None:
+def _apply(obj, data: dict, prefix: str, where: str, sources: dict | None = None) -> None:
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: key '{prefix.rstrip('.') or '<top>'}' must be a mapping, got {type(data).__name__}")
     fields = _field_types(type(obj))
@@ -280,58 +280,69 @@ def _apply(obj, data: dict, prefix: str, where: str) -> None:
             raise ConfigError(f"{where}: unknown key '{dotted}'{hint}")
         f, tp = fields[key]
         if _is_section(tp):
-            _apply(getattr(obj, key), value if value is not None else {}, dotted + ".", where)
+            _apply(getattr(obj, key), value if value is not None else {}, dotted + ".", where, sources)
         else:
             setattr(obj, key, _coerce(value, tp, dotted, where, dict(f.metadata)))
+            if sources is not None:
+                sources[dotted] = where
 
 
-def _validate(cfg: Config, where: str) -> None:
+def _validate(cfg: Config, where_of) -> None:
+    """Cross-field checks; where_of(key) names where the key's value came from (the file or an override)."""
     if cfg.reflectance.sigma_min >= cfg.reflectance.sigma_max:
-        raise ConfigError(f"{where}: reflectance.sigma_min ({cfg.reflectance.sigma_min}) must be < reflectance.sigma_max ({cfg.reflectance.sigma_max})")
+        raise ConfigError(f"{where_of('reflectance.sigma_min')}: reflectance.sigma_min ({cfg.reflectance.sigma_min}) must be < reflectance.sigma_max ({cfg.reflectance.sigma_max})")
     rc = cfg.reflectance
     if rc.minnaert_k is not None and rc.diffuse != "minnaert":
-        raise ConfigError(f"{where}: key 'reflectance.minnaert_k' is set but reflectance.diffuse is '{rc.diffuse}'; "
+        raise ConfigError(f"{where_of('reflectance.minnaert_k')}: key 'reflectance.minnaert_k' is set but reflectance.diffuse is '{rc.diffuse}'; "
                           "set reflectance.diffuse: minnaert or drop the key")
     if rc.diffuse != "lambert" and cfg.fit.model in ("radiosity", "photon"):
-        raise ConfigError(f"{where}: reflectance.diffuse '{rc.diffuse}' is for local transport only; fit.model "
+        raise ConfigError(f"{where_of('reflectance.diffuse')}: reflectance.diffuse '{rc.diffuse}' is for local transport only; fit.model "
                           f"'{cfg.fit.model}' carries Lambertian interreflection (use reflectance.diffuse: lambert)")
     if cfg.synthetic.minnaert_k != 1.0 and cfg.synthetic.indirect_samples > 0:
-        raise ConfigError(f"{where}: key 'synthetic.minnaert_k' = {cfg.synthetic.minnaert_k} needs synthetic.indirect_samples: 0 "
+        raise ConfigError(f"{where_of('synthetic.minnaert_k')}: key 'synthetic.minnaert_k' = {cfg.synthetic.minnaert_k} needs synthetic.indirect_samples: 0 "
                           "(the interreflection renderer is Lambertian)")
     if cfg.photon.specular_gather > 0 and cfg.photon.diffuse_paths != "radiosity":
-        raise ConfigError(f"{where}: key 'photon.specular_gather' ({cfg.photon.specular_gather}) gathers the radiosity "
+        raise ConfigError(f"{where_of('photon.specular_gather')}: key 'photon.specular_gather' ({cfg.photon.specular_gather}) gathers the radiosity "
                           f"level's light and needs photon.diffuse_paths: radiosity (it is '{cfg.photon.diffuse_paths}'); "
                           "set photon.diffuse_paths: radiosity or photon.specular_gather: 0")
     if cfg.reflectance.theta_specular_deg >= cfg.reflectance.theta_diffuse_deg:
-        raise ConfigError(f"{where}: reflectance.theta_specular_deg must be < reflectance.theta_diffuse_deg")
+        raise ConfigError(f"{where_of('reflectance.theta_specular_deg')}: reflectance.theta_specular_deg must be < reflectance.theta_diffuse_deg")
     if len(cfg.capture.kappa) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.capture.kappa):
-        raise ConfigError(f"{where}: key 'capture.kappa' must be a list of 3 positive numbers, got {cfg.capture.kappa!r}")
+        raise ConfigError(f"{where_of('capture.kappa')}: key 'capture.kappa' must be a list of 3 positive numbers, got {cfg.capture.kappa!r}")
     if len(cfg.synthetic.size_mm) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.synthetic.size_mm):
-        raise ConfigError(f"{where}: key 'synthetic.size_mm' must be a list of 3 positive numbers, got {cfg.synthetic.size_mm!r}")
+        raise ConfigError(f"{where_of('synthetic.size_mm')}: key 'synthetic.size_mm' must be a list of 3 positive numbers, got {cfg.synthetic.size_mm!r}")
     for key, lst in (("fit.holdout", cfg.fit.holdout), ("capture.light_subset", cfg.capture.light_subset or [])):
         if not all(isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in lst):
-            raise ConfigError(f"{where}: key '{key}' must be a list of non-negative light indices, got {lst!r}")
+            raise ConfigError(f"{where_of(key)}: key '{key}' must be a list of non-negative light indices, got {lst!r}")
+    if cfg.capture.light_subset == []:
+        raise ConfigError(f"{where_of('capture.light_subset')}: key 'capture.light_subset' is an empty list: it selects "
+                          "no light; list light indices, or null for all lights")
     if cfg.capture.kind != "synthetic_cylindrical" and not cfg.capture.path:
-        raise ConfigError(f"{where}: key 'capture.path' is required for capture.kind '{cfg.capture.kind}'")
+        raise ConfigError(f"{where_of('capture.kind')}: key 'capture.path' is required for capture.kind '{cfg.capture.kind}'")
     for key in ("geometry.median_size", "geometry.fit_window", "fit.interpolation_window"):
         section, name = key.split(".")
         if getattr(getattr(cfg, section), name) % 2 != 1:
-            raise ConfigError(f"{where}: key '{key}' must be an odd number")
+            raise ConfigError(f"{where_of(key)}: key '{key}' must be an odd number")
 
 
 #: keys holding paths: relative in a file = relative to the file; on the command line = to the current folder
 PATH_KEYS = ("capture.path",)
 
 
+def override_where(text: str) -> str:
+    """How errors name a value given on the command line: `fit.holdout=[-1] on the command line`."""
+    return f"{text} on the command line"
+
+
 def parse_override(text: str) -> tuple[str, Any]:
     """'a.b=value' -> ('a.b', yaml value)."""
     if "=" not in text:
-        raise ConfigError(f"override '{text}': expected dotted.key=value")
+        raise ConfigError(f"{text} on the command line: expected dotted.key=value")
     key, raw = text.split("=", 1)
     try:
         value = yaml.safe_load(raw) if raw != "" else ""
     except yaml.YAMLError as exc:
-        raise ConfigError(f"override '{text}': value is not valid YAML ({exc.problem})") from None
+        raise ConfigError(f"{override_where(text)}: value is not valid YAML ({exc.problem})") from None
     return key.strip(), value
 
 
@@ -353,7 +364,11 @@ def read_yaml_mapping(path: Path, error: type = ConfigError, what: str = "file")
     if not path.is_file():
         raise error(f"{path}: {what} not found")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what} ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not a text file (byte {exc.start} is not UTF-8); expected a YAML {what}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         loc = f" at line {mark.line + 1}" if mark else ""
@@ -368,18 +383,19 @@ def read_yaml_mapping(path: Path, error: type = ConfigError, what: str = "file")
 def load_config(path: Optional[str | Path] = None, overrides: list[str] = ()) -> Config:
     """Load a YAML config strictly, apply dotted overrides, validate; returns Config."""
     cfg = Config()
+    sources: dict[str, str] = {}
+    default_where = str(path) if path is not None else "config"
     if path is not None:
         path = Path(path)
-        where = str(path)
         data = read_yaml_mapping(path, ConfigError, "config file")
-        _apply(cfg, data, "", where)
+        _apply(cfg, data, "", str(path), sources)
         cfg.config_dir = str(path.resolve().parent)
     for text in overrides:
         key, value = parse_override(text)
         if key in PATH_KEYS and isinstance(value, str) and value and not Path(value).is_absolute():
             value = str(Path.cwd() / value)          # command-line paths are relative to the current folder
-        _apply(cfg, _nest(key, value), "", f"command-line override '{text}'")
-    _validate(cfg, str(path) if path is not None else "config")
+        _apply(cfg, _nest(key, value), "", override_where(text), sources)
+    _validate(cfg, lambda key: sources.get(key, default_where))
     return cfg
 
 

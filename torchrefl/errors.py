@@ -28,3 +28,11 @@ class FitError(TorchReflError):
 
 class RigError(TorchReflError):
     """The capture rig (serial port, GRBL controller, camera) failed or refused a command."""
+
+
+class OutputError(TorchReflError):
+    """The output folder cannot hold a run: empty path, a file, a file as parent, not writable, another run."""
+
+
+class RunFolderError(TorchReflError):
+    """A run folder is incomplete, mixes two runs or holds damaged files (load_run)."""

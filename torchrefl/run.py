@@ -1,4 +1,8 @@
-"""One run of the pipeline for a config: capture -> fit -> outputs, into cfg.output.dir."""
+"""One run of the pipeline for a config: capture -> fit -> outputs, into cfg.output.dir.
+
+The run folder is a transaction (torchrefl.report.run_folder): checked before any work, written in a
+staging folder beside it and moved into place whole, with a completeness marker written last.
+"""
 
 from __future__ import annotations
 
@@ -7,16 +11,19 @@ import time
 from pathlib import Path
 
 import torch
+import yaml
 
-from torchrefl.version import __version__
-from torchrefl.capture.base import loader_for
-from torchrefl.config import Config, dump_config, load_config, resolve_path
+from torchrefl.capture.base import Capture, loader_for
+from torchrefl.config import Config, load_config, resolve_path, to_dict
 from torchrefl.core.progress import Stages
-from torchrefl.errors import ConfigError
+from torchrefl.errors import ConfigError, TorchReflError
 from torchrefl.fit.pipeline import fit_capture
+from torchrefl.core.atomic_files import atomic_write_text
 from torchrefl.report.outputs import write_outputs
+from torchrefl.report.run_folder import StagedRunFolder, output_folder
 from torchrefl.report.run_result import RunResult, load_run
 from torchrefl.report.summary import summary_table
+from torchrefl.version import __version__
 
 
 class RunLog:
@@ -49,37 +56,62 @@ def torch_device(cfg: Config) -> torch.device:
     return torch.device(cfg.device)
 
 
-def run(cfg: Config, quiet: bool = False) -> dict:
-    """Run the pipeline for a loaded config; returns the metrics dict."""
-    out = Path(cfg.output.dir)
-    out.mkdir(parents=True, exist_ok=True)
-    dump_config(cfg, out / "config.yaml")
-    log = RunLog(out / "log.txt", quiet=quiet)
+def _capture(cfg: Config, out: Path, stages: Stages, log) -> tuple[Capture, object]:
+    if cfg.capture.kind == "synthetic_cylindrical":
+        from torchrefl.synthetic.capture import synthetic_capture
+
+        return synthetic_capture(cfg, out, stages, log)
+    with stages.stage("capture"):
+        return loader_for(cfg.capture.kind).load(resolve_path(cfg, cfg.capture.path), cfg, log), None
+
+
+def _pipeline(cfg: Config, out: Path, target: Path, stages: Stages, log) -> dict:
+    """Capture, fit and outputs into the staging folder `out`; returns the metrics."""
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     device = torch_device(cfg)
+    log(f"torchrefl {__version__}: capture {cfg.capture.kind}, model {cfg.fit.model}, brdf {cfg.reflectance.brdf}, "
+        f"{cfg.dtype} on {device}; outputs in {target} (written in {out.name} until complete)")
+    cap, selection = _capture(cfg, out, stages, log)
+    for warning in cap.warnings:
+        log(f"warning: {warning}")
+    res = fit_capture(cfg, cap, stages, log, device)
+    return write_outputs(cfg, out, cap, res, selection, stages, str(device))
+
+
+def run(cfg: Config, quiet: bool = False, overwrite: bool = False) -> dict:
+    """Run the pipeline for a loaded config; returns the metrics dict. The output folder is checked first
+    (OutputError); an earlier run there is replaced only with overwrite=True, and only when this run completes."""
+    target = output_folder(cfg.output.dir)
+    staged = StagedRunFolder(target, overwrite)
+    log = RunLog(staged.path / "log.txt", quiet=quiet)
     stages = Stages(log)
     try:
-        log(f"torchrefl {__version__}: capture {cfg.capture.kind}, model {cfg.fit.model}, brdf {cfg.reflectance.brdf}, "
-            f"{cfg.dtype} on {device}; outputs in {out}")
-        selection = None
-        if cfg.capture.kind == "synthetic_cylindrical":
-            from torchrefl.synthetic.capture import synthetic_capture
-
-            cap, selection = synthetic_capture(cfg, out, stages, log)
-        else:
-            with stages.stage("capture"):
-                cap = loader_for(cfg.capture.kind).load(resolve_path(cfg, cfg.capture.path), cfg, log)
-        res = fit_capture(cfg, cap, stages, log, device)
-        metrics = write_outputs(cfg, out, cap, res, selection, stages, str(device))
+        atomic_write_text(staged.path / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
+        metrics = _pipeline(cfg, staged.path, target, stages, log)
+        start = time.perf_counter()
+        staged.commit()
+        log(f"run folder {target} complete: marker written and moved into place in {time.perf_counter() - start:.3f} s")
         log(summary_table(metrics))
         return metrics
+    except BaseException as exc:
+        where = f"stage '{stages.failed}'" if stages.failed else "run setup"
+        if isinstance(exc, KeyboardInterrupt):
+            log(f"interrupted in {where}")
+        elif isinstance(exc, TorchReflError):
+            log(f"error in {where}: {exc}")
+        else:
+            log(f"crashed in {where}: {type(exc).__name__}: {exc}")
+        kept = staged.abandon()
+        log(f"the run did not complete: {target} is unchanged; this run's files and log are in {kept}")
+        raise
     finally:
         log.close()
 
 
-def fit(config: Config | str | Path, overrides: list[str] = (), *, quiet: bool = True) -> RunResult:
+def fit(config: Config | str | Path, overrides: list[str] = (), *, quiet: bool = True,
+        overwrite: bool = False) -> RunResult:
     """Fit a config (a Config, or a YAML file with dotted.key=value overrides) and return the finished run."""
     cfg = config if isinstance(config, Config) else load_config(config, list(overrides))
-    run(cfg, quiet=quiet)
-    return load_run(cfg.output.dir)
+    run(cfg, quiet=quiet, overwrite=overwrite)
+    return load_run(output_folder(cfg.output.dir))

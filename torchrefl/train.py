@@ -1,6 +1,7 @@
-"""python -m torchrefl.train CONFIG [dotted.key=value ...]
+"""python -m torchrefl.train CONFIG [dotted.key=value ...] [--overwrite] [--quiet]
 
-The command line of torchrefl.run: one config (and dotted overrides) -> one run folder.
+The command line of torchrefl.run: one config (and dotted overrides) -> one run folder, written whole or
+not at all (torchrefl.report.run_folder). Exit status: 0 done, 2 a named error, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -24,10 +25,13 @@ def main(argv=None) -> int:
     parser.add_argument("config", help="YAML config file (e.g. configs/default.yaml)")
     parser.add_argument("overrides", nargs="*", help="dotted.key=value overrides, e.g. output.dir=/tmp/x fit.holdout=[5,11]")
     parser.add_argument("--quiet", action="store_true", help="no log lines on stderr (log.txt is still written)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an earlier run in output.dir (kept until this run completes; without the flag "
+                             "a folder holding a run is refused)")
     args = parser.parse_intermixed_args(argv)
     try:
         cfg = load_config(args.config, args.overrides)
-        metrics = run(cfg, quiet=args.quiet)
+        metrics = run(cfg, quiet=args.quiet, overwrite=args.overwrite)
     except TorchReflError as exc:
         print(f"torchrefl: error: {exc}", file=sys.stderr)
         return 2

@@ -7,7 +7,8 @@ import matplotlib
 import numpy as np
 import pytest
 
-from torchrefl.errors import TorchReflError
+from torchrefl.errors import RunFolderError, TorchReflError
+from torchrefl.report.run_marker import write_marker
 from torchrefl.report.run_result import load_run
 
 matplotlib.use("Agg")
@@ -32,6 +33,8 @@ def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow", 
     (folder / "metrics.json").write_text(json.dumps({
         "model": "local", "brdf": brdf, "texels": int(mask.sum()), "lights": 3, "timing_s": {"fit": 1.0, "total": 2.0},
         "rerender": {"mean_abs_diff_8bit": 0.3, "var_diff_8bit": 0.1, "rmse_8bit": 0.4}}))
+    (folder / "config.yaml").write_text("reflectance:\n  sigma_max: 0.6\n")
+    write_marker(folder)
     return params
 
 
@@ -103,6 +106,17 @@ def test_summary_and_figure(tmp_path):
     matplotlib.pyplot.close(fig)
 
 
+def resealed(folder, params=None, **files):
+    """Damage a run folder as a run that wrote bad files would (params.npz content, other files' text), then
+    write the marker again: load_run's own checks, not the marker's, must catch it."""
+    if params is not None:
+        np.savez(folder / "params.npz", **params)
+    for name, text in files.items():
+        (folder / name.replace("_", ".", 1)).write_text(text)
+    write_marker(folder)
+    return folder
+
+
 def test_bad_run_folders_name_the_file(tmp_path):
     with pytest.raises(TorchReflError, match="run folder missing"):
         load_run(tmp_path / "nowhere")
@@ -113,28 +127,94 @@ def test_bad_run_folders_name_the_file(tmp_path):
     write_run(bad)
     data = (bad / "params.npz").read_bytes()
     (bad / "params.npz").write_bytes(data[: len(data) // 2])
+    write_marker(bad)
     with pytest.raises(TorchReflError, match=r"params\.npz: unreadable"):
         load_run(bad)
-    nokey = tmp_path / "nokey"
-    p = write_run(nokey)
-    np.savez(nokey / "params.npz", **{k: v for k, v in p.items() if k != "sigma"})
+    p = write_run(tmp_path / "nokey")
     with pytest.raises(TorchReflError, match="missing key.*sigma"):
-        load_run(nokey)
-    shape = tmp_path / "shape"
-    p = write_run(shape)
-    np.savez(shape / "params.npz", **dict(p, pd=p["pd"][:, :, :2]))
+        load_run(resealed(tmp_path / "nokey", {k: v for k, v in p.items() if k != "sigma"}))
+    p = write_run(tmp_path / "shape")
     with pytest.raises(TorchReflError, match="'pd' has shape"):
-        load_run(shape)
-    nojson = tmp_path / "nojson"
-    write_run(nojson)
-    (nojson / "metrics.json").write_text("{not json")
+        load_run(resealed(tmp_path / "shape", dict(p, pd=p["pd"][:, :, :2])))
+    write_run(tmp_path / "nojson")
     with pytest.raises(TorchReflError, match=r"metrics\.json: not valid JSON"):
-        load_run(nojson)
-    brdf = tmp_path / "brdf"
-    p = write_run(brdf)
-    np.savez(brdf / "params.npz", **dict(p, brdf=np.array("phong")))
+        load_run(resealed(tmp_path / "nojson", metrics_json="{not json"))
+    p = write_run(tmp_path / "brdf")
     with pytest.raises(TorchReflError, match="unknown BRDF 'phong'"):
-        load_run(brdf)
+        load_run(resealed(tmp_path / "brdf", dict(p, brdf=np.array("phong"))))
+
+
+def test_a_folder_without_a_valid_marker_is_incomplete_or_mixed(tmp_path):
+    """Issue 19: new params beside old metrics and maps, a failed run's config beside an old params.npz, files
+    of an earlier run left beside the new ones: load_run refuses each, naming the folder and why."""
+    run = tmp_path / "run"
+    write_run(run)
+    (run / "run_complete.json").unlink()
+    with pytest.raises(RunFolderError, match="no completeness marker.*incomplete"):
+        load_run(run)
+    write_run(run)
+    (run / "maps").mkdir()
+    (run / "maps" / "light_007_diff.png").write_bytes(b"an earlier run's map")
+    with pytest.raises(RunFolderError, match=r"mixed folder.*light_007_diff\.png"):
+        load_run(run)
+    write_run(run := tmp_path / "run2")
+    (run / "config.yaml").write_text("reflectance:\n  brdf: lambertian\n  sigma_max: 0.6\n")   # a later run's config
+    with pytest.raises(RunFolderError, match=r"config\.yaml.*(bytes|differs)"):
+        load_run(run)
+    p = write_run(run := tmp_path / "run3")
+    np.savez_compressed(run / "params.npz", **dict(p, pd=p["pd"] * 0.5))                # a later run's params
+    with pytest.raises(RunFolderError, match=r"params\.npz.*(bytes|differs)"):
+        load_run(run)
+    write_run(run := tmp_path / "run4")
+    (run / "metrics.json").unlink()
+    with pytest.raises(RunFolderError, match=r"incomplete run.*metrics\.json"):
+        load_run(run)
+    write_run(run := tmp_path / "run5")
+    (run / "run_complete.json").write_text('{"format": 1, "files": [1, 2]}')
+    with pytest.raises(RunFolderError, match="damaged completeness marker"):
+        load_run(run)
+
+
+@pytest.mark.parametrize("name,text,match", [
+    ("metrics_json", "[1, 2]", "expected a JSON mapping.*list"),
+    ("metrics_json", "{}", "key 'model'"),
+    ("metrics_json", json.dumps({"model": "local", "brdf": "torrance_sparrow", "texels": 41, "lights": 3,
+                                 "rerender": {}}), "key 'timing_s'"),
+    ("metrics_json", json.dumps({"model": "local", "brdf": "torrance_sparrow", "texels": 41, "lights": 3,
+                                 "rerender": {}, "timing_s": {"fit": "slow"}}), "timing_s"),
+    ("metrics_json", json.dumps({"model": "local", "brdf": "ward", "texels": 41, "lights": 3,
+                                 "rerender": {}, "timing_s": {"total": 1.0}}), "two runs"),
+    ("config_yaml", "- a\n- b\n", "expected a YAML mapping.*list"),
+    ("config_yaml", "a: [\n", "config.yaml: not valid YAML"),
+])
+def test_damaged_metrics_and_config_are_named_errors(tmp_path, name, text, match):
+    write_run(tmp_path / "run")
+    with pytest.raises(RunFolderError, match=match):
+        load_run(resealed(tmp_path / "run", **{name: text}))
+
+
+@pytest.mark.parametrize("key,value,match", [
+    ("pd", "nan", "'pd' has NaN"), ("sigma", "inf", "'sigma' has NaN"), ("normals", "nan", "'normals' has NaN"),
+    ("kappa", np.array([math.pi, 0.0, math.pi]), "'kappa'"), ("minnaert_k", np.array("1.2"), "'minnaert_k'"),
+    ("diffuse", np.array("oren_nayar"), "'diffuse'"),
+])
+def test_non_finite_or_mistyped_parameters_are_named_errors(tmp_path, key, value, match):
+    p = write_run(tmp_path / "run")
+    if isinstance(value, str):
+        bad = p[key].copy()
+        bad[2, 3] = float(value)
+        value = bad
+    with pytest.raises(RunFolderError, match=match):
+        load_run(resealed(tmp_path / "run", dict(p, **{key: value})))
+
+
+def test_a_damaged_metrics_section_leaves_summary_and_figure_working(tmp_path):
+    write_run(tmp_path / "run")
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    metrics.update(diffuse=[1], holdout="x", selection={"lights_selected": "many"}, capture={"warnings": ["w1"]})
+    run = load_run(resealed(tmp_path / "run", metrics_json=json.dumps(metrics), config_yaml="reflectance: [1]\n"))
+    assert "WARNING: w1" in run.summary()
+    matplotlib.pyplot.close(run.figure())
 
 
 def test_render_arguments_are_checked(tmp_path):

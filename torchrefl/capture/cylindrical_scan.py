@@ -14,7 +14,6 @@ the triangle mesh for shadow rays is the range image's grid triangulation.
 
 from __future__ import annotations
 
-import json
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -25,14 +24,21 @@ import torch
 
 from torchrefl.capture.base import Capture, CaptureLoader, Log
 from torchrefl.capture.cylindrical_rig import CylindricalRig
+from torchrefl.capture.checks import (distinct_image_files, image_content_checks, implied_albedo_check, light_indices,
+                                      observations_left, unlisted_images)
 from torchrefl.capture.images import read_images
+from torchrefl.capture.truth import TRUTH
+from torchrefl.capture.truth import load_truth as read_truth
 from torchrefl.core.observations import Observations
-from torchrefl.config import Config, read_yaml_mapping
+from torchrefl.capture.scan_yaml import read_manifest, read_scan_yaml  # noqa: F401  (the loader's readers)
+from torchrefl.config import Config
 from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.geometry.range_image import preprocess_range_image
 from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
 from torchrefl.core.surface import Surface
 from torchrefl.core.rays import RayTracer
+
+DEFAULT_SATURATION = 0.995
 
 
 @dataclass
@@ -62,101 +68,49 @@ class ScanGeometry:
         return np.stack([self.rig.head_to_world(s, np.asarray(h, dtype=np.float64)) for h in head_positions])
 
 
-def _need(doc: dict, key: str, where: str, kind=dict):
-    if key not in doc:
-        raise CaptureError(f"{where}: missing key '{key}'")
-    value = doc[key]
-    if kind is not None and not isinstance(value, kind):
-        raise CaptureError(f"{where}: key '{key}' must be a {kind.__name__}, got {type(value).__name__}")
-    return value
+def _range_in_mm(raw: np.ndarray, spec: dict, path: Path, where: str) -> np.ndarray:
+    """The stored range values in mm: float32/float64 as they are; integers only with range.scale_mm."""
+    if np.issubdtype(raw.dtype, np.integer) and "scale_mm" not in spec:
+        raise CaptureError(f"{path}: range image is {raw.dtype}, integer counts are not millimetres; store float32 "
+                           f"mm (NaN where nothing was measured) or give range.scale_mm (mm per count) in {where}")
+    if not np.issubdtype(raw.dtype, np.integer) and raw.dtype not in (np.float32, np.float64):
+        raise CaptureError(f"{path}: range image is {raw.dtype}, expected float32 or float64 millimetres")
+    for key in ("scale_mm", "offset_mm"):
+        if key in spec and (isinstance(spec[key], bool) or not isinstance(spec[key], (int, float))
+                            or not math.isfinite(spec[key]) or (key == "scale_mm" and spec[key] <= 0)):
+            raise CaptureError(f"{where}: key 'range.{key}' = {spec[key]!r}, expected a finite number"
+                               + (" > 0" if key == "scale_mm" else ""))
+    return raw.astype(np.float64) * float(spec.get("scale_mm", 1.0)) + float(spec.get("offset_mm", 0.0))
 
 
-def _number(doc: dict, key: str, where: str, positive: bool = False) -> float:
-    value = _need(doc, key, where, kind=None)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise CaptureError(f"{where}: key '{key}' must be a finite number, got {value!r}")
-    if positive and value <= 0:
-        raise CaptureError(f"{where}: key '{key}' must be > 0, got {value!r}")
-    return float(value)
-
-
-def _triple(value, key: str, where: str, positive: bool = False) -> list:
-    ok = isinstance(value, list) and len(value) == 3 and all(
-        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)
-    if not ok:
-        raise CaptureError(f"{where}: key '{key}' must be a list of 3 finite numbers, got {value!r}")
-    if positive and any(x <= 0 for x in value):
-        raise CaptureError(f"{where}: key '{key}' must be 3 positive numbers (negative or zero light intensity?), got {value!r}")
-    return [float(x) for x in value]
-
-
-def read_scan_yaml(folder) -> dict:
-    """Parse and check scan.yaml; returns the document with 'lights' resolved to a list."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise CaptureError(f"{folder}: capture folder not found")
-    path = folder / "scan.yaml"
-    where = str(path)
-    doc = read_yaml_mapping(path, CaptureError, "file (a cylindrical_scan capture needs scan.yaml)")
-    kind = doc.get("kind", "cylindrical_scan")
-    if kind != "cylindrical_scan":
-        raise CaptureError(f"{where}: key 'kind' is '{kind}', expected 'cylindrical_scan'")
-    grid = _need(doc, "grid", where)
-    for key in ("angle_step_deg", "height_step_mm"):
-        _number(grid, key, f"{where} [grid]", positive=True)
-    for key in ("angle0_deg", "height0_mm"):
-        _number(grid, key, f"{where} [grid]")
-    cam = _need(doc, "camera", where)
-    _number(cam, "distance_mm", f"{where} [camera]", positive=True)
-    _number(cam, "height_mm", f"{where} [camera]")
-    light = _need(doc, "light", where)
-    light["intensity"] = _triple(_need(light, "intensity", f"{where} [light]", kind=None), "light.intensity", where, positive=True)
-    light["kappa"] = _triple(light.get("kappa", [math.pi] * 3), "light.kappa", where, positive=True)
-    lights = doc.get("lights", [])
-    if isinstance(lights, str):
-        lights = read_manifest(folder / lights)
-    if not isinstance(lights, list):
-        raise CaptureError(f"{where}: key 'lights' must be a list or the name of a manifest file")
-    for i, entry in enumerate(lights):
-        if not isinstance(entry, dict) or "image" not in entry or "position_mm" not in entry:
-            raise CaptureError(f"{where}: lights[{i}] must have 'image' and 'position_mm' (got {entry!r})")
-        entry["position_mm"] = _triple(entry["position_mm"], f"lights[{i}].position_mm", where)
-        if "intensity" in entry:
-            entry["intensity"] = _triple(entry["intensity"], f"lights[{i}].intensity", where, positive=True)
-    doc["lights"] = lights
-    return doc
-
-
-def read_manifest(path: Path) -> list:
-    """The rig's manifest.jsonl as a list of light entries (image, position_mm, ...)."""
-    if not path.is_file():
-        raise CaptureError(f"{path}: manifest file not found")
-    entries = []
-    for k, line in enumerate(path.read_text().splitlines(), start=1):
-        if not line.strip():
-            continue
-        try:
-            entries.append(json.loads(line))
-        except json.JSONDecodeError as exc:
-            raise CaptureError(f"{path}: line {k} is not valid JSON ({exc.msg})") from None
-    return entries
-
-
-def read_range(folder: Path, doc: dict, rig_shape=None) -> np.ndarray:
-    """(H, W) float64 range image in mm (NaN = no surface)."""
-    spec = doc.get("range", {"file": "range.npy"})
+def read_range(folder: Path, doc: dict) -> np.ndarray:
+    """(H, W) float64 range image in mm (NaN = no surface): distances from the rotation axis, inside the camera's."""
+    spec = doc.get("range", {})
     path = folder / spec.get("file", "range.npy")
+    where = str(folder / "scan.yaml")
     if not path.is_file():
         raise CaptureError(f"{path}: range image not found")
     try:
-        r = np.load(path).astype(np.float64)
+        raw = np.load(path, allow_pickle=False)
     except Exception as exc:  # numpy raises many kinds for corrupt files
         raise CaptureError(f"{path}: unreadable range image ({exc})") from None
-    if r.ndim != 2:
-        raise CaptureError(f"{path}: range image has shape {r.shape}, expected (H, W)")
-    r = r * float(spec.get("scale_mm", 1.0)) + float(spec.get("offset_mm", 0.0))
-    if np.isfinite(r).sum() == 0:
+    if raw.ndim != 2:
+        raise CaptureError(f"{path}: range image has shape {raw.shape}, expected (H, W)")
+    r = _range_in_mm(raw, spec, path, where)
+    finite = np.isfinite(r)
+    if finite.sum() == 0:
         raise CaptureError(f"{path}: range image has no valid (finite) pixel: the mask selects nothing")
+    for key, n in (("rows", r.shape[0]), ("columns", r.shape[1])):
+        if key in doc["grid"] and doc["grid"][key] != n:
+            raise CaptureError(f"{where}: key 'grid.{key}' = {doc['grid'][key]!r} but {path} has {n} {key}")
+    lo, hi, camera = float(r[finite].min()), float(r[finite].max()), float(doc["camera"]["distance_mm"])
+    if lo < 0:
+        raise CaptureError(f"{path}: {int((r[finite] < 0).sum())} negative ranges (down to {lo:.4g} mm); expected "
+                           "distances from the rotation axis in mm, >= 0")
+    if hi >= camera:
+        raise CaptureError(f"{path}: ranges up to {hi:.4g} mm reach past the camera at camera.distance_mm = "
+                           f"{camera:g} in {where}: the ranges are not in mm (range.scale_mm?) or the camera "
+                           "distance is wrong")
     return r
 
 
@@ -264,80 +218,95 @@ def observation_geometry(geom: ScanGeometry, head_positions: np.ndarray, *, shad
             "seen": seen, "lit": cos_all > min_cos_light, "shadowed": shadowed}
 
 
-def load_scan_observations(geom: ScanGeometry, *, light_subset=None, saturation_level: float = 0.995,
-                           shadow_offset: float = 0.05, min_cos_view: float = 0.0, min_cos_light: float = 0.0,
-                           threads: int = 2, dtype=torch.float32, edge_width: int = 0,
-                           crease_angle_deg: float | None = None) -> tuple[Observations, dict]:
-    """Texture images + light table -> Observations (and load statistics).
-
-    edge_width: observations of texels within this many texels of the mesh boundary (silhouettes,
-    depth discontinuities: mixed pixels) are not valid (counted in the statistics); crease_angle_deg:
-    neither are those of texels on a crease sharper than this (range_mesh.crease_texels; None: none)."""
-    doc = read_scan_yaml(geom.folder)
-    lights = doc["lights"]
-    where = str(geom.folder / "scan.yaml")
-    if not lights:
-        raise CaptureError(f"{where}: key 'lights' lists no light (expected one entry per texture image)")
-    if light_subset is not None:
-        bad = [i for i in light_subset if i >= len(lights)]
-        if bad:
-            raise CaptureError(f"capture.light_subset: indices {bad} out of range for {len(lights)} lights in {where}")
-        lights = [lights[i] for i in light_subset]
+def _read_textures(geom: ScanGeometry, lights: list, where: str, threads: int) -> tuple[np.ndarray, int, list[str]]:
+    """(P, T, 3) texture values at the surface's texels, the bit depth and warnings; CaptureError for a file
+    used by two lights, a texture whose size, depth or channels differ, constant or all-black textures."""
     paths = [geom.folder / e["image"] for e in lights]
+    distinct_image_files(paths, [e["image"] for e in lights], where)
     images, bits = read_images(paths, threads=threads)
     H, W = geom.surface.grid_shape
     if images.shape[1:3] != (H, W):
         raise CaptureError(
             f"{paths[0]}: texture is {images.shape[2]}x{images.shape[1]}, expected {W}x{H} like the range image "
             f"{geom.folder / 'range.npy'}")
+    intensity = images.reshape(len(lights), H * W, 3)[:, geom.surface.texel_index.numpy()]
+    warnings = image_content_checks(intensity, paths)
+    warnings += unlisted_images(geom.folder / "textures", [geom.folder / e["image"] for e in read_scan_yaml(geom.folder)["lights"]],
+                                "*.png", where)
+    return intensity, bits, warnings
+
+
+def load_scan_observations(geom: ScanGeometry, *, light_subset=None, saturation_level: float | None = None,
+                           kappa=None, shadow_offset: float = 0.05, min_cos_view: float = 0.0,
+                           min_cos_light: float = 0.0, threads: int = 2, dtype=torch.float32, edge_width: int = 0,
+                           crease_angle_deg: float | None = None) -> tuple[Observations, dict]:
+    """Texture images + light table -> Observations (and load statistics, with stats['warnings'] a list).
+
+    saturation_level, kappa: None = scan.yaml's (saturation_level, light.kappa), or 0.995 and pi where it
+    gives none (CylindricalScanLoader passes the values its precedence rule chose).
+    edge_width: observations of texels within this many texels of the mesh boundary (silhouettes,
+    depth discontinuities: mixed pixels) are not valid (counted in the statistics); crease_angle_deg:
+    neither are those of texels on a crease sharper than this (range_mesh.crease_texels; None: none)."""
+    doc = read_scan_yaml(geom.folder)
+    where = str(geom.folder / "scan.yaml")
+    if not doc["lights"]:
+        raise CaptureError(f"{where}: key 'lights' lists no light (expected one entry per texture image)")
+    lights = [doc["lights"][i] for i in light_indices(light_subset, len(doc["lights"]), where)]
+    saturation_level = doc.get("saturation_level", DEFAULT_SATURATION) if saturation_level is None else saturation_level
+    kappa = np.asarray(doc["light"].get("kappa", [math.pi] * 3) if kappa is None else kappa, dtype=np.float64)
+    intensity, bits, warnings = _read_textures(geom, lights, where, threads)
     head = np.array([e["position_mm"] for e in lights], dtype=np.float64)
     og = observation_geometry(geom, head, shadow_offset=shadow_offset,
                               min_cos_view=min_cos_view, min_cos_light=min_cos_light)
+    H, W = geom.surface.grid_shape
     idx = geom.surface.texel_index.numpy()
-    intensity = images.reshape(len(lights), H * W, 3)[:, idx]
     saturated = (intensity >= saturation_level).any(-1)
     finite = np.isfinite(intensity).all(-1)
-    valid = og["seen"][None] & og["lit"] & ~og["shadowed"] & ~saturated & finite
     edge = boundary_texels(geom.surface.mesh_faces, (H, W), idx, edge_width)
-    valid &= ~edge[None]
     crease = crease_texels(geom.surface.mesh_vertices, geom.surface.mesh_faces, geom.surface.normals.double().numpy(),
                            idx, crease_angle_deg)
-    valid &= ~crease[None]
+    removed = {"not seen by the camera (facing away or occluded)": np.broadcast_to(~og["seen"][None], saturated.shape),
+               "not lit (n.l at or below the threshold)": ~og["lit"], "in cast shadow": og["shadowed"],
+               f"saturated (>= {saturation_level:g})": saturated, "not finite": ~finite,
+               f"edge texels (geometry.edge_width {edge_width})": np.broadcast_to(edge[None], saturated.shape),
+               "crease texels (geometry.crease_angle_deg)": np.broadcast_to(crease[None], saturated.shape)}
+    valid = ~np.logical_or.reduce(list(removed.values()))
+    observations_left(valid, removed, where)
     Y = np.array([e.get("intensity", doc["light"]["intensity"]) for e in lights], dtype=np.float64)
+    falloff = 1.0 / np.maximum(og["dist"], 1e-9) ** 2
+    implied_albedo_check(intensity, valid, og["cos_l"], Y[:, None, :] * falloff[..., None], kappa,
+                         f"{where} (light.intensity, lights[i].intensity)")
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(dtype)
     obs = Observations(
         intensity=t(intensity), valid=torch.from_numpy(valid), saturated=torch.from_numpy(saturated),
-        shadowed=torch.from_numpy(og["shadowed"]), light_dir=t(og["light_dir"]),
-        falloff=t(1.0 / np.maximum(og["dist"], 1e-9) ** 2), light_intensity=t(Y), view_dir=t(og["view_dir"]),
-        kappa=t(np.array(doc["light"]["kappa"])), light_positions=t(head),
+        shadowed=torch.from_numpy(og["shadowed"]), light_dir=t(og["light_dir"]), falloff=t(falloff),
+        light_intensity=t(Y), view_dir=t(og["view_dir"]), kappa=t(kappa), light_positions=t(head),
         light_names=[e["image"] for e in lights], source=where,
     )
     stats = {
         "bit_depth": bits,
         "lights": len(lights),
         "texels": int(idx.size),
+        "saturation_level": float(saturation_level),
         "saturated_observations": int((saturated & og["seen"][None] & og["lit"]).sum()),
         "shadowed_observations": int(og["shadowed"].sum()),
         "valid_observations": int(valid.sum()),
         "edge_texels_excluded": int(edge.sum()),
         "crease_texels_excluded": int((crease & ~edge).sum()),
+        "warnings": warnings,
     }
     return obs, stats
 
 
-def load_truth(folder, surface: Surface) -> dict | None:
-    """Ground truth per valid texel from truth.npz (synthetic captures), or None."""
-    path = Path(folder) / "truth.npz"
-    if not path.is_file():
+def load_truth(folder, surface: Surface, doc: dict | None = None) -> dict | None:
+    """Ground truth per valid texel from the truth file scan.yaml names (truth.file; truth.npz when scan.yaml
+    names none and the file is there), or None for a folder without truth."""
+    folder = Path(folder)
+    doc = read_scan_yaml(folder) if doc is None else doc
+    name = doc.get("truth", {}).get("file")
+    if name is None and not (folder / TRUTH).is_file():
         return None
-    data = np.load(path)
-    return {
-        "pd": surface.from_grid(data["pd"]).double(),
-        "ps": surface.from_grid(data["ps"]).double(),
-        "sigma": surface.from_grid(data["sigma"]).double(),
-        "brdf": str(data["brdf"]) if "brdf" in data else None,
-        "minnaert_k": float(data["minnaert_k"]) if "minnaert_k" in data else 1.0,
-    }
+    return read_truth(folder / (name or TRUTH), surface)
 
 
 class CylindricalScanLoader(CaptureLoader):
@@ -356,11 +325,31 @@ class CylindricalScanLoader(CaptureLoader):
         s = geom.surface
         log(f"surface: {s.num_texels} texels on a {s.grid_shape} grid, {len(s.mesh_faces)} triangles")
         g = cfg.geometry
+        saturation_level, kappa = folder_over_config(geom.meta, cfg, geom.folder / "scan.yaml", log)
         obs, stats = load_scan_observations(
-            geom, light_subset=cfg.capture.light_subset, saturation_level=cfg.capture.saturation_level,
+            geom, light_subset=cfg.capture.light_subset, saturation_level=saturation_level, kappa=kappa,
             shadow_offset=g.shadow_offset_mm, threads=cfg.threads, dtype=cfg.torch_dtype,
             edge_width=g.edge_width, crease_angle_deg=g.crease_angle_deg)
         if stats["crease_texels_excluded"]:
             log(f"geometry: {stats['crease_texels_excluded']} texels on creases sharper than "
                 f"{g.crease_angle_deg:g} deg (mixed pixels) are not fitted")
-        return Capture(s, obs, stats, load_truth(folder, s), Path(folder))
+        warnings = stats.pop("warnings")
+        return Capture(s, obs, stats, load_truth(folder, s, geom.meta), Path(folder), warnings)
+
+
+def folder_over_config(doc: dict, cfg: Config, where: Path, log: Log) -> tuple[float, list]:
+    """saturation_level and kappa by one rule: a value scan.yaml gives is the capture's own and wins; the
+    config's capture.* value applies where scan.yaml gives none. A config value overridden is logged."""
+    chosen = []
+    for key, folder_value, config_value in (
+            ("saturation_level", doc.get("saturation_level"), cfg.capture.saturation_level),
+            ("light.kappa", doc["light"].get("kappa"), list(cfg.capture.kappa))):
+        config_key = f"capture.{key.split('.')[-1]}"
+        if folder_value is None:
+            chosen.append(config_value)
+            continue
+        if not np.allclose(folder_value, config_value, rtol=1e-12, atol=0):
+            log(f"{config_key} {config_value} (config) is overridden by {key} {folder_value} in {where}: "
+                "a value the capture folder gives is its own")
+        chosen.append(folder_value)
+    return float(chosen[0]), [float(k) for k in chosen[1]]

@@ -125,6 +125,11 @@ def _size(shape) -> str:
     return f"{shape[1]}x{shape[0]}"
 
 
+def _colour(raw: np.ndarray) -> str:
+    """'grey' or 'RGB' (an alpha channel aside)."""
+    return "grey" if raw.shape[-1] < 3 else "RGB"
+
+
 def read_images(paths, *, threads: int = 2, pixels: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Read N images of equal size and bit depth, decoding on `threads` threads.
 
@@ -132,13 +137,15 @@ def read_images(paths, *, threads: int = 2, pixels: np.ndarray | None = None) ->
     when `pixels` ((H, W) bool) is given: only the K pixels where it is True, in row-major order
     (saves memory when only an object mask is needed). Also returns the common bit depth.
     Raises CaptureError naming the first file (in the order given) that is missing or unreadable,
-    whose size differs from the first image's (or from `pixels`), or whose bit depth differs.
+    whose size differs from the first image's (or from `pixels`), or whose bit depth or colour (grey
+    among RGB images, or RGB among grey) differs.
     """
     paths = [Path(p) for p in paths]
     if not paths:
         raise CaptureError("read_images: no image paths given (expected at least one)")
     first_raw, bits = _decode(paths[0])
     shape = first_raw.shape[:2]
+    colour = _colour(first_raw)
     if pixels is not None:
         pixels = np.asarray(pixels, dtype=bool)
         if pixels.shape != shape:
@@ -156,6 +163,9 @@ def read_images(paths, *, threads: int = 2, pixels: np.ndarray | None = None) ->
                 f"{paths[i]} is {_size(raw.shape)}, expected {_size(shape)} like {paths[0]}")
         if depth != bits:
             raise CaptureError(f"{paths[i]} is a {depth}-bit image, expected {bits}-bit like {paths[0]}")
+        if _colour(raw) != colour:
+            raise CaptureError(f"{paths[i]} is a {_colour(raw)} image, expected {colour} like {paths[0]} "
+                               "(one camera mode for every light)")
         if flat is not None:
             raw = raw.reshape(-1, raw.shape[2])[flat]
         _to_float(raw, depth, out=out[i])

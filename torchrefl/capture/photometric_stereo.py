@@ -26,6 +26,8 @@ import numpy as np
 import torch
 
 from torchrefl.capture.base import Capture, CaptureLoader, Log
+from torchrefl.capture.checks import (distinct_image_files, image_content_checks, implied_albedo_check, light_indices,
+                                      observations_left)
 from torchrefl.config import Config
 from torchrefl.capture.images import read_image, read_images
 from torchrefl.core.observations import Observations
@@ -149,17 +151,24 @@ def read_normal_map(path: Path) -> np.ndarray:
     return n.astype(np.float64)
 
 
-def _light_subset(light_subset, num_images: int, folder: Path) -> list[int]:
-    if light_subset is None:
-        return list(range(num_images))
-    subset = list(light_subset)
-    bad = [i for i in subset if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < num_images]
-    if bad or not subset:
-        raise CaptureError(
-            f"light_subset: {bad if bad else 'empty list'} for {folder}; expected indices in 0..{num_images - 1}")
-    if len(set(subset)) != len(subset):
-        raise CaptureError(f"light_subset: repeated indices in {subset} for {folder}")
-    return [int(i) for i in subset]
+def _image_checks(folder: Path, names: list[str], keep: list[int], intensity: np.ndarray) -> list[str]:
+    """checks.image_content_checks on the loaded images, plus a warning for NNN.png files no light lists."""
+    listing = folder / FILENAMES if (folder / FILENAMES).is_file() else folder
+    warnings = image_content_checks(intensity, [folder / names[i] for i in keep])
+    on_disk = [p for p in folder.iterdir() if p.is_file() and _IMAGE_NAME.match(p.name)]
+    extra = sorted(p.name for p in on_disk if p.name not in set(names))
+    if extra:
+        warnings.append(f"{folder} holds {len(extra)} NNN.png image(s) that {listing.name} does not list "
+                        f"(e.g. {', '.join(extra[:3])}): a truncated light list?")
+    return warnings
+
+
+def _valid_observations(cos_v, cos_l, saturated, finite, folder: Path) -> np.ndarray:
+    removed = {"normal facing away from the camera (n.v <= 0)": np.broadcast_to((cos_v <= 0)[None], cos_l.shape),
+               "not lit (n.l <= 0)": cos_l <= 0, "saturated": saturated, "not finite": ~finite}
+    valid = ~np.logical_or.reduce(list(removed.values()))
+    observations_left(valid, removed, str(folder))
+    return valid
 
 
 def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(math.pi, math.pi, math.pi),
@@ -182,11 +191,14 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
     valid (P, T) = n.v > 0 and n.l > 0 and not saturated and finite.
 
     Stats: texels, lights, bit_depth, saturated_observations (all saturated observations at mask
-    pixels), valid_observations, per_light {saturated, valid} lists, load_time_s.
+    pixels), valid_observations, per_light {saturated, valid} lists, load_time_s, warnings (a list of
+    strings: what may be wrong with the folder, see torchrefl.capture.checks).
 
     Raises CaptureError (GeometryError for bad normals) naming the file and what was expected when
     the folder or a file is missing or unreadable, sizes disagree, light tables have the wrong
-    number of rows or columns or bad values, or the mask selects nothing.
+    number of rows or columns or bad values, the mask selects nothing, or the images cannot be right
+    (torchrefl.capture.checks: a file used for two lights, constant images, intensities of the wrong scale,
+    no usable observation).
     """
     t0 = time.perf_counter()
     folder = Path(folder)
@@ -210,7 +222,8 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
     normals_path = _require_file(folder / NORMALS)
     directions = read_light_directions(dirs_path, len(names))
     intensities = read_light_intensities(ints_path, len(names))
-    keep = _light_subset(light_subset, len(names), folder)
+    keep = light_indices(light_subset, len(names), str(folder / FILENAMES) if (folder / FILENAMES).is_file() else str(folder))
+    distinct_image_files([paths[i] for i in keep], [names[i] for i in keep], str(folder))
 
     mask_img, _ = read_image(mask_path)
     first, _ = read_image(paths[keep[0]])
@@ -238,6 +251,7 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
     normals = normals / length[:, None]
 
     intensity, bits = read_images([paths[i] for i in keep], threads=threads, pixels=mask)
+    warnings = _image_checks(folder, names, keep, intensity)
     if dtype == torch.float64:  # recover the exact v / (2**bits - 1) from the float32 fractions
         full = float(2 ** bits - 1)
         intensity = np.rint(intensity.astype(np.float64) * full) / full
@@ -261,7 +275,9 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
     cos_v = normals[:, 2]  # view (0, 0, 1)
     saturated = (intensity >= saturation_level).any(axis=-1)
     finite = np.isfinite(intensity).all(axis=-1)
-    valid = (cos_v > 0)[None] & (cos_l > 0) & ~saturated & finite
+    valid = _valid_observations(cos_v, cos_l, saturated, finite, folder)
+    implied_albedo_check(intensity.astype(np.float64), valid, cos_l, np.broadcast_to(intensities[keep][:, None, :], intensity.shape),
+                         kappa_arr, str(ints_path))
 
     light_dir = torch.from_numpy(dirs).to(dtype)[:, None, :].expand(P, T, 3)
     obs = Observations(
@@ -286,6 +302,7 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
         "valid_observations": int(valid.sum()),
         "per_light": {"saturated": saturated.sum(axis=1).tolist(), "valid": valid.sum(axis=1).tolist()},
         "load_time_s": time.perf_counter() - t0,
+        "warnings": warnings,
     }
     return surface, obs, stats
 
@@ -300,4 +317,5 @@ class PhotometricStereoLoader(CaptureLoader):
         surface, obs, stats = load_photometric_stereo(folder, saturation_level=c.saturation_level, kappa=tuple(c.kappa),
                                                       light_subset=c.light_subset, dtype=cfg.torch_dtype,
                                                       threads=cfg.threads)
-        return Capture(surface, obs, stats, None, Path(folder))
+        warnings = stats.pop("warnings")
+        return Capture(surface, obs, stats, None, Path(folder), warnings)

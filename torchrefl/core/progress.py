@@ -20,18 +20,24 @@ class Stages:
     def __init__(self, log=None):
         self.timing: dict[str, float] = {}
         self.log = log
+        self.failed: str | None = None      # the stage an exception or an interruption left
 
     @contextmanager
     def stage(self, name: str):
         start = time.perf_counter()
         if self.log:
             self.log(f"[{name}] ...")
+        outcome = "done"
         try:
             yield
+        except BaseException as exc:
+            outcome = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+            self.failed = self.failed or name
+            raise
         finally:
             self.timing[name] = self.timing.get(name, 0.0) + time.perf_counter() - start
             if self.log:
-                self.log(f"[{name}] done in {self.timing[name]:.2f} s")
+                self.log(f"[{name}] {outcome} {'in' if outcome == 'done' else 'after'} {self.timing[name]:.2f} s")
 
     def total(self) -> float:
         return sum(self.timing.values())

@@ -11,6 +11,7 @@ from torchrefl.core.observation_classes import T_DIFF, class_counts, classify
 from torchrefl.core.observations import Observations
 from torchrefl.core.surface import Surface
 from torchrefl.fit.diffuse_shape import fit_minnaert_exponent
+from torchrefl.fit.fit_observations import require_fit_observations
 from torchrefl.fit.result import DiffuseModel
 from torchrefl.transport.local import LocalTerms, local_terms
 
@@ -36,6 +37,8 @@ def observe(cfg: Config, surface: Surface, obs: Observations, held: torch.Tensor
     geometric_ok = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light)
     fit_mask = geometric_ok & ~held[:, None]
     eval_mask = geometric_ok & held[:, None]
+    require_fit_observations(fit_mask, obs.valid, terms.cos_v, terms.cos_l, held, rc.min_cos_view, rc.min_cos_light,
+                             obs.source)
     classes = classify(terms.theta_h, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
     diffuse = DiffuseModel(rc.diffuse)
     if rc.diffuse == "minnaert":

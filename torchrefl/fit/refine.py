@@ -67,7 +67,8 @@ class Objective:
         self._w = self.weight.to(self.intensity.dtype)[..., None]
         self._count = float(self.weight.sum()) * self.intensity.shape[-1]
         if self._count == 0:
-            raise FitError("nothing to fit: no valid observation is left after masking (check fit.holdout and the capture)")
+            raise FitError("nothing to fit: the objective's observation mask selects no observation (the capture's "
+                           "loader and fit.fit_observations.require_fit_observations say which filter removed them)")
 
     def __call__(self, params: TexelParams) -> torch.Tensor:
         pd, ps, sigma = params.values()

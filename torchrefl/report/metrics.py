@@ -7,6 +7,7 @@ the variance of the signed difference, and the RMSE, over the given observations
 
 from __future__ import annotations
 
+import json
 import math
 
 import torch
@@ -65,3 +66,19 @@ def finite_or_none(x):
         return None
     x = float(x)
     return x if math.isfinite(x) else None
+
+
+def json_safe(value):
+    """`value` with every NaN or infinite float (at any depth) replaced by None: what strict JSON can hold."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, float):
+        return finite_or_none(value)
+    return value
+
+
+def strict_json(value) -> str:
+    """Indented JSON with no NaN or Infinity (non-finite numbers become null)."""
+    return json.dumps(json_safe(value), indent=2, allow_nan=False)

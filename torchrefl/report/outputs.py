@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -14,24 +13,26 @@ from torchrefl.config import Config
 from torchrefl.core.progress import Stages
 from torchrefl.fit.result import FitResult
 from torchrefl.planning.light_selection import SelectionResult
+from torchrefl.core.atomic_files import atomic_file, atomic_write_text
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
-from torchrefl.report.metrics import ground_truth_errors, image_difference
+from torchrefl.report.metrics import ground_truth_errors, image_difference, strict_json
 
 
 def write_params(path: Path, cfg: Config, cap: Capture, res: FitResult) -> None:
     """params.npz: the estimate and the texel geometry on the texel grid."""
     surface, obs = cap.surface, cap.obs
     grid = lambda x, fill=0.0: surface.to_grid(x, fill=fill)
-    np.savez_compressed(
-        path,
-        pd=grid(res.pd.float()), ps=grid(res.ps.float()), sigma=grid(res.sigma.float()),
-        mask=surface.to_grid(res.estimated.numpy(), fill=False),
-        brdf=np.array(cfg.reflectance.brdf), positions=grid(surface.positions.float()),
-        normals=grid(surface.normals.float()), coverage=grid(res.coverage),
-        n_diffuse=grid(res.counts["T_diff"].to(torch.int16)), n_specular=grid(res.counts["T_spec"].to(torch.int16)),
-        kappa=obs.kappa.numpy(), units=np.array(surface.units),
-        diffuse=np.array(res.diffuse.model), minnaert_k=np.array(res.diffuse.k),
-    )
+    with atomic_file(path) as fh:
+        np.savez_compressed(
+            fh,
+            pd=grid(res.pd.float()), ps=grid(res.ps.float()), sigma=grid(res.sigma.float()),
+            mask=surface.to_grid(res.estimated.numpy(), fill=False),
+            brdf=np.array(cfg.reflectance.brdf), positions=grid(surface.positions.float()),
+            normals=grid(surface.normals.float()), coverage=grid(res.coverage),
+            n_diffuse=grid(res.counts["T_diff"].to(torch.int16)), n_specular=grid(res.counts["T_spec"].to(torch.int16)),
+            kappa=obs.kappa.numpy(), units=np.array(surface.units),
+            diffuse=np.array(res.diffuse.model), minnaert_k=np.array(res.diffuse.k),
+        )
 
 
 def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionResult | None, device: str) -> dict:
@@ -45,7 +46,8 @@ def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionRe
         **({"photon": res.photon} if res.photon else {}),
         "brdf": cfg.reflectance.brdf,
         "diffuse": {**res.diffuse.as_dict(), **({"k_true": cap.truth["minnaert_k"]} if cap.truth else {})},
-        "capture": {"kind": cfg.capture.kind, **{k: v for k, v in cap.stats.items() if isinstance(v, (int, float, str))}},
+        "capture": {"kind": cfg.capture.kind, **{k: v for k, v in cap.stats.items() if isinstance(v, (int, float, str))},
+                    "warnings": list(cap.warnings)},
         "texels": cap.surface.num_texels, "lights": obs.num_lights,
         "holdout_lights": list(cfg.fit.holdout),
         "rerender": image_difference(res.predicted, obs.intensity, res.fit_mask),
@@ -84,5 +86,5 @@ def write_outputs(cfg: Config, out: Path, cap: Capture, res: FitResult, selectio
                              grid(res.predicted[p].double().numpy()), shown)
     metrics["timing_s"] = {k: round(v, 3) for k, v in stages.timing.items()}
     metrics["timing_s"]["total"] = round(stages.total(), 3)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    atomic_write_text(out / "metrics.json", strict_json(metrics))
     return metrics

@@ -7,7 +7,9 @@
     img = run.render(light_position=(0, 200, 400), camera=(0, 0, 300))   # relight the estimate
 
 `load_run` reads the outputs contract (docs/outputs.md) (params.npz, metrics.json, config.yaml) and
-checks it: a missing file or key is a CaptureError naming the file and what was expected.
+checks it: a folder without a valid completeness marker (torchrefl.report.run_marker: an incomplete or
+mixed run), a missing file or key, a wrong shape or a non-finite parameter is a RunFolderError naming
+the file and what was expected.
 Maps are on the texel grid (H, W); texels outside `mask` (no estimate) are 0 in the arrays and
 blank in the figure.
 
@@ -25,16 +27,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
 
 from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.observations import Observations
-from torchrefl.errors import CaptureError
+from torchrefl.errors import CaptureError, RunFolderError
+from torchrefl.report.run_marker import verify_run_folder
 from torchrefl.transport.local import render_reference
 
 PARAMS = "params.npz"
 METRICS = "metrics.json"
 CONFIG = "config.yaml"
 REQUIRED_KEYS = ("pd", "ps", "sigma", "mask", "brdf", "positions", "normals", "kappa")
+METRICS_KEYS = {"model": str, "brdf": str, "texels": int, "lights": int, "timing_s": dict, "rerender": dict}
 
 
 @dataclass
@@ -46,7 +51,7 @@ class RunResult:
     coverage (H, W): how each texel was determined (torchrefl.report.maps); n_diffuse, n_specular (H, W):
     observations per texel in T_diff and T_spec; kappa (3,): the camera gain; brdf: the model name;
     diffuse, minnaert_k: the diffuse part (lambert, or minnaert with its exponent; 1 = Lambert);
-    metrics: metrics.json; config: the resolved config.yaml as a dict (None where the file is absent).
+    metrics: metrics.json; config: the resolved config.yaml as a dict.
     """
 
     folder: Path
@@ -63,7 +68,7 @@ class RunResult:
     n_diffuse: np.ndarray | None
     n_specular: np.ndarray | None
     metrics: dict
-    config: dict | None
+    config: dict
     diffuse: str = "lambert"
     minnaert_k: float = 1.0
 
@@ -144,7 +149,9 @@ class RunResult:
         im = axes[1].imshow(blank(ps), cmap="magma")
         axes[1].set_title("Ps (mean of channels)")
         fig.colorbar(im, ax=axes[1], shrink=0.8)
-        top = sigma_max if sigma_max is not None else (self.config or {}).get("reflectance", {}).get("sigma_max")
+        section = self.config.get("reflectance")
+        top = sigma_max if sigma_max is not None else section.get("sigma_max") if isinstance(section, dict) else None
+        top = top if isinstance(top, (int, float)) and not isinstance(top, bool) else None
         im = axes[2].imshow(blank(self.sigma), cmap="viridis", vmin=0.0, vmax=top)
         axes[2].set_title("sigma (rad)")
         fig.colorbar(im, ax=axes[2], shrink=0.8)
@@ -176,51 +183,87 @@ def _vector(name: str, value, allow_scalar: bool = False, unit: bool = False) ->
     return torch.from_numpy(a)
 
 
-def load_run(folder) -> RunResult:
-    """Read a run's output folder (python -m torchrefl.train ... output.dir=FOLDER)."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise CaptureError(f"{folder}: run folder missing (expected the output.dir of a torchrefl.train run)")
-    params_path = folder / PARAMS
-    if not params_path.is_file():
-        raise CaptureError(f"{params_path}: missing (a run that finished writes it; was the run interrupted?)")
+def _read_params(path: Path) -> dict:
     try:
-        with np.load(params_path, allow_pickle=False) as npz:
+        with np.load(path, allow_pickle=False) as npz:
             p = {k: npz[k] for k in npz.files}
     except Exception as exc:  # a truncated or foreign file: say which and why
-        raise CaptureError(f"{params_path}: unreadable as a numpy .npz archive ({exc})") from None
+        raise RunFolderError(f"{path}: unreadable as a numpy .npz archive ({exc})") from None
     missing = [k for k in REQUIRED_KEYS if k not in p]
     if missing:
-        raise CaptureError(f"{params_path}: missing key(s) {', '.join(missing)} (expected {', '.join(REQUIRED_KEYS)})")
+        raise RunFolderError(f"{path}: missing key(s) {', '.join(missing)} (expected {', '.join(REQUIRED_KEYS)})")
     mask = p["mask"]
     if mask.ndim != 2 or mask.dtype != bool:
-        raise CaptureError(f"{params_path}: 'mask' is {mask.dtype} {mask.shape}, expected a bool (H, W) grid")
+        raise RunFolderError(f"{path}: 'mask' is {mask.dtype} {mask.shape}, expected a bool (H, W) grid")
     H, W = mask.shape
     expect = {"pd": (H, W, 3), "sigma": (H, W), "positions": (H, W, 3), "normals": (H, W, 3), "kappa": (3,)}
     for key, shape in expect.items():
         if p[key].shape != shape:
-            raise CaptureError(f"{params_path}: '{key}' has shape {p[key].shape}, expected {shape}")
+            raise RunFolderError(f"{path}: '{key}' has shape {p[key].shape}, expected {shape}")
     if p["ps"].shape not in ((H, W, 1), (H, W, 3)):
-        raise CaptureError(f"{params_path}: 'ps' has shape {p['ps'].shape}, expected ({H}, {W}, 1) or ({H}, {W}, 3)")
-    brdf = brdf_mod.check_brdf_name(str(p["brdf"]), f"{params_path}: brdf")
-    metrics_path = folder / METRICS
-    if not metrics_path.is_file():
-        raise CaptureError(f"{metrics_path}: missing (written with params.npz at the end of a run)")
-    try:
-        metrics = json.loads(metrics_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CaptureError(f"{metrics_path}: not valid JSON ({exc})") from None
-    config = None
-    if (folder / CONFIG).is_file():
-        import yaml
+        raise RunFolderError(f"{path}: 'ps' has shape {p['ps'].shape}, expected ({H}, {W}, 1) or ({H}, {W}, 3)")
+    for key in ("pd", "ps", "sigma", "positions", "normals"):
+        a = p[key]
+        if not np.issubdtype(a.dtype, np.number) or not np.isfinite(a[mask]).all():
+            raise RunFolderError(f"{path}: '{key}' has NaN, infinite or non-numeric values at estimated texels "
+                                 "(expected finite numbers inside 'mask')")
+    if not np.issubdtype(p["kappa"].dtype, np.number) or not (np.isfinite(p["kappa"]) & (p["kappa"] > 0)).all():
+        raise RunFolderError(f"{path}: 'kappa' = {p['kappa'].tolist()}, expected 3 finite values > 0")
+    return p
 
-        try:
-            config = yaml.safe_load((folder / CONFIG).read_text())
-        except yaml.YAMLError as exc:
-            raise CaptureError(f"{folder / CONFIG}: not valid YAML ({exc})") from None
+
+def _diffuse_part(p: dict, path: Path) -> tuple[str, float]:
+    diffuse = str(p.get("diffuse", "lambert"))
+    if diffuse not in ("lambert", "minnaert"):
+        raise RunFolderError(f"{path}: 'diffuse' is {diffuse!r}, expected 'lambert' or 'minnaert'")
+    raw = p.get("minnaert_k", np.array(1.0))
+    if not np.issubdtype(raw.dtype, np.number) or raw.size != 1 or not np.isfinite(raw).all():
+        raise RunFolderError(f"{path}: 'minnaert_k' is {raw!r}, expected one finite number")
+    return diffuse, float(raw)
+
+
+def _read_mapping(path: Path, reader, what: str) -> dict:
+    try:
+        data = reader(path.read_text())
+    except Exception as exc:  # json / yaml / decoding errors: name the file
+        raise RunFolderError(f"{path}: not valid {what} ({exc})") from None
+    if not isinstance(data, dict):
+        raise RunFolderError(f"{path}: expected a {what} mapping at the top level, got {type(data).__name__}")
+    return data
+
+
+def _read_metrics(path: Path, brdf: str) -> dict:
+    metrics = _read_mapping(path, json.loads, "JSON")
+    for key, kind in METRICS_KEYS.items():
+        if not isinstance(metrics.get(key), kind) or isinstance(metrics.get(key), bool):
+            raise RunFolderError(f"{path}: key '{key}' is {metrics.get(key)!r}, expected {kind.__name__} "
+                                 "(metrics.json of a torchrefl run)")
+    timing = metrics["timing_s"]
+    if "total" not in timing or not all(isinstance(v, (int, float)) for v in timing.values()):
+        raise RunFolderError(f"{path}: key 'timing_s' must map stages (and 'total') to seconds, got {timing!r}")
+    if metrics["brdf"] != brdf:
+        raise RunFolderError(f"{path}: brdf '{metrics['brdf']}' but params.npz holds '{brdf}': files of two runs")
+    return metrics
+
+
+def load_run(folder) -> RunResult:
+    """Read a run's output folder (python -m torchrefl.train ... output.dir=FOLDER); RunFolderError naming the
+    file and what was expected when the run is incomplete or mixed (no valid completeness marker) or a file
+    is damaged."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise RunFolderError(f"{folder}: run folder missing (expected the output.dir of a torchrefl.train run)")
+    params_path = folder / PARAMS
+    if not params_path.is_file():
+        raise RunFolderError(f"{params_path}: missing (a run that finished writes it; was the run interrupted?)")
+    verify_run_folder(folder, hashed=(PARAMS, METRICS))
+    p = _read_params(params_path)
+    brdf = brdf_mod.check_brdf_name(str(p["brdf"]), f"{params_path}: brdf")
+    diffuse, minnaert_k = _diffuse_part(p, params_path)
+    metrics = _read_metrics(folder / METRICS, brdf)
+    config = _read_mapping(folder / CONFIG, yaml.safe_load, "YAML")
     optional = lambda k: p[k] if k in p else None
-    return RunResult(folder=folder, pd=p["pd"], ps=p["ps"], sigma=p["sigma"], mask=mask, positions=p["positions"],
+    return RunResult(folder=folder, pd=p["pd"], ps=p["ps"], sigma=p["sigma"], mask=p["mask"], positions=p["positions"],
                      normals=p["normals"], kappa=p["kappa"], brdf=brdf, units=str(p.get("units", "")),
                      coverage=optional("coverage"), n_diffuse=optional("n_diffuse"), n_specular=optional("n_specular"),
-                     metrics=metrics, config=config, diffuse=str(p.get("diffuse", "lambert")),
-                     minnaert_k=float(p.get("minnaert_k", 1.0)))
+                     metrics=metrics, config=config, diffuse=diffuse, minnaert_k=minnaert_k)

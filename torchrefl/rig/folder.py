@@ -16,30 +16,13 @@ from pathlib import Path
 
 import yaml
 
+from torchrefl.core.atomic_files import atomic_write_text, fsync_dir
 from torchrefl.errors import CaptureError
 
 MANIFEST = "manifest.jsonl"
 TEXTURES = "textures"
 TEMP_PREFIX = ".tmp-"
 IMAGE_RE = re.compile(r"^\d{3,}\.png$")
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
 
 
 class CaptureFolder:
@@ -87,7 +70,7 @@ class CaptureFolder:
         if len(set(indices)) != len(indices):
             raise CaptureError(f"{self.manifest}: repeated indices {sorted(i for i in set(indices) if indices.count(i) > 1)}")
         if rewrite:
-            _atomic_write_text(self.manifest, "".join(json.dumps(e) + "\n" for e in entries))
+            atomic_write_text(self.manifest, "".join(json.dumps(e) + "\n" for e in entries))
         listed = {Path(e["image"]).name for e in entries}
         for p in sorted(self.textures.iterdir()):
             if p.name.startswith(TEMP_PREFIX):
@@ -123,12 +106,12 @@ class CaptureFolder:
             os.fsync(f.fileno())
         final = self.root / entry["image"]
         os.replace(temp, final)
-        _fsync_dir(self.textures)
+        fsync_dir(self.textures)
         with open(self.manifest, "a") as f:
             f.write(json.dumps(entry) + "\n")
             f.flush()
             os.fsync(f.fileno())
-        _fsync_dir(self.root)
+        fsync_dir(self.root)
         self.entries.append(entry)
 
     def link_scan_yaml(self) -> bool:
@@ -148,5 +131,5 @@ class CaptureFolder:
                 raise CaptureError(f"{path}: key 'lights' already lists lights inline; the rig records its images "
                                    f"in {MANIFEST} (use a fresh folder or remove the inline list)")
             doc["lights"] = MANIFEST
-            _atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
+            atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
         return True

@@ -24,6 +24,7 @@ def synthetic_capture(cfg: Config, out: Path, stages: Stages, log: Log) -> tuple
     with stages.stage("synthetic scan"):
         scan = SyntheticScan(cfg.synthetic, cfg.selection.grid, seed=cfg.seed, kappa=cfg.capture.kappa,
                              threads=cfg.threads)
+        scan.saturation_level = cfg.capture.saturation_level
         folder = scan.write_geometry(out / "capture")
     log(f"synthetic {cfg.synthetic.object} written to {folder}")
     with stages.stage("geometry"):

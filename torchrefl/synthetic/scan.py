@@ -53,6 +53,7 @@ class SyntheticScan:
         self.seed = seed
         self.kappa = np.asarray(kappa, dtype=np.float64)
         self.threads = threads
+        self.saturation_level = 0.995       # written to scan.yaml (synthetic runs: capture.saturation_level)
         self.object = make_object(cfg.object, seed, cfg.materials) if cfg.object in MESH_OBJECTS else None
         if self.object is None:
             a, b, c = cfg.size_mm if cfg.object == "ellipsoid" else [cfg.size_mm[0]] * 3
@@ -356,7 +357,7 @@ class SyntheticScan:
         doc = {"kind": "cylindrical_scan"}
         doc.update(self.rig.to_yaml_dict())
         doc["light"] = {"intensity": [float(self.cfg.light_intensity)] * 3, "kappa": [float(k) for k in self.kappa]}
-        doc["saturation_level"] = 0.995
+        doc["saturation_level"] = float(self.saturation_level)
         doc["range"] = {"file": "range.npy"}
         doc["truth"] = {"file": "truth.npz", "brdf": self.cfg.brdf}
         doc["lights"] = lights if lights is not None else []

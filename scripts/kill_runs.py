@@ -1,0 +1,114 @@
+"""SIGKILL a real `python -m torchrefl.train` at staged moments and check what load_run makes of the folder.
+
+    python scripts/kill_runs.py [--work DIR]
+
+Moments, found by polling the run's staging folder (.NAME.staging-PID beside the target): the staging folder
+appears; the synthetic capture's scan.yaml is written; the first texture is rendered; params.npz is written
+(outputs stage); the completeness marker is written (the commit). Each moment is tried on a fresh target and
+on a target holding an earlier complete run (with --overwrite). After each kill, load_run(target) must either
+raise a TorchReflError (fresh target) or load one whole run: the earlier one unchanged, or the new one complete.
+Exit status 0 when every trial holds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from torchrefl.errors import TorchReflError  # noqa: E402
+from torchrefl.report.run_result import load_run  # noqa: E402
+
+CONFIG = {
+    "seed": 1, "capture": {"kind": "synthetic_cylindrical"},
+    "synthetic": {"columns": 96, "rows": 80, "angle_step_deg": 3.75, "height_step_mm": 2.5,
+                  "size_mm": [50.0, 70.0, 42.0], "supersample": 1, "mesh_subdivisions": 4},
+    "selection": {"max_lights": 6}, "fit": {"iterations": 10}, "output": {"progress": False, "map_lights": 2},
+}
+MOMENTS = {
+    "staging folder created": lambda s: s.is_dir(),
+    "capture scan.yaml written": lambda s: (s / "capture" / "scan.yaml").is_file(),
+    "first texture rendered": lambda s: any((s / "capture" / "textures").glob("*.png")),
+    "params.npz written": lambda s: (s / "params.npz").is_file(),
+    "marker written (commit)": lambda s: (s / "run_complete.json").is_file(),
+}
+
+
+def train(config: Path, target: Path, overwrite: bool) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "torchrefl.train", str(config), f"output.dir={target}", "--quiet"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.Popen(cmd + (["--overwrite"] if overwrite else []), env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+
+
+def kill_at(config: Path, target: Path, overwrite: bool, reached) -> str:
+    """Start a run, SIGKILL it when `reached(staging)` holds; returns 'killed' or 'finished first'."""
+    proc = train(config, target, overwrite)
+    staging = target.parent / f".{target.name}.staging-{proc.pid}"
+    while proc.poll() is None:
+        if reached(staging):
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.wait()
+            return "killed"
+        time.sleep(0.001)
+    return "finished first"
+
+
+def digest(folder: Path) -> str:
+    return hashlib.sha256((folder / "params.npz").read_bytes() + (folder / "metrics.json").read_bytes()).hexdigest()
+
+
+def verdict(target: Path, earlier: str | None) -> tuple[bool, str]:
+    """(holds, what load_run gave)."""
+    try:
+        run = load_run(target)
+    except TorchReflError as exc:
+        return earlier is None, f"named error: {str(exc)[:90]}"
+    now = digest(target)
+    if earlier is not None and now == earlier:
+        return True, "the earlier run, unchanged"
+    return True, f"a whole new run (model {run.metrics['model']}, {run.metrics['lights']} lights)"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--work", default=None, help="scratch folder (default: a temporary one, removed at the end)")
+    args = ap.parse_args()
+    work = Path(args.work or tempfile.mkdtemp(prefix="kill_runs_"))
+    work.mkdir(parents=True, exist_ok=True)
+    config = work / "tiny.yaml"
+    config.write_text(yaml.safe_dump(CONFIG))
+    earlier_run = work / "earlier"
+    if not earlier_run.is_dir():
+        assert train(config, earlier_run, False).wait() == 0, "the reference run failed"
+    earlier = digest(earlier_run)
+    ok_all = True
+    for name, reached in MOMENTS.items():
+        for with_earlier in (False, True):
+            target = work / f"t_{len(os.listdir(work))}"
+            if with_earlier:
+                shutil.copytree(earlier_run, target)
+            outcome = kill_at(config, target, with_earlier, reached)
+            ok, what = verdict(target, earlier if with_earlier else None)
+            ok_all &= ok
+            print(f"{'ok  ' if ok else 'FAIL'} {name:<28} {'earlier run' if with_earlier else 'fresh folder':<12} "
+                  f"{outcome:<15} load_run: {what}", flush=True)
+    if not args.work:
+        shutil.rmtree(work, ignore_errors=True)
+    return 0 if ok_all else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,154 @@
+"""The run folder as a transaction (issue 19): output paths checked before any work, a staging folder moved
+into place whole, an earlier run replaced only with --overwrite and never damaged by a run that fails, the
+failed run's log kept with the stage and the error, metrics.json strict JSON."""
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+from torchrefl.errors import OutputError
+from torchrefl.report.metrics import strict_json
+from torchrefl.report.run_folder import StagedRunFolder, output_folder
+from torchrefl.report.run_marker import write_marker
+from torchrefl.report.run_result import load_run
+from torchrefl.train import main
+
+from report.test_run_result import write_run
+
+
+def test_output_paths_that_cannot_be_a_folder_are_named_errors(tmp_path, monkeypatch):
+    for raw in ("", "   "):
+        with pytest.raises(OutputError, match="output.dir is empty"):
+            output_folder(raw)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OutputError, match="is a file, expected a folder"):
+        output_folder(str(tmp_path / "file"))
+    with pytest.raises(OutputError, match="file.*is a file, so .* cannot be created"):
+        output_folder(str(tmp_path / "file" / "sub" / "run"))
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("RUNS", str(tmp_path / "runs"))
+    assert output_folder("~/runs/x") == tmp_path / "home" / "runs" / "x"
+    assert output_folder("$RUNS/x") == tmp_path / "runs" / "x"
+    monkeypatch.delenv("NO_SUCH_VARIABLE_19", raising=False)
+    with pytest.raises(OutputError, match="unset environment variable"):
+        output_folder("$NO_SUCH_VARIABLE_19/x")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes anywhere")
+def test_an_output_folder_without_write_permission_is_refused(tmp_path):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        with pytest.raises(OutputError, match="no permission"):
+            output_folder(str(locked / "run"))
+    finally:
+        locked.chmod(0o700)
+
+
+def test_cli_refuses_bad_output_paths_before_any_work(tmp_path, capsys, monkeypatch):
+    """output.dir= (empty) once wrote into the current folder and replaced its config.yaml; a file as the
+    output folder or as its parent ended in tracebacks."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "config.yaml").write_text("seed: 3\n")
+    (tmp_path / "afile").write_text("x")
+    for value, fragment in (("", "output.dir is empty"), (str(tmp_path / "afile"), "is a file"),
+                            (str(tmp_path / "afile" / "run"), "is a file, so")):
+        assert main([str(tmp_path / "config.yaml"), f"output.dir={value}", "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert fragment in err and "Traceback" not in err
+    assert (tmp_path / "config.yaml").read_text() == "seed: 3\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "config.yaml"]
+
+
+def test_a_folder_holding_other_files_or_a_run_is_refused(tmp_path):
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    for overwrite in (False, True):
+        with pytest.raises(OutputError, match="not a torchrefl run"):
+            StagedRunFolder(other, overwrite)
+    assert (other / "notes.txt").read_text() == "mine"
+    write_run(tmp_path / "run")
+    with pytest.raises(OutputError, match="holds an earlier run; give --overwrite"):
+        StagedRunFolder(tmp_path / "run")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other", "run"]      # no staging folder left behind
+
+
+def test_commit_replaces_an_earlier_run_whole(tmp_path):
+    """A new run into a folder holding another left the old capture/, selection/ and maps/light_NNN_* beside
+    the new results; now the new run takes the folder's place as a whole."""
+    old = tmp_path / "run"
+    write_run(old)
+    (old / "maps").mkdir()
+    (old / "maps" / "light_005_diff.png").write_bytes(b"old")
+    write_marker(old)
+    staged = StagedRunFolder(old, overwrite=True)
+    assert staged.path.parent == tmp_path and staged.path.name.startswith(".run.staging-")
+    assert load_run(old).metrics["lights"] == 3                    # the earlier run is whole until the commit
+    write_run(staged.path, seed=7)
+    (staged.path / "run_complete.json").unlink()
+    staged.commit()
+    assert not (old / "maps").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    run = load_run(old)
+    np.testing.assert_array_equal(run.pd, np.load(old / "params.npz")["pd"])
+
+
+def test_a_stale_staging_folder_of_a_killed_run_is_removed(tmp_path):
+    stale = tmp_path / ".run.staging-999999999"
+    stale.mkdir()
+    (stale / "params.npz").write_bytes(b"half")
+    staged = StagedRunFolder(tmp_path / "run")
+    assert not stale.exists() and staged.path.is_dir()
+
+
+def failing_config(tmp_path, **extra):
+    data = {"capture": {"kind": "cylindrical_scan", "path": str(tmp_path / "no_capture_here")}, **extra}
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_a_failing_run_leaves_the_earlier_run_whole_and_logs_the_error(tmp_path, capsys):
+    """A failing run replaced config.yaml and log.txt and left the old params.npz: load_run then returned
+    one run's parameters with another's config. Now the target is untouched and the failed run's files are in
+    NAME.failed, its log naming the stage and the error; no failed stage is logged as done."""
+    run = tmp_path / "run"
+    params = write_run(run)
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    assert main([str(failing_config(tmp_path)), f"output.dir={run}", "--overwrite", "--quiet"]) == 2
+    assert "no_capture_here" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    np.testing.assert_array_equal(load_run(run).pd, params["pd"])
+    log = (tmp_path / "run.failed" / "log.txt").read_text()
+    assert "[capture] failed after" in log and "[capture] done" not in log
+    assert "error in stage 'capture'" in log and "no_capture_here" in log
+    assert not any(p.name.startswith(".run.staging") for p in tmp_path.iterdir())
+
+
+def test_an_interrupted_run_is_logged_as_interrupted(tmp_path, capsys, monkeypatch):
+    from torchrefl.capture import photometric_stereo
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(photometric_stereo.PhotometricStereoLoader, "load", interrupt)
+    cfg = tmp_path / "ps.yaml"
+    cfg.write_text(yaml.safe_dump({"capture": {"kind": "photometric_stereo", "path": "somewhere"}}))
+    assert main([str(cfg), f"output.dir={tmp_path / 'run'}", "--quiet"]) == 130
+    assert "torchrefl: interrupted" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+    log = (tmp_path / "run.failed" / "log.txt").read_text()
+    assert "[capture] interrupted after" in log and "interrupted in stage 'capture'" in log
+    assert "[capture] done" not in log
+
+
+def test_metrics_json_is_strict():
+    text = strict_json({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -math.inf, "e": 2.5}})
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict constant {c}")) == {
+        "a": None, "b": [1.0, None], "c": {"d": None, "e": 2.5}}

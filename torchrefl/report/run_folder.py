@@ -1,0 +1,140 @@
+"""A run folder as a transaction: checked before any work, written in a staging folder, moved into place whole.
+
+The rule (also in docs/outputs.md's terms): a run writes into `.NAME.staging-PID` beside the target
+folder NAME. When it completes, the completeness marker (run_marker) is written last and the staging
+folder takes the target's place in one step: an empty or absent target is simply replaced; a target
+that holds an earlier run is replaced only with `--overwrite` (else refused before any work); a target
+that holds anything else is always refused. A run that fails or is interrupted leaves the target as it
+was and its own files (log.txt first) in NAME.failed. A run killed outright leaves its staging folder,
+which the next run into the same target removes.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+from pathlib import Path
+
+from torchrefl.errors import OutputError
+from torchrefl.core.atomic_files import fsync_dir
+from torchrefl.report.run_marker import CONFIG, LOG, MARKER, write_marker
+
+STAGING = ".{name}.staging-{pid}"
+FAILED = "{name}.failed"
+REPLACED = "-replaced"
+RENAME_EXCHANGE = 2
+AT_FDCWD = -100
+
+
+def output_folder(raw: str, option: str = "output.dir") -> Path:
+    """The folder named by `raw` with `~` and environment variables expanded, made absolute; OutputError when it
+    is empty, names an unset variable, is a file, has a file as an ancestor, or cannot be created or written."""
+    if not str(raw).strip():
+        raise OutputError(f"{option} is empty: give the folder the run writes (e.g. {option}=outputs/run1)")
+    expanded = os.path.expandvars(os.path.expanduser(str(raw)))
+    if "$" in expanded:
+        raise OutputError(f"{option}={raw!r} names an unset environment variable")
+    if expanded.startswith("~"):
+        raise OutputError(f"{option}={raw!r}: '~' names no home folder here")
+    path = Path(expanded).absolute()
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"{option}={raw!r}: {path} is a file, expected a folder (or a path to create)")
+    ancestor = path.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutputError(f"{option}={raw!r}: {ancestor} is a file, so {path} cannot be created")
+    if not os.access(ancestor, os.W_OK | os.X_OK) or (path.is_dir() and not os.access(path, os.W_OK | os.X_OK)):
+        raise OutputError(f"{option}={raw!r}: no permission to write in {ancestor if not path.is_dir() else path}")
+    return path
+
+
+def holds_a_run(folder: Path) -> bool:
+    """Whether `folder` holds a torchrefl run, complete (marker) or not (config.yaml and log.txt)."""
+    return (folder / MARKER).is_file() or ((folder / CONFIG).is_file() and (folder / LOG).is_file())
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two existing paths in one step (Linux renameat2 RENAME_EXCHANGE); False where unsupported."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    return fn(AT_FDCWD, os.fsencode(a), AT_FDCWD, os.fsencode(b), RENAME_EXCHANGE) == 0
+
+
+class StagedRunFolder:
+    """The staging folder of one run into `target`; `commit()` moves it into place, `abandon()` keeps it as NAME.failed."""
+
+    def __init__(self, target: Path, overwrite: bool = False):
+        self.target = Path(target)
+        self.path = self.target.parent / STAGING.format(name=self.target.name, pid=os.getpid())
+        self._remove_stale_staging()
+        self._check_target(overwrite)
+        try:
+            self.path.mkdir(parents=True)
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot create the run's staging folder ({exc.strerror})") from None
+
+    def _check_target(self, overwrite: bool) -> None:
+        t = self.target
+        if not t.is_dir() or not any(t.iterdir()):
+            return
+        if not holds_a_run(t):
+            sample = sorted(p.name for p in t.iterdir())[:3]
+            raise OutputError(f"output.dir {t} holds files that are not a torchrefl run (e.g. {sample}); "
+                              "choose another output.dir (a run never deletes files it did not write)")
+        if not overwrite:
+            raise OutputError(f"output.dir {t} holds an earlier run; give --overwrite to replace it "
+                              "(it is kept until the new run completes), or choose another output.dir")
+
+    def _remove_stale_staging(self) -> None:
+        """Remove the staging folders of killed runs into the same target; an earlier run moved aside by a run
+        killed between its two renames (no atomic swap) is put back."""
+        prefix = STAGING.format(name=self.target.name, pid="")
+        for p in sorted(self.target.parent.glob(f"{prefix}*")) if self.target.parent.is_dir() else []:
+            pid, _, replaced = p.name[len(prefix):].partition(REPLACED)
+            if not pid.isdigit() or _pid_alive(int(pid)):
+                continue
+            if replaced == "" and p.name.endswith(REPLACED) and not self.target.exists():
+                os.replace(p, self.target)
+            else:
+                shutil.rmtree(p, ignore_errors=True)
+
+    def commit(self) -> None:
+        """Write the marker, then put the staging folder in the target's place (the earlier run removed after)."""
+        write_marker(self.path)
+        if self.target.is_dir() and any(self.target.iterdir()):
+            if not _exchange(self.path, self.target):           # no atomic swap: two renames
+                aside = self.path.with_name(self.path.name + REPLACED)
+                os.replace(self.target, aside)
+                os.replace(self.path, self.target)
+                self.path = aside
+            shutil.rmtree(self.path)
+        else:
+            if self.target.is_dir():
+                self.target.rmdir()
+            os.replace(self.path, self.target)
+        fsync_dir(self.target.parent)
+
+    def abandon(self) -> Path:
+        """Keep the failed run's files (its log first) as NAME.failed beside the target; returns that path."""
+        failed = self.target.parent / FAILED.format(name=self.target.name)
+        if failed.is_dir() and holds_a_run(failed):
+            shutil.rmtree(failed, ignore_errors=True)
+        if failed.exists():
+            return self.path
+        os.replace(self.path, failed)
+        return failed
