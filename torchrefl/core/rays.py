@@ -25,7 +25,7 @@ import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence, TypeVar
 
 import numpy as np
 from embreex import rtcore_scene as rtcs
@@ -36,6 +36,21 @@ from torchrefl.errors import ConfigError, GeometryError
 _FAR = 1e37          # "no limit" for Embree's float32 tfar
 _BLOCK = 65536       # rays per Embree call at most: a block's float32 copies and outputs stay in cache
 _MIN_SPLIT = 4096    # a batch is split over threads only into chunks of at least this many rays
+
+_U = TypeVar("_U")
+_R = TypeVar("_R")
+
+
+def thread_map(fn: Callable[[_U], _R], units: Sequence[_U], threads: int) -> list[_R]:
+    """[fn(u) for u in units]: on a pool of min(threads, len(units)) threads when both exceed 1 (Embree and most
+    of numpy release the GIL), in order on the calling thread otherwise. Results come in the units' order, and
+    an exception raised by fn propagates (the first unit's in order when several fail). The one threaded map of
+    the package: rays chunks (RayTracer), lights, photon and path chunks, form-factor units, image files."""
+    threads = max(1, int(threads))
+    if threads == 1 or len(units) <= 1:
+        return [fn(u) for u in units]
+    with ThreadPoolExecutor(min(threads, len(units))) as pool:
+        return list(pool.map(fn, units))
 
 
 @dataclass
@@ -160,13 +175,7 @@ class RayTracer:
         when there is more than one chunk."""
         threads = self.threads if threads is None else max(1, int(threads))
         size = min(self.chunk_size, _BLOCK, max(_MIN_SPLIT, math.ceil(n / threads)))
-        bounds = [(s, min(s + size, n)) for s in range(0, n, size)]
-        if threads == 1 or len(bounds) == 1:
-            for b in bounds:
-                fn(*b)
-            return
-        with ThreadPoolExecutor(min(threads, len(bounds))) as pool:
-            list(pool.map(lambda b: fn(*b), bounds))
+        thread_map(lambda b: fn(*b), [(s, min(s + size, n)) for s in range(0, n, size)], threads)
 
     def first_hit_triangles(self, origins32: np.ndarray, directions32: np.ndarray) -> np.ndarray:
         """(N,) int64 index of the first triangle each ray hits (-1 for a miss), in one Embree call on the
