@@ -32,7 +32,8 @@ from torchrefl.geometry.range_image import preprocess_range_image
 from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
 from torchrefl.core.surface import Surface
 from torchrefl.core.point_light import point_light
-from torchrefl.core.rays import RayTracer, thread_map
+from torchrefl.core.rays import RayTracer
+from torchrefl.core.threads import thread_map
 
 
 @dataclass

@@ -23,34 +23,19 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Callable, Sequence, TypeVar
+from typing import Callable
 
 import numpy as np
 from embreex import rtcore_scene as rtcs
 from embreex.mesh_construction import TriangleMesh
 
+from torchrefl.core.threads import thread_map
 from torchrefl.errors import ConfigError, GeometryError
 
 _FAR = 1e37          # "no limit" for Embree's float32 tfar
 _BLOCK = 65536       # rays per Embree call at most: a block's float32 copies and outputs stay in cache
 _MIN_SPLIT = 4096    # a batch is split over threads only into chunks of at least this many rays
-
-_U = TypeVar("_U")
-_R = TypeVar("_R")
-
-
-def thread_map(fn: Callable[[_U], _R], units: Sequence[_U], threads: int) -> list[_R]:
-    """[fn(u) for u in units]: on a pool of min(threads, len(units)) threads when both exceed 1 (Embree and most
-    of numpy release the GIL), in order on the calling thread otherwise. Results come in the units' order, and
-    an exception raised by fn propagates (the first unit's in order when several fail). The one threaded map of
-    the package: rays chunks (RayTracer), lights, photon and path chunks, form-factor units, image files."""
-    threads = max(1, int(threads))
-    if threads == 1 or len(units) <= 1:
-        return [fn(u) for u in units]
-    with ThreadPoolExecutor(min(threads, len(units))) as pool:
-        return list(pool.map(fn, units))
 
 
 @dataclass
@@ -171,8 +156,7 @@ class RayTracer:
         return int(len(self.faces))
 
     def _map(self, fn: Callable[[int, int], None], n: int, threads: int | None = None) -> None:
-        """Run fn(start, stop) over chunks of [0, n), on a thread pool of `threads` (default self.threads)
-        when there is more than one chunk."""
+        """Run fn(start, stop) over chunks of [0, n), by thread_map on `threads` threads (default self.threads)."""
         threads = self.threads if threads is None else max(1, int(threads))
         size = min(self.chunk_size, _BLOCK, max(_MIN_SPLIT, math.ceil(n / threads)))
         thread_map(lambda b: fn(*b), [(s, min(s + size, n)) for s in range(0, n, size)], threads)

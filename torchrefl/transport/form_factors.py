@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -43,6 +42,7 @@ import torch
 from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.core.surface import Surface
 from torchrefl.core.rays import RayTracer
+from torchrefl.core.threads import thread_map
 from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
 
@@ -389,11 +389,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
                 progress(done[0], total)
         return uniq, counts
 
-    if tracer.threads > 1 and len(units) > 1:
-        with ThreadPoolExecutor(tracer.threads) as pool:
-            parts = list(pool.map(work, range(len(units))))
-    else:
-        parts = [work(i) for i in range(len(units))]
+    parts = thread_map(work, range(len(units)), tracer.threads)
     uniq = np.concatenate([p[0] for p in parts])
     counts = np.concatenate([p[1] for p in parts])
     values = torch.from_numpy(counts.astype(np.float64) / N)

@@ -50,7 +50,6 @@ not move uses one source per light.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,6 +58,7 @@ import torch
 from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import ConfigError
 from torchrefl.core.lobe_sampling import column_dot
+from torchrefl.core.threads import thread_map
 from torchrefl.transport.photon_trace import PhotonHits
 
 THETA_BIN = 0.004         # radians; merged photons differ in theta_h by less than this, or by
@@ -399,11 +399,7 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
 
         # blocks of 2^17 hits keep the temporaries in cache; numpy releases the GIL, so two threads share them
         blocks = [sel[i:i + (1 << 17)] for i in range(0, sel.size, 1 << 17)]
-        if threads > 1 and len(blocks) > 1:
-            with ThreadPoolExecutor(threads) as pool:
-                parts = list(pool.map(block, blocks))
-        else:
-            parts = [block(b) for b in blocks]
+        parts = thread_map(block, blocks, threads)
         sel = np.concatenate([x[0] for x in parts])
         theta_h = np.concatenate([x[1] for x in parts])
         weight = np.take(flux, sel, axis=1) * np.concatenate([x[2] for x in parts])                 # (3, M)
