@@ -1,4 +1,4 @@
-"""point_light against a slow per-point reference: the geometry in float64 and the shadow rule of its module
+"""point_light against a slow per-point reference: the geometry in float64 and the shadow rule of RayTracer.visible's
 docstring, traced by Moller-Trumbore against every triangle. Rays that pass within EPS of a triangle's edge
 or end within EPS of it are left out of the comparison (Embree works in float32)."""
 

@@ -10,10 +10,8 @@ scan, so every point may see its light from another place):
 
 and a light of intensity Y gives the irradiance E = Y max(n . l, 0) visible / d^2 (PointLight.irradiance).
 
-The shadow test is RayTracer.visible (torchrefl.core.rays), with its one origin-offset rule: the ray starts at
-x moved by `offset` (scene units, e.g. geometry.shadow_offset_mm) along the normal flipped to the light's side,
-and the segment to L is shortened by `offset` at the light end; a light within about 2 offset of its point
-counts as unshadowed (nothing is traced). Only lit points are traced.
+The shadow test is RayTracer.visible (torchrefl.core.rays), whose docstring states the one origin-offset rule
+(`offset` in scene units, e.g. geometry.shadow_offset_mm); only lit points are traced.
 
 Direction, distance and cosine are computed in numpy's promotion of the inputs' dtypes (float32 inputs give
 float32 results, as Embree uses; float64 gives float64); the shadow test always runs in float32.
@@ -71,7 +69,7 @@ def point_light(points, normals, lights, tracer, *, offset: float, min_cos: floa
     point; broadcast a single light with np.broadcast_to(L, points.shape)).
 
     tracer: a RayTracer of the scene (None: no shadow test, nothing is shadowed); offset: the shadow ray's
-    origin offset (module docstring); min_cos: a point is lit when n . l > min_cos; trace: optional (N,) bool,
+    origin offset (RayTracer.visible); min_cos: a point is lit when n . l > min_cos; trace: optional (N,) bool,
     only these points get a shadow ray (the others are never shadowed: for points the caller discards)."""
     x = np.asarray(points)
     n = np.asarray(normals)
