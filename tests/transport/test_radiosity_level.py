@@ -117,7 +117,7 @@ def test_emitter_maps_give_each_texel_the_radiosity_lit_from_its_own_column():
     terms = local_terms("lambertian", s.normals, obs)
     pm, F = fold_form_factors(s)
     src = light_sources(s, obs, W)
-    maps = emitter_maps(src, s.positions, s.normals, RayTracer(s.mesh_vertices, s.mesh_faces), 0.05, obs.kappa)
+    maps = emitter_maps(src, s.positions, s.normals, RayTracer(s.mesh_vertices, s.mesh_faces), 0.05)
     col = (s.texel_index % W).numpy()
     own = maps.irradiance[0, col, torch.arange(s.num_texels)]
     torch.testing.assert_close(own, direct_irradiance(terms, obs.kappa)[0], rtol=1e-9, atol=1e-12)
@@ -154,7 +154,7 @@ def test_one_emitter_map_of_static_lights_is_the_plain_level_and_gradcheck_with_
     pm, F = fold_form_factors(s)
     src = light_sources(s, obs, 8)
     assert src.num_maps == 1
-    maps = emitter_maps(src, s.positions, s.normals, RayTracer(s.mesh_vertices, s.mesh_faces), 0.05, obs.kappa)
+    maps = emitter_maps(src, s.positions, s.normals, RayTracer(s.mesh_vertices, s.mesh_faces), 0.05)
     pd = torch.full((s.num_texels, 3), 0.6, dtype=torch.float64)
     torch.testing.assert_close(indirect_irradiance(terms, obs.kappa, pd, pm, F, maps),
                                indirect_irradiance(terms, obs.kappa, pd, pm, F), rtol=1e-9, atol=1e-12)
@@ -162,7 +162,7 @@ def test_one_emitter_map_of_static_lights_is_the_plain_level_and_gradcheck_with_
     terms2 = local_terms("lambertian", s2.normals, obs2)
     pm2, F2 = fold_form_factors(s2)
     maps2 = emitter_maps(light_sources(s2, obs2, 3), s2.positions, s2.normals, RayTracer(s2.mesh_vertices, s2.mesh_faces),
-                         0.05, obs2.kappa)
+                         0.05)
     f = lambda p: indirect_irradiance(terms2, obs2.kappa, p, pm2, F2, maps2)
     assert torch.autograd.gradcheck(f, (torch.full((s2.num_texels, 3), 0.5, dtype=torch.float64, requires_grad=True),))
 

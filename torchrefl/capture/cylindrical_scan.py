@@ -15,7 +15,6 @@ the triangle mesh for shadow rays is the range image's grid triangulation.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +35,9 @@ from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.geometry.range_image import preprocess_range_image
 from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
 from torchrefl.core.surface import Surface
+from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
+from torchrefl.core.threads import thread_map
 
 DEFAULT_SATURATION = 0.995
 
@@ -165,8 +166,8 @@ def observation_geometry(geom: ScanGeometry, head_positions: np.ndarray, *, shad
 
     Returns dict with light_dir (P, T, 3), dist (P, T), view_dir (T, 3), cos_l (P, T), cos_v (T,),
     seen (T,) (camera sees the texel), lit (P, T) (n.l above threshold), shadowed (P, T).
-    Computed in float32 (what Embree uses); lights are processed in parallel on the tracer's
-    threads, each building its shadow rays and tracing them (numpy and Embree both release the GIL).
+    Computed in float32 (what Embree uses) by torchrefl.core.point_light (its one shadow-offset rule); lights are
+    processed in parallel on the tracer's threads (numpy and Embree both release the GIL).
     """
     surf = geom.surface
     x = surf.positions.numpy().astype(np.float32)
@@ -181,7 +182,6 @@ def observation_geometry(geom: ScanGeometry, head_positions: np.ndarray, *, shad
     heads = np.asarray(head_positions, dtype=np.float64).reshape(-1, 3)
     P, T = len(heads), len(x)
     u, w = (a.astype(np.float32) for a in geom.rig.head_axes(geom.texel_angles()))
-    origins = x + np.float32(shadow_offset) * n            # lit texels only: the light is on the normal's side
     l_all = np.empty((P, T, 3), dtype=np.float32)
     dist_all = np.empty((P, T), dtype=np.float32)
     cos_all = np.empty((P, T), dtype=np.float32)
@@ -191,29 +191,10 @@ def observation_geometry(geom: ScanGeometry, head_positions: np.ndarray, *, shad
         lat, vert, rad = (np.float32(c) for c in heads[p])
         light = rad * u + lat * w
         light[:, 1] += vert
-        to_l = light - x
-        dist = np.sqrt(np.einsum("ti,ti->t", to_l, to_l))
-        l = to_l / np.maximum(dist, 1e-12)[:, None]
-        cos_l = np.einsum("ti,ti->t", l, n)
-        l_all[p], dist_all[p], cos_all[p] = l, dist, cos_l
-        cand = np.flatnonzero((cos_l > min_cos_light) & seen)
-        if cand.size:
-            seg = light[cand] - origins[cand]
-            d = np.sqrt(np.einsum("ti,ti->t", seg, seg))
-            far = d - np.float32(shadow_offset)
-            ok = far > 0
-            occ = np.zeros(cand.size, dtype=bool)
-            if ok.any():
-                occ[ok] = geom.tracer.occluded_unit(origins[cand][ok], seg[ok] / d[ok, None], far[ok])
-            shadowed[p, cand] = occ
+        pl = point_light(x, n, light, geom.tracer, offset=shadow_offset, min_cos=min_cos_light, trace=seen)
+        l_all[p], dist_all[p], cos_all[p], shadowed[p] = pl.direction, pl.distance, pl.cosine, pl.shadowed
 
-    threads = max(1, geom.tracer.threads)
-    if threads == 1 or P == 1:
-        for p in range(P):
-            one_light(p)
-    else:
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(one_light, range(P)))
+    thread_map(one_light, range(P), geom.tracer.threads)
     return {"light_dir": l_all, "dist": dist_all, "view_dir": v, "cos_l": cos_all, "cos_v": cos_v,
             "seen": seen, "lit": cos_all > min_cos_light, "shadowed": shadowed}
 

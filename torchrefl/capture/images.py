@@ -13,11 +13,11 @@ v / 65535 for 16-bit files (no gamma is undone: captures are expected to be line
 from __future__ import annotations
 
 import struct
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from torchrefl.core.threads import thread_map
 from torchrefl.errors import CaptureError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -176,15 +176,7 @@ def read_images(paths, *, threads: int = 2, pixels: np.ndarray | None = None) ->
 
     convert(0, first_raw, bits)
     del first_raw
-    rest = range(1, len(paths))
-    if threads <= 1 or len(paths) <= 2:
-        for i in rest:
-            job(i)
-    else:
-        with ThreadPoolExecutor(max_workers=int(threads)) as pool:
-            futures = [pool.submit(job, i) for i in rest]
-            for f in futures:  # in path order, so the first bad file is the one reported
-                f.result()
+    thread_map(job, range(1, len(paths)), threads)   # in path order, so the first bad file is the one reported
     return out, bits
 
 

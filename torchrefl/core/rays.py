@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
 
@@ -31,6 +30,7 @@ import numpy as np
 from embreex import rtcore_scene as rtcs
 from embreex.mesh_construction import TriangleMesh
 
+from torchrefl.core.threads import thread_map
 from torchrefl.errors import ConfigError, GeometryError
 
 _FAR = 1e37          # "no limit" for Embree's float32 tfar
@@ -156,17 +156,10 @@ class RayTracer:
         return int(len(self.faces))
 
     def _map(self, fn: Callable[[int, int], None], n: int, threads: int | None = None) -> None:
-        """Run fn(start, stop) over chunks of [0, n), on a thread pool of `threads` (default self.threads)
-        when there is more than one chunk."""
+        """Run fn(start, stop) over chunks of [0, n), by thread_map on `threads` threads (default self.threads)."""
         threads = self.threads if threads is None else max(1, int(threads))
         size = min(self.chunk_size, _BLOCK, max(_MIN_SPLIT, math.ceil(n / threads)))
-        bounds = [(s, min(s + size, n)) for s in range(0, n, size)]
-        if threads == 1 or len(bounds) == 1:
-            for b in bounds:
-                fn(*b)
-            return
-        with ThreadPoolExecutor(min(threads, len(bounds))) as pool:
-            list(pool.map(lambda b: fn(*b), bounds))
+        thread_map(lambda b: fn(*b), [(s, min(s + size, n)) for s in range(0, n, size)], threads)
 
     def first_hit_triangles(self, origins32: np.ndarray, directions32: np.ndarray) -> np.ndarray:
         """(N,) int64 index of the first triangle each ray hits (-1 for a miss), in one Embree call on the

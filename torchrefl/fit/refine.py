@@ -19,6 +19,7 @@ import torch
 
 from torchrefl.errors import FitError
 from torchrefl.core.params import TexelParams
+from torchrefl.core.texel_grid import TexelGrid
 
 _LOG_EPS = 1e-3
 
@@ -154,15 +155,4 @@ def _minimise(params, objective, optimizer, iterations, learning_rate, progress,
 
 def grid_neighbours(texel_index: torch.Tensor, grid_shape: tuple[int, int]) -> torch.Tensor:
     """(E, 2) pairs of valid texels that are right or down neighbours on the (H, W) grid."""
-    H, W = grid_shape
-    lookup = torch.full((H * W,), -1, dtype=torch.long)
-    lookup[texel_index] = torch.arange(texel_index.numel())
-    rows, cols = texel_index // W, texel_index % W
-    pairs = []
-    for dr, dc in ((0, 1), (1, 0)):
-        ok = (rows + dr < H) & (cols + dc < W)
-        other = lookup[((rows + dr) * W + cols + dc)[ok]]
-        src = torch.arange(texel_index.numel())[ok]
-        good = other >= 0
-        pairs.append(torch.stack([src[good], other[good]], 1))
-    return torch.cat(pairs)
+    return torch.from_numpy(TexelGrid(texel_index.cpu().numpy(), grid_shape).pairs())

@@ -27,7 +27,6 @@ Deterministic in `seed` (random numbers are keyed by seed and chunk index, never
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
 
@@ -36,7 +35,9 @@ import torch
 
 from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import GeometryError
+from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
+from torchrefl.core.threads import thread_map
 from torchrefl.core.rqmc import grouped_points
 from torchrefl.core.lobe_sampling import LOBES, row_dot, sample_mixture
 
@@ -169,14 +170,9 @@ class IndirectRenderer:
             return out
         y, ny = verts.points, verts.normals
         for p in range(P):
-            lp = lights[p][verts.origin]
-            to = lp - y
-            dist = np.sqrt(row_dot(to, to))
-            l = to / np.maximum(dist, 1e-12)[:, None]
-            i = np.flatnonzero(row_dot(ny, l) > 0)
-            if not i.size:
-                continue
-            i = i[self.tracer.visible(y[i], ny[i], lp[i], offset=self.offset)]
+            pl = point_light(y, ny, lights[p][verts.origin], self.tracer, offset=self.offset)
+            l, dist = pl.direction, pl.distance
+            i = np.flatnonzero(pl.visible)
             if not i.size:
                 continue
             g = self._g(ny[i], l[i], verts.wo[i], verts.pd[i], verts.ps[i], verts.sigma[i])
@@ -225,10 +221,5 @@ class IndirectRenderer:
 
         # chunks run on the tracer's threads (Embree and most numpy release the GIL); each chunk's random
         # numbers are keyed by its index, so the result does not depend on the number of threads
-        if self.tracer.threads > 1 and len(starts) > 1:
-            with ThreadPoolExecutor(self.tracer.threads) as pool:
-                list(pool.map(work, range(len(starts))))
-        else:
-            for ci in range(len(starts)):
-                work(ci)
+        thread_map(work, range(len(starts)), self.tracer.threads)
         return out

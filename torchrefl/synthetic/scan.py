@@ -39,6 +39,7 @@ from torchrefl.synthetic.materials import region_materials
 from torchrefl.synthetic.objects import MESH_OBJECTS, make_object
 from torchrefl.config import LightGridConfig, SyntheticConfig
 from torchrefl.errors import GeometryError
+from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
 
 
@@ -312,14 +313,9 @@ class SyntheticScan:
         light = rad * smp["u"].astype(np.float64) + lat * smp["w"].astype(np.float64)
         light[:, 1] += vert
         p, n = smp["points"], smp["normals"]
-        to_light = light - p
-        dist = np.sqrt(np.einsum("ni,ni->n", to_light, to_light))
-        l = to_light / np.maximum(dist, 1e-12)[:, None]
-        lit = np.einsum("ni,ni->n", n, l) > 0
-        idx = np.flatnonzero(lit)
-        if idx.size:
-            lit[idx] = self.tracer.visible(p[idx], n[idx], light[idx], offset=0.01)
-        idx = np.flatnonzero(lit)
+        pl = point_light(p, n, light, self.tracer, offset=0.01)
+        l, dist = pl.direction, pl.distance
+        idx = np.flatnonzero(pl.visible)
         img = np.zeros((H * W, 3))
         if idx.size:
             tex = smp["texel"][idx]

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -42,7 +41,9 @@ import torch
 
 from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.core.surface import Surface
+from torchrefl.core.lobe_sampling import tangent_frame
 from torchrefl.core.rays import RayTracer
+from torchrefl.core.threads import thread_map
 from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
 
@@ -230,16 +231,6 @@ def face_corners(surface: Surface, patches: Patches) -> tuple[np.ndarray, np.nda
     return grid[faces], normal[faces]
 
 
-def _onb(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tangents t, b (N, 3) with (t, b, n) orthonormal for unit n (N, 3) (Duff et al. 2017)."""
-    sign = np.where(n[:, 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    t = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
-    bt = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
-    return t, bt
-
-
 def _as_array(name: str, x, shape_text: str) -> np.ndarray:
     a = x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
     if not np.issubdtype(a.dtype, np.number):
@@ -336,7 +327,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     slot[cand] = np.arange(len(cand))
     cn = nm.reshape(-1, 3)[cand].astype(np.float64)
     cn /= np.linalg.norm(cn, axis=1, keepdims=True)
-    ct, cb = _onb(cn)
+    ct, cb = tangent_frame(cn)
     frames = np.stack([ct, cb, cn], 1).astype(np.float32)                     # (C, 3, 3): rows t, b, n
     cstart = (o.reshape(-1, 3)[cand].astype(np.float64) + offset * cn).astype(np.float32)
     front = None if count_back_hits else _front_faces(tracer, fp, w, nm, Q).astype(np.float32)
@@ -389,11 +380,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
                 progress(done[0], total)
         return uniq, counts
 
-    if tracer.threads > 1 and len(units) > 1:
-        with ThreadPoolExecutor(tracer.threads) as pool:
-            parts = list(pool.map(work, range(len(units))))
-    else:
-        parts = [work(i) for i in range(len(units))]
+    parts = thread_map(work, range(len(units)), tracer.threads)
     uniq = np.concatenate([p[0] for p in parts])
     counts = np.concatenate([p[1] for p in parts])
     values = torch.from_numpy(counts.astype(np.float64) / N)

@@ -22,6 +22,8 @@ import math
 import numpy as np
 import torch
 
+from torchrefl.core.lobe_sampling import tangent_frame
+from torchrefl.core.texel_grid import grid_flat
 from torchrefl.errors import ConfigError
 
 RIDGE = 1e-6          # slope regulariser: RIDGE x (sum of the weights) x pitch^2 on each slope component
@@ -60,9 +62,8 @@ def linear_reconstruction(texel_index, grid_shape: tuple[int, int], positions, n
     cand = []
     for dr in (-1, 0, 1):
         for dc in (-1, 0, 1):
-            rr, cc = brow + dr, bcol + dc
-            ok = (rr >= 0) & (rr < bh) & (cc >= 0) & (cc < bw)
-            nb = np.clip(rr, 0, bh - 1) * bw + np.clip(cc, 0, bw - 1)
+            nb = grid_flat(brow + dr, bcol + dc, (bh, bw))
+            ok, nb = nb >= 0, np.maximum(nb, 0)
             for j in range(most):
                 has = ok & (j < count[nb])
                 cand.append(np.where(has, order[np.minimum(start[nb] + j, Q - 1)], -1))
@@ -75,11 +76,7 @@ def linear_reconstruction(texel_index, grid_shape: tuple[int, int], positions, n
     d = c[q] - x[:, None, :]                                                   # (T, M, 3)
     pitch = np.sqrt(np.median(_pitch2(d, valid)))
     w = np.exp(-(d * d).sum(-1) / (2.0 * pitch * pitch)) * valid               # (T, M)
-    # tangent frame of each texel
-    a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    t1 = np.cross(n, a)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(n, t1)
+    t1, t2 = tangent_frame(n / np.linalg.norm(n, axis=1, keepdims=True))    # the texel's tangent plane
     A = np.stack([np.ones_like(w), np.einsum("tmi,ti->tm", d, t1), np.einsum("tmi,ti->tm", d, t2)], -1)   # (T, M, 3)
     AtW = A.transpose(0, 2, 1) * w[:, None, :]                                 # (T, 3, M)
     M = AtW @ A                                                                # (T, 3, 3)

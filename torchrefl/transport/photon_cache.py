@@ -50,7 +50,6 @@ not move uses one source per light.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,6 +58,8 @@ import torch
 from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import ConfigError
 from torchrefl.core.lobe_sampling import column_dot
+from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.core.threads import thread_map
 from torchrefl.transport.photon_trace import PhotonHits
 
 THETA_BIN = 0.004         # radians; merged photons differ in theta_h by less than this, or by
@@ -217,21 +218,15 @@ def _grid_neighbours(texel_index, grid_shape: tuple[int, int], sigma: float, rad
     offset within `radius`, (t_to (M,), weight (M,)): the texel at that offset (-1 outside the grid or the
     texel set) and exp(-|offset|^2 / (2 sigma^2)) times, with normals (T, 3) and normal_sigma > 0,
     exp(-|n - n'|^2 / (2 normal_sigma^2)) (kornia's joint bilateral weights with the normals as guide)."""
-    H, W = grid_shape
-    index = np.asarray(texel_index, dtype=np.int64)
-    slot = np.full(H * W, -1, dtype=np.int64)
-    slot[index] = np.arange(len(index))
+    grid = TexelGrid(texel_index, grid_shape)
     nrm = None if normals is None or normal_sigma <= 0 else np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
     offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
 
     def kernel(t_from: np.ndarray):
-        g = np.take(index, t_from)
-        r, c = g // W, g % W
+        r, c = np.take(grid.rows, t_from), np.take(grid.cols, t_from)
         n_from = None if nrm is None else np.take(nrm, t_from, axis=1)
         for dy, dx in offsets:
-            rr, cc = r + dy, c + dx
-            inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
-            to = np.where(inside, np.take(slot, np.clip(rr, 0, H - 1) * W + np.clip(cc, 0, W - 1)), -1)
+            to = grid.at(r + dy, c + dx)
             w = np.where(to >= 0, math.exp(-(dy * dy + dx * dx) / (2.0 * sigma * sigma)), 0.0)
             if n_from is not None:
                 d = n_from - np.take(nrm, np.maximum(to, 0), axis=1)
@@ -399,11 +394,7 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
 
         # blocks of 2^17 hits keep the temporaries in cache; numpy releases the GIL, so two threads share them
         blocks = [sel[i:i + (1 << 17)] for i in range(0, sel.size, 1 << 17)]
-        if threads > 1 and len(blocks) > 1:
-            with ThreadPoolExecutor(threads) as pool:
-                parts = list(pool.map(block, blocks))
-        else:
-            parts = [block(b) for b in blocks]
+        parts = thread_map(block, blocks, threads)
         sel = np.concatenate([x[0] for x in parts])
         theta_h = np.concatenate([x[1] for x in parts])
         weight = np.take(flux, sel, axis=1) * np.concatenate([x[2] for x in parts])                 # (3, M)

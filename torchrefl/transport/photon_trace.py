@@ -29,7 +29,6 @@ reductions (torchrefl.transport.photon_cache) sum in float64.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,9 +37,11 @@ import torch
 from torchrefl.core import brdf as brdf_mod
 from torchrefl.errors import GeometryError
 from torchrefl.geometry.range_mesh import oriented_face_normals
+from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
+from torchrefl.core.threads import thread_map
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
-from torchrefl.core.lobe_sampling import (LOBES, column_dot, lobe_constants, lobe_over_pdf, lobe_theta, row_dot,
+from torchrefl.core.lobe_sampling import (LOBES, column_dot, lobe_constants, lobe_over_pdf, lobe_theta,
                                                specular_probability, tangent_frame)
 
 CHUNK = 1 << 17          # photons per work unit
@@ -167,16 +168,9 @@ class PhotonTracer:
         """(T,) a_t of the module docstring for one source position (cached per position)."""
         key = tuple(np.round(np.asarray(source, dtype=np.float64), 9))
         if key not in self._landing:
-            to = np.asarray(source, dtype=np.float64)[None] - self.positions
-            d2 = row_dot(to, to)
-            cos = row_dot(self.normals, to) / np.sqrt(np.maximum(d2, 1e-300))
-            a = np.where(cos > 0, self.areas * cos / np.maximum(d2, 1e-300), 0.0)
-            lit = np.flatnonzero(a > 0)
-            if lit.size:
-                vis = self.tracer.visible(self.positions[lit], self.normals[lit], to[lit] + self.positions[lit],
-                                          offset=self.offset)
-                a[lit[~vis]] = 0.0
-            self._landing[key] = a
+            L = np.broadcast_to(np.asarray(source, dtype=np.float64), self.positions.shape)
+            self._landing[key] = self.areas * point_light(self.positions, self.normals, L, self.tracer,
+                                                          offset=self.offset).irradiance()
         return self._landing[key]
 
     # ------------------------------------------------------------------ pieces
@@ -366,12 +360,7 @@ class PhotonTracer:
             if progress is not None:
                 progress(done[0], S * N)
 
-        if self.tracer.threads > 1 and len(units) > 1:
-            with ThreadPoolExecutor(self.tracer.threads) as pool:
-                list(pool.map(work, range(len(units))))
-        else:
-            for k in range(len(units)):
-                work(k)
+        thread_map(work, range(len(units)), self.tracer.threads)
         rays = sum(r[1] for r in results)
         back = sum(r[2] for r in results)
         batches = [(s, b) for (s, _, _), (stored, _, _) in zip(units, results) for b in stored]

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from torchrefl.core.observations import Observations
-from torchrefl.transport.local import LocalTerms, local_terms, predict
+from torchrefl.core.point_light import point_light
+from torchrefl.transport.local import LocalTerms, predict
 from torchrefl.transport.radiosity import _matmul, solve_radiosity
 
 
@@ -80,36 +80,21 @@ class EmitterMaps:
     weights: torch.Tensor
 
 
-def emitter_maps(sources, positions: torch.Tensor, normals: torch.Tensor, tracer, offset: float,
-                 kappa: torch.Tensor) -> EmitterMaps:
+def emitter_maps(sources, positions: torch.Tensor, normals: torch.Tensor, tracer, offset: float) -> EmitterMaps:
     """EmitterMaps for photon_level.LightSources `sources` (positions (P, K, 3), weights (K, T), intensity
-    (P, 3)): the K maps of each light become point-light Observations (cast shadows by Embree shadow rays:
-    tracer, a RayTracer of the texel mesh; offset, the origin offset along the normal, like the capture's
-    shadow test), and E is direct_irradiance of their local terms, the observation model every level uses."""
-    x = positions.double()
-    n = normals.double()
+    (P, 3)): E = Y max(n.l, 0) vis / d^2 of light p at each map's source, from torchrefl.core.point_light (cast
+    shadows by its shadow test: tracer, a RayTracer of the texel mesh; offset, the shadow ray's origin offset,
+    the capture's geometry.shadow_offset_mm), in float64."""
+    x = positions.detach().cpu().double().numpy()
+    n = normals.detach().cpu().double().numpy()
     P, K = sources.positions.shape[:2]
-    T = x.shape[0]
-    E = torch.zeros(P, K, T, 3, dtype=torch.float64)
+    E = np.zeros((P, K, len(x), 3))
     for p in range(P):
-        L = torch.as_tensor(sources.positions[p], dtype=torch.float64)                  # (K, 3)
-        to = L[:, None, :] - x[None]                                                    # (K, T, 3)
-        dist = to.norm(dim=-1)
-        light_dir = to / dist[..., None]
-        lit = (light_dir * n[None]).sum(-1) > 0
-        shadowed = torch.zeros(K, T, dtype=torch.bool)
+        Y = np.asarray(sources.intensity[p], dtype=np.float64)
         for k in range(K):
-            i = torch.nonzero(lit[k]).flatten().numpy()
-            if i.size:
-                vis = tracer.visible(x[i].numpy(), n[i].numpy(), L[k][None].expand(len(i), 3).numpy(), offset=offset)
-                shadowed[k, i[~vis]] = True
-        maps = Observations(intensity=torch.zeros(K, T, 3, dtype=torch.float64), valid=lit & ~shadowed,
-                            saturated=torch.zeros(K, T, dtype=torch.bool), shadowed=shadowed, light_dir=light_dir,
-                            falloff=1.0 / dist ** 2,
-                            light_intensity=torch.as_tensor(sources.intensity[p], dtype=torch.float64).expand(K, 3),
-                            view_dir=n, kappa=kappa.double(), light_positions=L, source="radiosity emitter maps")
-        E[p] = direct_irradiance(local_terms("lambertian", n, maps), maps.kappa)
-    return EmitterMaps(E, torch.as_tensor(np.asarray(sources.weights, dtype=np.float64)))
+            L = np.broadcast_to(np.asarray(sources.positions[p][k], dtype=np.float64), x.shape)
+            E[p, k] = point_light(x, n, L, tracer, offset=offset).irradiance(Y)
+    return EmitterMaps(torch.from_numpy(E), torch.as_tensor(np.asarray(sources.weights, dtype=np.float64)))
 
 
 def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: PatchMap, F: torch.Tensor,

@@ -76,7 +76,7 @@ class RadiosityLevel(TransportLevel):
             sources = light_sources(surface, obs, rc.light_maps)
             if sources.num_maps > 1:                                       # the lights move with the scan
                 self.maps = emitter_maps(sources, surface.positions, surface.normals, tracer,
-                                         cfg.geometry.shadow_offset_mm, obs.kappa)
+                                         cfg.geometry.shadow_offset_mm)
         self._reconstruct = None
         self.note = self._describe(patches, rc) + self._reconstruction(patches)
         inp.log(self.note)
