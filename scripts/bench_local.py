@@ -23,10 +23,10 @@ import numpy as np
 import torch
 
 from torchrefl.capture.cylindrical_scan import load_scan_geometry, observation_geometry
-from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.config import load_config
 from torchrefl.planning.light_selection import select_for_scan
 from torchrefl.run import run
+from torchrefl.synthetic.scan import SyntheticScan
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -72,17 +72,20 @@ def main():
     args = ap.parse_args()
     out = Path(args.out or tempfile.mkdtemp(prefix="bench_local_"))
     torch.set_num_threads(args.threads)
-    cfg = load_config(ROOT / "configs" / "default.yaml",
-                      [f"output.dir={out / 'run'}", "selection.num_lights=12", "output.progress=false",
-                       f"threads={args.threads}"])
+    cfg = load_config(
+        ROOT / "configs" / "default.yaml",
+        [f"output.dir={out / 'run'}", "selection.num_lights=12", "output.progress=false", f"threads={args.threads}"],
+    )
     print(f"machine: {platform.processor() or platform.machine()}, threads {args.threads}, torch {torch.__version__}")
 
     metrics = run(cfg, quiet=True)
     t = metrics["timing_s"]
     pipeline = ["light selection", "observations", "precompute", "initialise", "fit"]
-    print("\nstage times (s), paper-size problem: "
-          f"{metrics['texels']} texels on a {cfg.synthetic.rows} x {cfg.synthetic.columns} grid, "
-          f"{metrics['lights']} lights selected from {cfg.selection.grid.columns * cfg.selection.grid.rows}")
+    print(
+        "\nstage times (s), paper-size problem: "
+        f"{metrics['texels']} texels on a {cfg.synthetic.rows} x {cfg.synthetic.columns} grid, "
+        f"{metrics['lights']} lights selected from {cfg.selection.grid.columns * cfg.selection.grid.rows}"
+    )
     for k, v in t.items():
         mark = "  *" if k in pipeline else ""
         print(f"  {k:<18}{v:8.2f}{mark}")
@@ -95,7 +98,10 @@ def main():
     candidates = scan.candidate_positions()
     chosen = np.array(json.loads((out / "run" / "selection" / "selection.json").read_text())["chosen"])
     rows = []
-    for name, heads in (("light selection (60 candidates)", candidates), ("shadow rays (12 lights)", candidates[chosen])):
+    for name, heads in (
+        ("light selection (60 candidates)", candidates),
+        ("shadow rays (12 lights)", candidates[chosen]),
+    ):
         O, D, F, n_cam = shadow_rays(geom, heads, cfg.geometry.shadow_offset_mm)
         start = time.perf_counter()
         if name.startswith("light"):
@@ -109,18 +115,45 @@ def main():
         rawN = raw_rate(geom.tracer.scene, O, D, F, args.threads)
         rows.append((name, n_rays, ours_s, ours, raw1, rawN))
     print("\nEmbree stages (whole stage incl. ray generation and BRDF geometry, vs bare scene.run on the same rays):")
-    print(f"  {'stage':<34}{'rays':>11}{'time s':>9}{'ours M/s':>10}{'raw 1t M/s':>12}{'raw ' + str(args.threads) + 't M/s':>12}{'ours/raw1t':>12}{'ours/raw' + str(args.threads) + 't':>11}")
+    print(
+        f"  {'stage':<34}{'rays':>11}{'time s':>9}{'ours M/s':>10}{'raw 1t M/s':>12}{'raw ' + str(args.threads) + 't M/s':>12}{'ours/raw1t':>12}{'ours/raw' + str(args.threads) + 't':>11}"
+    )
     for name, n, s, ours, r1, rN in rows:
-        print(f"  {name:<34}{n:>11}{s:>9.2f}{ours / 1e6:>10.2f}{r1 / 1e6:>12.2f}{rN / 1e6:>12.2f}{ours / r1:>12.2f}{ours / rN:>11.2f}")
+        print(
+            f"  {name:<34}{n:>11}{s:>9.2f}{ours / 1e6:>10.2f}{r1 / 1e6:>12.2f}{rN / 1e6:>12.2f}{ours / r1:>12.2f}{ours / rN:>11.2f}"
+        )
     gt = metrics.get("ground_truth", {})
-    print(f"\naccuracy: pd_rmse {gt.get('pd_rmse'):.4f}, ps_median_rel_err {gt.get('ps_median_rel_err'):.4f}, "
-          f"sigma_median_rel_err {gt.get('sigma_median_rel_err'):.4f}, rerender mean_abs_diff_8bit "
-          f"{metrics['rerender']['mean_abs_diff_8bit']:.3f}")
-    (out / "bench_local.json").write_text(json.dumps({
-        "timing_s": t, "pipeline_s": total,
-        "embree": [dict(zip(("stage", "rays", "time_s", "ours_rays_per_s", "raw_1thread_rays_per_s", "raw_nthreads_rays_per_s"), r)) for r in rows],
-        "ground_truth": gt,
-    }, indent=2))
+    print(
+        f"\naccuracy: pd_rmse {gt.get('pd_rmse'):.4f}, ps_median_rel_err {gt.get('ps_median_rel_err'):.4f}, "
+        f"sigma_median_rel_err {gt.get('sigma_median_rel_err'):.4f}, rerender mean_abs_diff_8bit "
+        f"{metrics['rerender']['mean_abs_diff_8bit']:.3f}"
+    )
+    (out / "bench_local.json").write_text(
+        json.dumps(
+            {
+                "timing_s": t,
+                "pipeline_s": total,
+                "embree": [
+                    dict(
+                        zip(
+                            (
+                                "stage",
+                                "rays",
+                                "time_s",
+                                "ours_rays_per_s",
+                                "raw_1thread_rays_per_s",
+                                "raw_nthreads_rays_per_s",
+                            ),
+                            r,
+                        )
+                    )
+                    for r in rows
+                ],
+                "ground_truth": gt,
+            },
+            indent=2,
+        )
+    )
     print(f"\nwritten {out / 'bench_local.json'}")
 
 

@@ -71,6 +71,7 @@ def main() -> None:
             else:
                 with ThreadPoolExecutor(threads) as pool:
                     list(pool.map(lambda i: scene.run(o32[i], d32[i], dists=far32[i], query=query, **kw), parts))
+
         return go
 
     rows = []
@@ -80,10 +81,20 @@ def main() -> None:
         ours = {t: best_rate(lambda: getattr(tracers[t], method)(o64, d64, far64), n, args.repeat) for t in (1, 2)}
         rows.append((label, raw1, raw2, ours[1], ours[2]))
 
-    print(f"mesh: displaced uv sphere, {len(mesh.faces)} triangles (BVH build {build * 1e3:.0f} ms); "
-          f"{n} rays, {hit_frac:.0%} hit; best of {args.repeat}; {platform.processor() or platform.machine()}")
-    head = ["query", "raw 1t M/s", "raw 2t M/s", "ours 1t M/s", "ours 2t M/s", "ours1t/raw1t", "ours2t/raw1t",
-            "ours2t/raw2t"]
+    print(
+        f"mesh: displaced uv sphere, {len(mesh.faces)} triangles (BVH build {build * 1e3:.0f} ms); "
+        f"{n} rays, {hit_frac:.0%} hit; best of {args.repeat}; {platform.processor() or platform.machine()}"
+    )
+    head = [
+        "query",
+        "raw 1t M/s",
+        "raw 2t M/s",
+        "ours 1t M/s",
+        "ours 2t M/s",
+        "ours1t/raw1t",
+        "ours2t/raw1t",
+        "ours2t/raw2t",
+    ]
     print("  ".join(f"{h:>12}" for h in head))
     for label, r1, r2, o1, o2 in rows:
         vals = [r1 / 1e6, r2 / 1e6, o1 / 1e6, o2 / 1e6, o1 / r1, o2 / r1, o2 / r2]

@@ -38,8 +38,15 @@ from torchrefl.config import load_config
 from torchrefl.run import run
 
 ROOT = Path(__file__).resolve().parents[1]
-QUICK = ["synthetic.columns=256", "synthetic.rows=225", "synthetic.angle_step_deg=1.4",
-         "synthetic.height_step_mm=1.12", "synthetic.indirect_samples=64", "synthetic.supersample=2", "photon.smoothing=1"]
+QUICK = [
+    "synthetic.columns=256",
+    "synthetic.rows=225",
+    "synthetic.angle_step_deg=1.4",
+    "synthetic.height_step_mm=1.12",
+    "synthetic.indirect_samples=64",
+    "synthetic.supersample=2",
+    "photon.smoothing=1",
+]
 COMMON = ["output.progress=false", "output.map_lights=0", "selection.num_lights=14", "fit.holdout=[3,10]"]
 PHOTON_BASE = ["fit.model=photon", "photon.photons_per_light=400000", "photon.outer_iterations=2"]
 RADIOSITY_BASE = ["fit.model=radiosity", "radiosity.patch_size=2", "radiosity.hemisphere_samples=256"]
@@ -86,30 +93,49 @@ def main() -> None:
         run(first, quiet=True)
         for level, knob, over in POINTS:
             name = f"{level}_{knob.split(' ')[0].replace('=', '')}"
-            cfg = load_config(config, size + COMMON + over + [
-                f"output.dir={out / scene / name}", "capture.kind=cylindrical_scan", f"capture.path={capture / 'capture'}"])
+            cfg = load_config(
+                config,
+                size
+                + COMMON
+                + over
+                + [
+                    f"output.dir={out / scene / name}",
+                    "capture.kind=cylindrical_scan",
+                    f"capture.path={capture / 'capture'}",
+                ],
+            )
             print(f"{scene}: {level} {knob} ...", flush=True)
             m = run(cfg, quiet=True)
             t = m["timing_s"]
             gt, ho = m.get("ground_truth", {}), m.get("holdout", {})
-            rows.append({"scene": scene, "level": level, "setting": knob, "model": m["model"],
-                         "time_s": round(sum(t.get(k, 0.0) for k in ("precompute", "initialise", "fit")), 2),
-                         "pd_rmse": gt.get("pd_rmse"), "ps_median_rel_err": gt.get("ps_median_rel_err"),
-                         "sigma_median_rel_err": gt.get("sigma_median_rel_err"),
-                         "holdout_mean_abs_diff_8bit": ho.get("mean_abs_diff_8bit"),
-                         "holdout_var_diff_8bit": ho.get("var_diff_8bit")})
+            rows.append(
+                {
+                    "scene": scene,
+                    "level": level,
+                    "setting": knob,
+                    "model": m["model"],
+                    "time_s": round(sum(t.get(k, 0.0) for k in ("precompute", "initialise", "fit")), 2),
+                    "pd_rmse": gt.get("pd_rmse"),
+                    "ps_median_rel_err": gt.get("ps_median_rel_err"),
+                    "sigma_median_rel_err": gt.get("sigma_median_rel_err"),
+                    "holdout_mean_abs_diff_8bit": ho.get("mean_abs_diff_8bit"),
+                    "holdout_var_diff_8bit": ho.get("var_diff_8bit"),
+                }
+            )
             (out / "tradeoff.json").write_text(json.dumps(rows, indent=2))
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
     import torch
 
     machine = f"{platform.machine()}, {platform.processor() or 'cpu'}, torch {torch.__version__}, {torch.get_num_threads()} threads"
-    lines = [f"Machine: {machine}; size {'512 x 450' if args.full else '256 x 225'} texels; times are precompute + initialise + fit.", "",
-             "| scene | level | setting | time s | pd_rmse | Ps med rel | sigma med rel | held-out mean 8-bit | held-out var | Pareto |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"Machine: {machine}; size {'512 x 450' if args.full else '256 x 225'} texels; times are precompute + initialise + fit.",
+        "",
+        "| scene | level | setting | time s | pd_rmse | Ps med rel | sigma med rel | held-out mean 8-bit | held-out var | Pareto |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     fig, axes = plt.subplots(2, len(args.scenes), figsize=(6 * len(args.scenes), 8), squeeze=False)
     for j, scene in enumerate(args.scenes):
         sr = [r for r in rows if r["scene"] == scene]
@@ -137,9 +163,11 @@ def main() -> None:
             ax.legend(fontsize=7)
         for r in sr:
             f = lambda v: f"{v:.4g}" if isinstance(v, float) else "-"
-            lines.append(f"| {scene} | {r['level']} | {r['setting']} | {r['time_s']:.1f} | {f(r['pd_rmse'])} | "
-                         f"{f(r['ps_median_rel_err'])} | {f(r['sigma_median_rel_err'])} | {f(r['holdout_mean_abs_diff_8bit'])} | "
-                         f"{f(r['holdout_var_diff_8bit'])} | {'yes' if r.get('pareto_holdout') else ''} |")
+            lines.append(
+                f"| {scene} | {r['level']} | {r['setting']} | {r['time_s']:.1f} | {f(r['pd_rmse'])} | "
+                f"{f(r['ps_median_rel_err'])} | {f(r['sigma_median_rel_err'])} | {f(r['holdout_mean_abs_diff_8bit'])} | "
+                f"{f(r['holdout_var_diff_8bit'])} | {'yes' if r.get('pareto_holdout') else ''} |"
+            )
     fig.tight_layout()
     fig.savefig(out / "tradeoff.png", dpi=100)
     (out / "tradeoff.md").write_text("\n".join(lines) + "\n")

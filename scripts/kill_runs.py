@@ -32,10 +32,20 @@ from torchrefl.errors import TorchReflError  # noqa: E402
 from torchrefl.report.run_result import load_run  # noqa: E402
 
 CONFIG = {
-    "seed": 1, "capture": {"kind": "synthetic_cylindrical"},
-    "synthetic": {"columns": 96, "rows": 80, "angle_step_deg": 3.75, "height_step_mm": 2.5,
-                  "size_mm": [50.0, 70.0, 42.0], "supersample": 1, "mesh_subdivisions": 4},
-    "selection": {"max_lights": 6}, "fit": {"iterations": 10}, "output": {"progress": False, "map_lights": 2},
+    "seed": 1,
+    "capture": {"kind": "synthetic_cylindrical"},
+    "synthetic": {
+        "columns": 96,
+        "rows": 80,
+        "angle_step_deg": 3.75,
+        "height_step_mm": 2.5,
+        "size_mm": [50.0, 70.0, 42.0],
+        "supersample": 1,
+        "mesh_subdivisions": 4,
+    },
+    "selection": {"max_lights": 6},
+    "fit": {"iterations": 10},
+    "output": {"progress": False, "map_lights": 2},
 }
 MOMENTS = {
     "staging folder created": lambda s: s.is_dir(),
@@ -49,8 +59,9 @@ MOMENTS = {
 def train(config: Path, target: Path, overwrite: bool) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "torchrefl.train", str(config), f"output.dir={target}", "--quiet"]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.Popen(cmd + (["--overwrite"] if overwrite else []), env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    return subprocess.Popen(
+        cmd + (["--overwrite"] if overwrite else []), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
 
 
 def kill_at(config: Path, target: Path, overwrite: bool, reached) -> str:
@@ -103,8 +114,11 @@ def main() -> int:
             outcome = kill_at(config, target, with_earlier, reached)
             ok, what = verdict(target, earlier if with_earlier else None)
             ok_all &= ok
-            print(f"{'ok  ' if ok else 'FAIL'} {name:<28} {'earlier run' if with_earlier else 'fresh folder':<12} "
-                  f"{outcome:<15} load_run: {what}", flush=True)
+            print(
+                f"{'ok  ' if ok else 'FAIL'} {name:<28} {'earlier run' if with_earlier else 'fresh folder':<12} "
+                f"{outcome:<15} load_run: {what}",
+                flush=True,
+            )
     if not args.work:
         shutil.rmtree(work, ignore_errors=True)
     return 0 if ok_all else 1

@@ -38,14 +38,21 @@ import numpy as np
 
 from torchrefl.capture.cylindrical_scan import read_scan_yaml
 from torchrefl.capture.images import read_images
-from torchrefl.synthetic.objects import make_object
 from torchrefl.config import load_config
 from torchrefl.run import run
+from torchrefl.synthetic.objects import make_object
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = [("I", "local"), ("II", "radiosity"), ("III", "photon")]
-QUICK = ["synthetic.columns=256", "synthetic.rows=225", "synthetic.angle_step_deg=1.4", "synthetic.height_step_mm=1.12",
-         "synthetic.indirect_samples=48", "synthetic.supersample=2", "photon.smoothing=1"]
+QUICK = [
+    "synthetic.columns=256",
+    "synthetic.rows=225",
+    "synthetic.angle_step_deg=1.4",
+    "synthetic.height_step_mm=1.12",
+    "synthetic.indirect_samples=48",
+    "synthetic.supersample=2",
+    "photon.smoothing=1",
+]
 
 
 def inside_grid(params_path: Path, capture: Path, info: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -93,14 +100,25 @@ def texel_errors(params_path: Path, capture: Path, info: dict, near_mm: float = 
     err = np.abs(t["pd"] / t["truth"] - 1.0)[keep]
     near = dist[keep] <= near_mm
     q = lambda e: float(np.percentile(e, 95)) if e.size else None
-    return {"texels_within_2pct": float((err <= 0.02).mean()) if err.size else None,
-            "texels_outside_2pct": int((err > 0.02).sum()), "texels": int(err.size),
-            "texel_rel_err_max": float(err.max()) if err.size else None,
-            "texel_rel_err_p95_within_10mm": q(err[near]), "texel_rel_err_p95_elsewhere": q(err[~near])}
+    return {
+        "texels_within_2pct": float((err <= 0.02).mean()) if err.size else None,
+        "texels_outside_2pct": int((err > 0.02).sum()),
+        "texels": int(err.size),
+        "texel_rel_err_max": float(err.max()) if err.size else None,
+        "texel_rel_err_p95_within_10mm": q(err[near]),
+        "texel_rel_err_p95_elsewhere": q(err[~near]),
+    }
 
 
-def capture_floor(capture: Path, twin: Path, params_path: Path, info: dict, near_mm: float = 10.0,
-                  lo_dn: float = 8.0, hi_dn: float = 250.0) -> dict:
+def capture_floor(
+    capture: Path,
+    twin: Path,
+    params_path: Path,
+    info: dict,
+    near_mm: float = 10.0,
+    lo_dn: float = 8.0,
+    hi_dn: float = 250.0,
+) -> dict:
     """What the capture's own Monte Carlo noise leaves to any fitter, texel by texel.
 
     `twin` is the same scene rendered again with another path-tracer seed (same lights, same truth).
@@ -118,14 +136,17 @@ def capture_floor(capture: Path, twin: Path, params_path: Path, info: dict, near
     ia, bits = read_images([capture / e["image"] for e in a["lights"]])
     ib, _ = read_images([twin / e["image"] for e in b["lights"]])
     ia, ib = ia.mean(-1), ib.mean(-1)
-    full = 2.0 ** bits - 1
+    full = 2.0**bits - 1
     ok = (ia > lo_dn / full) & (ia < hi_dn / full) & (ib > lo_dn / full) & (ib < hi_dn / full)
     err = ((ia - ib) * ok).sum(0) / np.maximum((ia * ok).sum(0), 1e-12) / np.sqrt(2.0)
     keep, dist = inside_grid(params_path, capture, info)
     keep &= (np.abs(dist) < info["width"] - 5) & ok.any(0)
     e, near = err[keep], np.abs(dist[keep]) <= near_mm
-    return {"floor_texels_within_2pct": float((np.abs(e) <= 0.02).mean()),
-            "floor_rel_std_within_10mm": float(e[near].std()), "floor_rel_std_elsewhere": float(e[~near].std())}
+    return {
+        "floor_texels_within_2pct": float((np.abs(e) <= 0.02).mean()),
+        "floor_rel_std_within_10mm": float(e[near].std()),
+        "floor_rel_std_elsewhere": float(e[~near].std()),
+    }
 
 
 def deviations(c, est, tru, width: float, near_mm: float = 10.0, edge_mm: float = 5.0):
@@ -143,10 +164,18 @@ def main():
     ap.add_argument("--out", default="outputs/object_e")
     ap.add_argument("--setups", nargs="+", type=int, default=[1, 2])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--no-floor", action="store_true",
-                    help="skip the capture floor (a second render of each setup with another path-tracer seed)")
-    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
-                    help="config overrides for every method's run (dotted keys)")
+    ap.add_argument(
+        "--no-floor",
+        action="store_true",
+        help="skip the capture floor (a second render of each setup with another path-tracer seed)",
+    )
+    ap.add_argument(
+        "--set",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="config overrides for every method's run (dotted keys)",
+    )
     args = ap.parse_args()
     out = Path(args.out).resolve()
     extra = (QUICK if args.quick else []) + list(args.set)
@@ -161,32 +190,58 @@ def main():
         config = ROOT / "configs" / f"object_e_setup{setup}.yaml"
         capture = None
         for name, level in METHODS:
-            over = extra + [f"output.dir={out / f'setup{setup}_method{name}'}", f"fit.model={level}", "output.progress=false"]
+            over = extra + [
+                f"output.dir={out / f'setup{setup}_method{name}'}",
+                f"fit.model={level}",
+                "output.progress=false",
+            ]
             if capture is not None:
                 over += ["capture.kind=cylindrical_scan", f"capture.path={capture}"]
             cfg = load_config(config, over)
             print(f"setup {setup}, Method {name} ({level}) ...", flush=True)
-            m = run(cfg, quiet=True, overwrite=True)      # the script owns its output folders
+            m = run(cfg, quiet=True, overwrite=True)  # the script owns its output folders
             if capture is None:
                 capture = out / f"setup{setup}_method{name}" / "capture"
             obj = make_object(cfg.synthetic.object, cfg.seed, cfg.synthetic.materials)
             c, est, tru = profile(out / f"setup{setup}_method{name}" / "params.npz", capture, obj.info)
             near, far, inner = deviations(c, est, tru, obj.info["width"])
             fit_time = sum(m["timing_s"].get(k, 0.0) for k in ("precompute", "initialise", "fit"))
-            rows.append({"setup": setup, "method": name, "level": m["model"], "fit_time_s": round(fit_time, 2),
-                         "max_rel_dev_within_10mm": near, "max_rel_dev_elsewhere": far,
-                         "max_rel_dev_elsewhere_without_edges": inner,
-                         "pd_rmse": m.get("ground_truth", {}).get("pd_rmse"),
-                         **texel_errors(out / f"setup{setup}_method{name}" / "params.npz", capture, obj.info),
-                         "mean_abs_diff_8bit": m["rerender"]["mean_abs_diff_8bit"], "var_diff_8bit": m["rerender"]["var_diff_8bit"]})
+            rows.append(
+                {
+                    "setup": setup,
+                    "method": name,
+                    "level": m["model"],
+                    "fit_time_s": round(fit_time, 2),
+                    "max_rel_dev_within_10mm": near,
+                    "max_rel_dev_elsewhere": far,
+                    "max_rel_dev_elsewhere_without_edges": inner,
+                    "pd_rmse": m.get("ground_truth", {}).get("pd_rmse"),
+                    **texel_errors(out / f"setup{setup}_method{name}" / "params.npz", capture, obj.info),
+                    "mean_abs_diff_8bit": m["rerender"]["mean_abs_diff_8bit"],
+                    "var_diff_8bit": m["rerender"]["var_diff_8bit"],
+                }
+            )
             ax.plot(c, est, "o-", ms=3, label=f"Method {name} ({level})")
             if name == "I":
                 ax.plot(c, tru, "k--", label="truth")
         if not args.no_floor:
             print(f"setup {setup}, capture floor (the scene rendered again with seed {cfg.seed + 1}) ...", flush=True)
             twin_dir = out / f"setup{setup}_twin"
-            run(load_config(config, extra + [f"output.dir={twin_dir}", "fit.model=local", "fit.iterations=1",
-                                             f"seed={cfg.seed + 1}", "output.progress=false"]), quiet=True, overwrite=True)
+            run(
+                load_config(
+                    config,
+                    extra
+                    + [
+                        f"output.dir={twin_dir}",
+                        "fit.model=local",
+                        "fit.iterations=1",
+                        f"seed={cfg.seed + 1}",
+                        "output.progress=false",
+                    ],
+                ),
+                quiet=True,
+                overwrite=True,
+            )
             floor = capture_floor(capture, twin_dir / "capture", out / f"setup{setup}_methodI" / "params.npz", obj.info)
             floors[setup] = floor
             for r in rows:
@@ -201,19 +256,25 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     fig.savefig(out / "pd_profiles.png", dpi=100)
     (out / "object_e.json").write_text(json.dumps(rows, indent=2))
-    print(f"\n{'setup':>5} {'method':>6} {'level':>10} {'fit s':>7} {'dev<=10mm':>10} {'dev>10mm':>9} {'inner':>7} {'pd_rmse':>8} "
-          f"{'<=2%':>6} {'out':>5} {'max':>6} {'p95<=10':>8} {'p95>10':>7} {'mean8':>7} {'var8':>7}")
+    print(
+        f"\n{'setup':>5} {'method':>6} {'level':>10} {'fit s':>7} {'dev<=10mm':>10} {'dev>10mm':>9} {'inner':>7} {'pd_rmse':>8} "
+        f"{'<=2%':>6} {'out':>5} {'max':>6} {'p95<=10':>8} {'p95>10':>7} {'mean8':>7} {'var8':>7}"
+    )
     for r in rows:
         f = lambda v, w=9: f"{v:>{w}.3f}" if isinstance(v, float) else f"{'-':>{w}}"
-        print(f"{r['setup']:>5} {r['method']:>6} {r['level']:>10} {r['fit_time_s']:>7.1f} {f(r['max_rel_dev_within_10mm'], 10)} "
-              f"{f(r['max_rel_dev_elsewhere'])} {f(r['max_rel_dev_elsewhere_without_edges'], 7)} {f(r['pd_rmse'], 8)} "
-              f"{f(r['texels_within_2pct'], 6)} {r['texels_outside_2pct']:>5} {f(r['texel_rel_err_max'], 6)} "
-              f"{f(r['texel_rel_err_p95_within_10mm'], 8)} {f(r['texel_rel_err_p95_elsewhere'], 7)} "
-              f"{f(r['mean_abs_diff_8bit'], 7)} {f(r['var_diff_8bit'], 7)}")
+        print(
+            f"{r['setup']:>5} {r['method']:>6} {r['level']:>10} {r['fit_time_s']:>7.1f} {f(r['max_rel_dev_within_10mm'], 10)} "
+            f"{f(r['max_rel_dev_elsewhere'])} {f(r['max_rel_dev_elsewhere_without_edges'], 7)} {f(r['pd_rmse'], 8)} "
+            f"{f(r['texels_within_2pct'], 6)} {r['texels_outside_2pct']:>5} {f(r['texel_rel_err_max'], 6)} "
+            f"{f(r['texel_rel_err_p95_within_10mm'], 8)} {f(r['texel_rel_err_p95_elsewhere'], 7)} "
+            f"{f(r['mean_abs_diff_8bit'], 7)} {f(r['var_diff_8bit'], 7)}"
+        )
     for setup, fl in floors.items():
-        print(f"setup {setup} capture floor: {fl['floor_texels_within_2pct']:.3f} of the texels within 2 % for an exact fitter; "
-              f"the capture's own relative error std {fl['floor_rel_std_within_10mm']:.4f} within 10 mm of the fold, "
-              f"{fl['floor_rel_std_elsewhere']:.4f} elsewhere")
+        print(
+            f"setup {setup} capture floor: {fl['floor_texels_within_2pct']:.3f} of the texels within 2 % for an exact fitter; "
+            f"the capture's own relative error std {fl['floor_rel_std_within_10mm']:.4f} within 10 mm of the fold, "
+            f"{fl['floor_rel_std_elsewhere']:.4f} elsewhere"
+        )
     print(f"\nwritten {out / 'pd_profiles.png'} and {out / 'object_e.json'}")
 
 

@@ -30,8 +30,10 @@ def profile(run: Path, capture: Path, bin_mm: float) -> dict:
             sys.exit(f"vase_profile: {f} does not exist (expected a torchrefl run folder and its capture)")
     p, t = np.load(run / "params.npz"), np.load(capture / "truth.npz")
     if p["pd"].shape != t["pd"].shape:
-        sys.exit(f"vase_profile: {run / 'params.npz'} has a {p['pd'].shape[:2]} grid, {capture / 'truth.npz'} "
-                 f"{t['pd'].shape[:2]}: not the same capture")
+        sys.exit(
+            f"vase_profile: {run / 'params.npz'} has a {p['pd'].shape[:2]} grid, {capture / 'truth.npz'} "
+            f"{t['pd'].shape[:2]}: not the same capture"
+        )
     mask = p["mask"] & (t["pd"].mean(-1) > 0)
     rel = p["pd"].mean(-1)[mask] / t["pd"].mean(-1)[mask] - 1.0
     height = p["positions"][..., 1][mask].astype(np.float64)
@@ -45,8 +47,12 @@ def profile(run: Path, capture: Path, bin_mm: float) -> dict:
             med.append(float(np.median(v)))
     centres, med = np.array(centres), np.array(med)
     neck = np.abs(centres) < NECK_MM
-    return {"centres": centres, "median_rel": med, "neck_max_abs": float(np.abs(med[neck]).max()) if neck.any() else float("nan"),
-            "within_2pct": float((np.abs(rel) < 0.02).mean())}
+    return {
+        "centres": centres,
+        "median_rel": med,
+        "neck_max_abs": float(np.abs(med[neck]).max()) if neck.any() else float("nan"),
+        "within_2pct": float((np.abs(rel) < 0.02).mean()),
+    }
 
 
 def main() -> None:
@@ -57,8 +63,10 @@ def main() -> None:
     args = ap.parse_args()
     for run in args.runs:
         pr = profile(run, args.capture or run / "capture", args.bin_mm)
-        print(f"{run}: largest binned |Pd error| in the neck {100 * pr['neck_max_abs']:.1f} %, "
-              f"texels within 2 % {100 * pr['within_2pct']:.1f} %")
+        print(
+            f"{run}: largest binned |Pd error| in the neck {100 * pr['neck_max_abs']:.1f} %, "
+            f"texels within 2 % {100 * pr['within_2pct']:.1f} %"
+        )
         print("  height mm: " + " ".join(f"{c:+.0f}" for c in pr["centres"]))
         print("  median %:  " + " ".join(f"{100 * m:+.1f}" for m in pr["median_rel"]))
 

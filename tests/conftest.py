@@ -27,10 +27,16 @@ def point_light_observations(normals, positions, light_positions, camera, intens
     P, T = l.shape[:2]
     valid = ((n[None] * l).sum(-1) > 0) & ((n * v).sum(-1) > 0)[None]
     return Observations(
-        intensity=torch.zeros(P, T, 3, dtype=dtype), valid=valid, saturated=torch.zeros(P, T, dtype=torch.bool),
-        shadowed=torch.zeros(P, T, dtype=torch.bool), light_dir=l, falloff=1.0 / dist ** 2,
-        light_intensity=torch.full((P, 3), float(intensity), dtype=dtype), view_dir=v,
-        kappa=torch.full((3,), math.pi, dtype=dtype), light_positions=L,
+        intensity=torch.zeros(P, T, 3, dtype=dtype),
+        valid=valid,
+        saturated=torch.zeros(P, T, dtype=torch.bool),
+        shadowed=torch.zeros(P, T, dtype=torch.bool),
+        light_dir=l,
+        falloff=1.0 / dist**2,
+        light_intensity=torch.full((P, 3), float(intensity), dtype=dtype),
+        view_dir=v,
+        kappa=torch.full((3,), math.pi, dtype=dtype),
+        light_positions=L,
     )
 
 
@@ -40,7 +46,7 @@ def dome_scene(T=400, seed=0, dtype=torch.float64):
     rng = np.random.default_rng(seed)
     R = 200.0
     xy = rng.uniform(-80, 80, size=(T, 2))
-    z = np.sqrt(R ** 2 - (xy ** 2).sum(1)) - R
+    z = np.sqrt(R**2 - (xy**2).sum(1)) - R
     pos = np.column_stack([xy, z])
     nrm = pos - np.array([0.0, 0.0, -R])
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
@@ -60,8 +66,8 @@ def fold_surface(H=24, W=48, L=60.0, dtype=torch.float64):
     """A concave 90 degree fold as a texel grid: columns run across the floor (z = 0, x < 0, normal +z)
     and up the wall (x = 0, z > 0, normal -x), rows along the fold (y). Texel centres sit half a texel
     off the fold line. The mesh is the grid's triangulation. Columns W/2 - 1 and W/2 touch the fold."""
-    from torchrefl.geometry.range_mesh import grid_triangulation, texel_areas
     from torchrefl.core.surface import Surface
+    from torchrefl.geometry.range_mesh import grid_triangulation, texel_areas
 
     u = (np.arange(W) + 0.5) / W * 2 * L - L
     y = (np.arange(H) + 0.5) / H * L - L / 2
@@ -71,6 +77,13 @@ def fold_surface(H=24, W=48, L=60.0, dtype=torch.float64):
     valid = np.ones((H, W), bool)
     verts, faces = grid_triangulation(pts, valid)
     areas = texel_areas(pts, valid)
-    return Surface((H, W), torch.arange(H * W), torch.tensor(pts.reshape(-1, 3), dtype=dtype),
-                   torch.tensor(nrm.reshape(-1, 3), dtype=dtype), torch.tensor(areas.reshape(-1), dtype=dtype),
-                   verts, faces, source="fold_surface")
+    return Surface(
+        (H, W),
+        torch.arange(H * W),
+        torch.tensor(pts.reshape(-1, 3), dtype=dtype),
+        torch.tensor(nrm.reshape(-1, 3), dtype=dtype),
+        torch.tensor(areas.reshape(-1), dtype=dtype),
+        verts,
+        faces,
+        source="fold_surface",
+    )

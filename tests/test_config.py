@@ -25,8 +25,11 @@ def test_every_field_has_a_default_and_a_doc():
                 continue
             assert f.metadata.get("doc"), f"{cls.__name__}.{f.name} has no doc"
             assert f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
-            if dataclasses.is_dataclass(f.type) or (isinstance(f.default_factory, type) and dataclasses.is_dataclass(f.default_factory)):
+            if dataclasses.is_dataclass(f.type) or (
+                isinstance(f.default_factory, type) and dataclasses.is_dataclass(f.default_factory)
+            ):
                 walk(f.default_factory)
+
     walk(Config)
 
 
@@ -68,14 +71,16 @@ def test_wrong_type_and_choice_and_range(tmp_path):
         load_config(write(tmp_path, "photon:\n  specular_gather: -1\n"))
     with pytest.raises(ConfigError, match="'photon.specular_gather' \\(64\\).*needs photon.diffuse_paths: radiosity"):
         load_config(write(tmp_path, "photon:\n  specular_gather: 64\n"))
-    assert load_config(None, ["photon.specular_gather=64", "photon.diffuse_paths=radiosity"]).photon.specular_gather == 64
+    assert (
+        load_config(None, ["photon.specular_gather=64", "photon.diffuse_paths=radiosity"]).photon.specular_gather == 64
+    )
 
 
 @pytest.mark.parametrize("name", ["object_e_setup1.yaml", "object_e_setup2.yaml"])
 def test_object_e_configs_load_with_their_form_factor_settings(name):
     cfg = load_config(ROOT / "configs" / name)
     assert cfg.radiosity.hemisphere_samples == 2048 and cfg.radiosity.solve_samples == 256
-    assert cfg.geometry.median_size == 1 and cfg.synthetic.range_noise_mm == 0     # exact ranges need no median
+    assert cfg.geometry.median_size == 1 and cfg.synthetic.range_noise_mm == 0  # exact ranges need no median
     assert cfg.photon.specular_gather == (64 if name == "object_e_setup2.yaml" else 0)
 
 
@@ -95,7 +100,9 @@ def test_missing_file():
 
 
 def test_overrides_parse_yaml_values(tmp_path):
-    cfg = load_config(write(tmp_path, "seed: 1\n"), ["output.dir=/tmp/x", "fit.holdout=[5,11,17]", "seed=7", "fit.smoothness=0.5"])
+    cfg = load_config(
+        write(tmp_path, "seed: 1\n"), ["output.dir=/tmp/x", "fit.holdout=[5,11,17]", "seed=7", "fit.smoothness=0.5"]
+    )
     assert cfg.output.dir == "/tmp/x" and cfg.fit.holdout == [5, 11, 17] and cfg.seed == 7 and cfg.fit.smoothness == 0.5
 
 

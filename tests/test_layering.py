@@ -6,8 +6,23 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "torchrefl"
 
 #: lowest first; a module may import its own package and any package listed before it
-LAYERS = ["errors", "version", "config", "core", "geometry", "capture", "planning", "synthetic", "transport", "fit",
-          "report", "rig", "run", "train", "__init__"]
+LAYERS = [
+    "errors",
+    "version",
+    "config",
+    "core",
+    "geometry",
+    "capture",
+    "planning",
+    "synthetic",
+    "transport",
+    "fit",
+    "report",
+    "rig",
+    "run",
+    "train",
+    "__init__",
+]
 
 
 def imported_packages(path: Path) -> set[str]:

@@ -15,8 +15,15 @@ BALL = ROOT / ".." / "shared" / "data" / "diligent_ball"
 SMALL = {
     "seed": 1,
     "capture": {"kind": "synthetic_cylindrical"},
-    "synthetic": {"columns": 128, "rows": 100, "angle_step_deg": 2.8125, "height_step_mm": 2.0,
-                  "size_mm": [50.0, 70.0, 42.0], "supersample": 2, "mesh_subdivisions": 5},
+    "synthetic": {
+        "columns": 128,
+        "rows": 100,
+        "angle_step_deg": 2.8125,
+        "height_step_mm": 2.0,
+        "size_mm": [50.0, 70.0, 42.0],
+        "supersample": 2,
+        "mesh_subdivisions": 5,
+    },
     "selection": {"max_lights": 10},
     "fit": {"iterations": 40},
     "output": {"progress": False, "map_lights": 2},
@@ -122,9 +129,17 @@ def test_minnaert_diffuse_part_is_recovered_end_to_end(tmp_path):
     noise, 8-bit): reflectance.diffuse minnaert recovers k from the T_diff observations, and Pd better than a
     Lambertian fit of the same capture. (The fitted k also absorbs systematic normal error of the scan: with a
     Lambertian truth it comes out 1.10 at 128 x 100, 1.03 at 256 x 225 and 1.01 at 512 x 450.)"""
-    args = [str(ROOT / "configs" / "default.yaml"), "synthetic.minnaert_k=1.2", "synthetic.columns=256",
-            "synthetic.rows=225", "synthetic.angle_step_deg=1.4", "synthetic.height_step_mm=1.12",
-            "output.progress=false", "output.map_lights=0", "--quiet"]
+    args = [
+        str(ROOT / "configs" / "default.yaml"),
+        "synthetic.minnaert_k=1.2",
+        "synthetic.columns=256",
+        "synthetic.rows=225",
+        "synthetic.angle_step_deg=1.4",
+        "synthetic.height_step_mm=1.12",
+        "output.progress=false",
+        "output.map_lights=0",
+        "--quiet",
+    ]
     lam, mnr = tmp_path / "lambert", tmp_path / "minnaert"
     assert main(args + [f"output.dir={lam}"]) == 0
     refit = args + ["capture.kind=cylindrical_scan", f"capture.path={lam / 'capture'}", "reflectance.diffuse=minnaert"]
@@ -148,7 +163,10 @@ def test_minnaert_diffuse_part_is_recovered_end_to_end(tmp_path):
 def test_minnaert_is_refused_where_interreflection_may_be_modelled(small_run, tmp_path, capsys):
     data = dict(SMALL, capture={"kind": "cylindrical_scan", "path": str(small_run / "capture")})
     cfg = write_config(tmp_path, data)
-    assert main([str(cfg), f"output.dir={tmp_path / 'x'}", "reflectance.diffuse=minnaert", "fit.model=auto", "--quiet"]) == 2
+    assert (
+        main([str(cfg), f"output.dir={tmp_path / 'x'}", "reflectance.diffuse=minnaert", "fit.model=auto", "--quiet"])
+        == 2
+    )
     err = capsys.readouterr().err
     assert "reflectance.diffuse: 'minnaert' is for local transport only" in err and "fit.model=local" in err
 
@@ -157,8 +175,18 @@ def test_minnaert_is_refused_where_interreflection_may_be_modelled(small_run, tm
 def test_diligent_ball_bundled_config(tmp_path):
     """The bundled config on every light, every 6th held out (issue target: held-out mean <= 0.45 DN, variance <= 3)."""
     out = tmp_path / "ball_full"
-    assert main([str(ROOT / "configs" / "diligent_ball.yaml"), f"output.dir={out}", "output.progress=false",
-                 "output.map_lights=0", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                str(ROOT / "configs" / "diligent_ball.yaml"),
+                f"output.dir={out}",
+                "output.progress=false",
+                "output.map_lights=0",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     m = json.loads((out / "metrics.json").read_text())
     assert m["holdout_lights"] == list(range(5, 96, 6))
     assert m["holdout"]["mean_abs_diff_8bit"] <= 0.45 and m["holdout"]["var_diff_8bit"] <= 3.0
@@ -169,8 +197,15 @@ def test_diligent_ball_bundled_config(tmp_path):
 def test_diligent_ball_subset(tmp_path):
     out = tmp_path / "ball"
     subset = list(range(0, 96, 3))
-    args = [str(ROOT / "configs" / "diligent_ball.yaml"), f"output.dir={out}", f"capture.light_subset={subset}",
-            "fit.holdout=[5,11,17,23,29]", "fit.iterations=30", "output.progress=false", "--quiet"]
+    args = [
+        str(ROOT / "configs" / "diligent_ball.yaml"),
+        f"output.dir={out}",
+        f"capture.light_subset={subset}",
+        "fit.holdout=[5,11,17,23,29]",
+        "fit.iterations=30",
+        "output.progress=false",
+        "--quiet",
+    ]
     assert main(args) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["holdout"]["mean_abs_diff_8bit"] < 1.0
@@ -195,9 +230,17 @@ def test_diligent_ball_subset(tmp_path):
 @pytest.mark.skipif(not BALL.is_dir(), reason="../shared/data/diligent_ball not present")
 def test_auto_on_photometric_stereo_is_local_and_radiosity_and_photon_are_refused(tmp_path, capsys):
     out = tmp_path / "ball_auto"
-    base = [str(ROOT / "configs" / "diligent_ball.yaml"), f"output.dir={out}", "capture.light_subset=[0,10,20,30,40]",
-            "fit.holdout=[]", "fit.iterations=5", "output.progress=false", "--quiet", "--overwrite"]
-    assert main(base + ["fit.model=radiosity"]) == 2           # the bundled config's Minnaert diffuse part
+    base = [
+        str(ROOT / "configs" / "diligent_ball.yaml"),
+        f"output.dir={out}",
+        "capture.light_subset=[0,10,20,30,40]",
+        "fit.holdout=[]",
+        "fit.iterations=5",
+        "output.progress=false",
+        "--quiet",
+        "--overwrite",
+    ]
+    assert main(base + ["fit.model=radiosity"]) == 2  # the bundled config's Minnaert diffuse part
     assert "reflectance.diffuse 'minnaert' is for local transport only" in capsys.readouterr().err
     base.append("reflectance.diffuse=lambert")
     assert main(base + ["fit.model=auto"]) == 0
@@ -217,8 +260,14 @@ def test_relative_errors_skip_texels_without_a_true_lobe():
 
     T = 4
     truth = {"pd": torch.full((T, 3), 0.5), "ps": torch.zeros(T, 3), "sigma": torch.full((T,), 0.1)}
-    m = ground_truth_errors(torch.full((T, 3), 0.5), torch.full((T, 3), 0.01), torch.full((T,), 0.2), truth,
-                            torch.ones(T, dtype=torch.bool), torch.ones(T, dtype=torch.bool))
+    m = ground_truth_errors(
+        torch.full((T, 3), 0.5),
+        torch.full((T, 3), 0.01),
+        torch.full((T,), 0.2),
+        truth,
+        torch.ones(T, dtype=torch.bool),
+        torch.ones(T, dtype=torch.bool),
+    )
     assert m["ps_median_rel_err"] is None and m["sigma_median_rel_err"] is None
     assert abs(m["ps_rmse"] - 0.01) < 1e-6
 
@@ -231,8 +280,9 @@ def test_capture_warnings_reach_metrics_and_the_summary(small_run, tmp_path, cap
     capture = tmp_path / "capture"
     shutil.copytree(small_run / "capture", capture)
     shutil.copy(capture / "textures" / "000.png", capture / "textures" / "099.png")
-    cfg = write_config(tmp_path, dict(SMALL, capture={"kind": "cylindrical_scan", "path": str(capture)},
-                                      fit={"iterations": 2}))
+    cfg = write_config(
+        tmp_path, dict(SMALL, capture={"kind": "cylindrical_scan", "path": str(capture)}, fit={"iterations": 2})
+    )
     out = tmp_path / "warned"
     assert main([str(cfg), f"output.dir={out}", "--quiet"]) == 0
     warnings = json.loads((out / "metrics.json").read_text())["capture"]["warnings"]

@@ -14,8 +14,16 @@ from torchrefl.train import main
 SMALL_VASE = {
     "seed": 0,
     "capture": {"kind": "synthetic_cylindrical"},
-    "synthetic": {"object": "vase", "columns": 128, "rows": 64, "angle_step_deg": 2.8, "height_step_mm": 2.0,
-                  "supersample": 1, "indirect_samples": 64, "noise_dn": 0.3},
+    "synthetic": {
+        "object": "vase",
+        "columns": 128,
+        "rows": 64,
+        "angle_step_deg": 2.8,
+        "height_step_mm": 2.0,
+        "supersample": 1,
+        "indirect_samples": 64,
+        "noise_dn": 0.3,
+    },
     "selection": {"num_lights": 10},
     "photon": {"photons_per_light": 200_000, "outer_iterations": 2, "damping": 0.2, "smoothing": 1.0},
     "fit": {"iterations": 30, "holdout": [2, 7]},
@@ -30,13 +38,27 @@ def vase_runs(tmp_path_factory):
     cfg.write_text(yaml.safe_dump(SMALL_VASE))
     assert main([str(cfg), f"output.dir={tmp / 'local'}", "fit.model=local", "--quiet"]) == 0
     capture = tmp / "local" / "capture"
-    runs = {"local": ["fit.model=local"], "photons": ["fit.model=photon", "photon.diffuse_paths=photons"],
-            "hybrid": ["fit.model=auto", "photon.diffuse_paths=radiosity"]}
+    runs = {
+        "local": ["fit.model=local"],
+        "photons": ["fit.model=photon", "photon.diffuse_paths=photons"],
+        "hybrid": ["fit.model=auto", "photon.diffuse_paths=radiosity"],
+    }
     out = {}
     for name, over in runs.items():
         if name != "local":
-            assert main([str(cfg), f"output.dir={tmp / name}", *over, "capture.kind=cylindrical_scan",
-                         f"capture.path={capture}", "--quiet"]) == 0
+            assert (
+                main(
+                    [
+                        str(cfg),
+                        f"output.dir={tmp / name}",
+                        *over,
+                        "capture.kind=cylindrical_scan",
+                        f"capture.path={capture}",
+                        "--quiet",
+                    ]
+                )
+                == 0
+            )
         out[name] = json.loads((tmp / name / "metrics.json").read_text())
         p = np.load(tmp / name / "params.npz")
         truth = np.load(capture / "truth.npz")

@@ -4,7 +4,6 @@ the radiosity level reduces the Pd error that interreflection causes in Method I
 import json
 
 import numpy as np
-
 import pytest
 import yaml
 
@@ -14,8 +13,16 @@ from torchrefl.transport.levels import radiosity as radiosity_level
 SMALL_E = {
     "seed": 0,
     "capture": {"kind": "synthetic_cylindrical"},
-    "synthetic": {"object": "object_e", "columns": 128, "rows": 112, "angle_step_deg": 2.8, "height_step_mm": 2.24,
-                  "supersample": 1, "indirect_samples": 64, "noise_dn": 0.3},
+    "synthetic": {
+        "object": "object_e",
+        "columns": 128,
+        "rows": 112,
+        "angle_step_deg": 2.8,
+        "height_step_mm": 2.24,
+        "supersample": 1,
+        "indirect_samples": 64,
+        "noise_dn": 0.3,
+    },
     "selection": {"max_lights": 12},
     "radiosity": {"patch_size": 1, "hemisphere_samples": 512},
     "fit": {"iterations": 40},
@@ -32,8 +39,19 @@ def runs(tmp_path_factory):
     assert main([str(cfg), f"output.dir={tmp / 'local'}", "fit.model=local", "--quiet"]) == 0
     capture = tmp / "local" / "capture"
     for level in ("radiosity", "auto"):
-        assert main([str(cfg), f"output.dir={tmp / level}", f"fit.model={level}", "capture.kind=cylindrical_scan",
-                     f"capture.path={capture}", "--quiet"]) == 0
+        assert (
+            main(
+                [
+                    str(cfg),
+                    f"output.dir={tmp / level}",
+                    f"fit.model={level}",
+                    "capture.kind=cylindrical_scan",
+                    f"capture.path={capture}",
+                    "--quiet",
+                ]
+            )
+            == 0
+        )
     for level in ("local", "radiosity", "auto"):
         out[level] = json.loads((tmp / level / "metrics.json").read_text())
     out["paths"] = (tmp, cfg, capture)
@@ -60,8 +78,12 @@ def test_auto_models_the_interreflection(runs):
 def glossy(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("oe2")
     cfg = tmp / "oe2.yaml"
-    small = {**SMALL_E, "synthetic": {**SMALL_E["synthetic"], "object": "object_e_glossy"},
-             "photon": {"photons_per_light": 100_000, "outer_iterations": 1}, "fit": {"iterations": 20}}
+    small = {
+        **SMALL_E,
+        "synthetic": {**SMALL_E["synthetic"], "object": "object_e_glossy"},
+        "photon": {"photons_per_light": 100_000, "outer_iterations": 1},
+        "fit": {"iterations": 20},
+    }
     cfg.write_text(yaml.safe_dump(small))
     assert main([str(cfg), f"output.dir={tmp / 'auto'}", "fit.model=auto", "--quiet"]) == 0
     m = json.loads((tmp / "auto" / "metrics.json").read_text())
@@ -88,8 +110,21 @@ def test_more_start_passes_leave_less_interreflection_in_the_start(runs, monkeyp
     for passes in (1, 3):
         out = tmp / f"start{passes}"
         monkeypatch.setattr(radiosity_level, "INIT_PASSES", passes)
-        assert main([str(cfg), f"output.dir={out}", "fit.model=radiosity", "fit.optimizer=none", "fit.specular=shared",
-                     "capture.kind=cylindrical_scan", f"capture.path={capture}", "--quiet"]) == 0
+        assert (
+            main(
+                [
+                    str(cfg),
+                    f"output.dir={out}",
+                    "fit.model=radiosity",
+                    "fit.optimizer=none",
+                    "fit.specular=shared",
+                    "capture.kind=cylindrical_scan",
+                    f"capture.path={capture}",
+                    "--quiet",
+                ]
+            )
+            == 0
+        )
         m = json.loads((out / "metrics.json").read_text())
         start[passes] = m["ground_truth"]["pd_rmse"]
     assert start[3] < 0.8 * start[1], start
@@ -102,8 +137,20 @@ def test_the_photon_level_fit_is_bit_repeatable_on_two_threads(glossy):
     params = []
     for k in range(2):
         out = tmp / f"repeat{k}"
-        assert main([str(cfg), f"output.dir={out}", "fit.model=photon", "threads=2", "capture.kind=cylindrical_scan",
-                     f"capture.path={tmp / 'auto' / 'capture'}", "--quiet"]) == 0
+        assert (
+            main(
+                [
+                    str(cfg),
+                    f"output.dir={out}",
+                    "fit.model=photon",
+                    "threads=2",
+                    "capture.kind=cylindrical_scan",
+                    f"capture.path={tmp / 'auto' / 'capture'}",
+                    "--quiet",
+                ]
+            )
+            == 0
+        )
         params.append(np.load(out / "params.npz"))
     for key in ("pd", "ps", "sigma"):
         assert np.array_equal(params[0][key], params[1][key]), key
@@ -116,9 +163,22 @@ def test_the_gathered_specular_reflection_runs_end_to_end_and_repeats_bit_for_bi
     params = []
     for k in range(2):
         out = tmp / f"gather{k}"
-        assert main([str(cfg), f"output.dir={out}", "fit.model=photon", "threads=2", "photon.diffuse_paths=radiosity",
-                     "photon.specular_gather=32", "capture.kind=cylindrical_scan",
-                     f"capture.path={tmp / 'auto' / 'capture'}", "--quiet"]) == 0
+        assert (
+            main(
+                [
+                    str(cfg),
+                    f"output.dir={out}",
+                    "fit.model=photon",
+                    "threads=2",
+                    "photon.diffuse_paths=radiosity",
+                    "photon.specular_gather=32",
+                    "capture.kind=cylindrical_scan",
+                    f"capture.path={tmp / 'auto' / 'capture'}",
+                    "--quiet",
+                ]
+            )
+            == 0
+        )
         params.append(np.load(out / "params.npz"))
         cache = json.loads((out / "metrics.json").read_text())["photon"]["cache"]
         assert cache["gather_entries"] > 0 and cache["gather_rays"] > 0

@@ -50,11 +50,24 @@ class LightGridConfig:
 class SyntheticConfig:
     """A synthetic object scanned by the seed's cylindrical rig (capture.kind: synthetic_cylindrical)."""
 
-    object: str = opt("ellipsoid", "synthetic object: ellipsoid, sphere, blob (analytic), or object_e, object_e_glossy, bowl, vase (meshes with interreflection)", choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl", "vase"))
+    object: str = opt(
+        "ellipsoid",
+        "synthetic object: ellipsoid, sphere, blob (analytic), or object_e, object_e_glossy, bowl, vase (meshes with interreflection)",
+        choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl", "vase"),
+    )
     size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
     materials: str = opt("regions", "ground-truth material layout", choices=("regions", "uniform"))
-    brdf: str = opt("torrance_sparrow", "BRDF used to render the synthetic images", choices=("torrance_sparrow", "ward", "ward_normalised"))
-    minnaert_k: float = opt(1.0, "Minnaert exponent k of the rendered diffuse part, Pd/pi (cos_l cos_v)^(k-1) (1 = Lambert; objects without interreflection only)", low=0.5, high=2.0)
+    brdf: str = opt(
+        "torrance_sparrow",
+        "BRDF used to render the synthetic images",
+        choices=("torrance_sparrow", "ward", "ward_normalised"),
+    )
+    minnaert_k: float = opt(
+        1.0,
+        "Minnaert exponent k of the rendered diffuse part, Pd/pi (cos_l cos_v)^(k-1) (1 = Lambert; objects without interreflection only)",
+        low=0.5,
+        high=2.0,
+    )
     columns: int = opt(512, "texels around (scan angles); the seed: 512", low=8)
     rows: int = opt(450, "texels along the axis (scan heights); the seed: 450", low=8)
     angle_step_deg: float = opt(0.7, "scan angle step in degrees; the seed: 0.7", low=0.0)
@@ -65,9 +78,15 @@ class SyntheticConfig:
     mesh_subdivisions: int = opt(6, "icosphere subdivisions of the object mesh (the truth geometry)", low=1)
     noise_dn: float = opt(0.3, "Gaussian sensor noise, in 8-bit digital numbers", low=0.0)
     range_noise_mm: float = opt(0.0, "Gaussian range noise in mm", low=0.0)
-    range_bits: Optional[int] = opt(None, "quantise the range image to this many bits (the seed's scanner: 8); null = no quantisation")
+    range_bits: Optional[int] = opt(
+        None, "quantise the range image to this many bits (the seed's scanner: 8); null = no quantisation"
+    )
     texture_bits: int = opt(8, "bit depth of the texture images (the seed: 8)", choices=(8, 16))
-    indirect_samples: int = opt(0, "interreflection paths per visible sub-sample (Monte Carlo path tracing with Embree; 0 = direct light only)", low=0)
+    indirect_samples: int = opt(
+        0,
+        "interreflection paths per visible sub-sample (Monte Carlo path tracing with Embree; 0 = direct light only)",
+        low=0,
+    )
 
 
 @dataclass
@@ -79,8 +98,13 @@ class CaptureConfig:
         "capture kind",
         choices=("synthetic_cylindrical", "cylindrical_scan", "photometric_stereo"),
     )
-    path: str = opt("", "capture folder (relative to the config file; on the command line, to the current folder); unused for synthetic")
-    saturation_level: float = opt(0.995, "fraction of full range at or above which a channel is saturated", low=0.0, high=1.0)
+    path: str = opt(
+        "",
+        "capture folder (relative to the config file; on the command line, to the current folder); unused for synthetic",
+    )
+    saturation_level: float = opt(
+        0.995, "fraction of full range at or above which a channel is saturated", low=0.0, high=1.0
+    )
     kappa: list = opt([PI, PI, PI], "camera calibration gain per channel (i = kappa * L_o); pi reduces to eq. 2.9")
     light_subset: Optional[list] = opt(None, "indices of the lights to load (null = all)")
 
@@ -92,8 +116,17 @@ class GeometryConfig:
     median_size: int = opt(5, "median filter window (odd)", low=1)
     fit_window: int = opt(5, "Yokoya-Levine quadratic fit window (odd)", low=3)
     shadow_offset_mm: float = opt(0.05, "origin offset along the normal for shadow rays, mm", low=0.0)
-    edge_width: int = opt(1, "texels within this many texels of the scanned surface's boundary (mixed pixels) are not fitted (0 = use them)", low=0)
-    crease_angle_deg: Optional[float] = opt(None, "texels on a crease sharper than this many degrees (mixed pixels) are not fitted; null = use them", low=1.0, high=179.0)
+    edge_width: int = opt(
+        1,
+        "texels within this many texels of the scanned surface's boundary (mixed pixels) are not fitted (0 = use them)",
+        low=0,
+    )
+    crease_angle_deg: Optional[float] = opt(
+        None,
+        "texels on a crease sharper than this many degrees (mixed pixels) are not fitted; null = use them",
+        low=1.0,
+        high=179.0,
+    )
 
 
 @dataclass
@@ -102,7 +135,9 @@ class SelectionConfig:
 
     enabled: bool = opt(True, "select lights among the candidates (synthetic captures render only those)")
     grid: LightGridConfig = field(default_factory=LightGridConfig, metadata={"doc": "candidate light grid"})
-    stop_ratio: float = opt(0.8, "th1: stop when specular coverage reaches this fraction of the all-candidates coverage", low=0.0, high=1.0)
+    stop_ratio: float = opt(
+        0.8, "th1: stop when specular coverage reaches this fraction of the all-candidates coverage", low=0.0, high=1.0
+    )
     max_lights: int = opt(20, "never select more lights than this", low=1)
     num_lights: Optional[int] = opt(None, "select exactly this many lights (overrides the stop rule)")
 
@@ -111,24 +146,51 @@ class SelectionConfig:
 class ReflectanceConfig:
     """The reflectance model and the observation classes (dissertation 2.4, 3.2)."""
 
-    brdf: str = opt("torrance_sparrow", "specular lobe", choices=("torrance_sparrow", "ward", "ward_normalised", "lambertian"))
-    diffuse: str = opt("lambert", "diffuse part: lambert (Pd/pi, eq. 2.9) or minnaert (Pd/pi (cos_l cos_v)^(k-1), darker than Lambert towards grazing for k > 1; local transport only)", choices=("lambert", "minnaert"))
-    minnaert_k: Optional[float] = opt(None, "Minnaert exponent k with diffuse: minnaert; null = fitted on the diffuse-only (T_diff) observations, one k for the object", low=0.5, high=2.0)
+    brdf: str = opt(
+        "torrance_sparrow", "specular lobe", choices=("torrance_sparrow", "ward", "ward_normalised", "lambertian")
+    )
+    diffuse: str = opt(
+        "lambert",
+        "diffuse part: lambert (Pd/pi, eq. 2.9) or minnaert (Pd/pi (cos_l cos_v)^(k-1), darker than Lambert towards grazing for k > 1; local transport only)",
+        choices=("lambert", "minnaert"),
+    )
+    minnaert_k: Optional[float] = opt(
+        None,
+        "Minnaert exponent k with diffuse: minnaert; null = fitted on the diffuse-only (T_diff) observations, one k for the object",
+        low=0.5,
+        high=2.0,
+    )
     ps_channels: int = opt(3, "specular reflectance channels: 3 = RGB, 1 = grey", choices=(1, 3))
-    theta_diffuse_deg: float = opt(60.0, "theta_th1: half-angle above which an observation is diffuse only (eq. 2.20)", low=0.0, high=90.0)
-    theta_specular_deg: float = opt(20.0, "theta_th2: half-angle at or below which specular is strong (eq. 2.21)", low=0.0, high=90.0)
+    theta_diffuse_deg: float = opt(
+        60.0, "theta_th1: half-angle above which an observation is diffuse only (eq. 2.20)", low=0.0, high=90.0
+    )
+    theta_specular_deg: float = opt(
+        20.0, "theta_th2: half-angle at or below which specular is strong (eq. 2.21)", low=0.0, high=90.0
+    )
     sigma_min: float = opt(0.01, "lower bound of the roughness sigma (radians)", low=1e-4)
     sigma_max: float = opt(0.6, "upper bound of the roughness sigma (radians)", low=1e-3)
-    ps_max: float = opt(4.0, "upper bound of Ps (kappa = pi units: 1 = a specular peak as bright as white paper); stops tiny-sigma, huge-Ps fits of faint tails", low=1e-3)
-    min_cos_view: float = opt(0.05, "observations with n.v at or below this are not used (grazing view)", low=0.0, high=1.0)
-    min_cos_light: float = opt(0.02, "observations with n.l at or below this are not used (grazing light)", low=0.0, high=1.0)
+    ps_max: float = opt(
+        4.0,
+        "upper bound of Ps (kappa = pi units: 1 = a specular peak as bright as white paper); stops tiny-sigma, huge-Ps fits of faint tails",
+        low=1e-3,
+    )
+    min_cos_view: float = opt(
+        0.05, "observations with n.v at or below this are not used (grazing view)", low=0.0, high=1.0
+    )
+    min_cos_light: float = opt(
+        0.02, "observations with n.l at or below this are not used (grazing light)", low=0.0, high=1.0
+    )
 
 
 @dataclass
 class FitConfig:
     """Fitting of the texel parameter tensors."""
 
-    model: str = opt("local", "transport level: local (Method I), radiosity (II), photon (III) or auto (the cheapest that explains the data)", choices=("local", "radiosity", "photon", "auto"))
+    model: str = opt(
+        "local",
+        "transport level: local (Method I), radiosity (II), photon (III) or auto (the cheapest that explains the data)",
+        choices=("local", "radiosity", "photon", "auto"),
+    )
     noise_floor_dn: float = opt(0.5, "auto: interreflection below this many 8-bit DN is not modelled", low=0.0)
     optimizer: str = opt("lbfgs", "refinement optimiser", choices=("lbfgs", "adam", "none"))
     iterations: int = opt(60, "refinement iterations (LBFGS outer steps or Adam steps)", low=0)
@@ -137,36 +199,87 @@ class FitConfig:
     loss_scale_8bit: float = opt(3.0, "robust loss scale, in 8-bit digital numbers", low=1e-6)
     holdout: list = opt([], "light indices excluded from fitting and evaluated afterwards")
     interpolation_window: int = opt(5, "W: window for interpolating undetermined texels (W x W)", low=1)
-    sigma_search: int = opt(32, "sigma values of the variable-projection search that can replace the closed-form start (0 = off)", low=0)
-    specular: str = opt("texel", "Ps, sigma per texel (texel), one lobe for the whole object (shared), or per texel pulled towards the shared lobe (pooled)", choices=("texel", "shared", "pooled"))
+    sigma_search: int = opt(
+        32, "sigma values of the variable-projection search that can replace the closed-form start (0 = off)", low=0
+    )
+    specular: str = opt(
+        "texel",
+        "Ps, sigma per texel (texel), one lobe for the whole object (shared), or per texel pulled towards the shared lobe (pooled)",
+        choices=("texel", "shared", "pooled"),
+    )
     pooling: float = opt(0.01, "weight of the pull towards the shared lobe when fit.specular is pooled", low=0.0)
-    smoothness: float = opt(0.0, "weight of a neighbour-difference prior on log Ps and sigma (0 = independent texels)", low=0.0)
-    prior_weight: float = opt(0.1, "weight pulling texels without specular evidence towards their interpolated Ps, sigma", low=0.0)
+    smoothness: float = opt(
+        0.0, "weight of a neighbour-difference prior on log Ps and sigma (0 = independent texels)", low=0.0
+    )
+    prior_weight: float = opt(
+        0.1, "weight pulling texels without specular evidence towards their interpolated Ps, sigma", low=0.0
+    )
 
 
 @dataclass
 class RadiosityConfig:
     """The radiosity level (Method II): patches, form factors, the linear solve."""
 
-    patch_size: int = opt(2, "patch side in texels (patches are patch_size x patch_size texel blocks; 1 = one texel per patch)", low=1)
+    patch_size: int = opt(
+        2, "patch side in texels (patches are patch_size x patch_size texel blocks; 1 = one texel per patch)", low=1
+    )
     hemisphere_samples: int = opt(256, "cosine-weighted hemisphere rays per patch for the form factors", low=1)
-    solve_samples: Optional[int] = opt(None, "hemisphere rays per patch of a cheaper second form-factor set used only by the radiosity solve (null = one set)", low=1)
-    light_maps: int = opt(8, "emitter maps per light for lights that move with the scan, interpolated cubically per texel (1 = none)", low=1)
+    solve_samples: Optional[int] = opt(
+        None,
+        "hemisphere rays per patch of a cheaper second form-factor set used only by the radiosity solve (null = one set)",
+        low=1,
+    )
+    light_maps: int = opt(
+        8,
+        "emitter maps per light for lights that move with the scan, interpolated cubically per texel (1 = none)",
+        low=1,
+    )
 
 
 @dataclass
 class PhotonConfig:
     """The photon level (Method III): photon tracing, the indirect-light cache, the outer loop."""
 
-    photons_per_light: int = opt(400_000, "photons traced per light and cache refresh (shared by its light maps)", low=1)
-    light_maps: int = opt(8, "photon maps per light when the lights move with the scan (co-rotating rig); texels interpolate cubically between the four nearest", low=1)
-    outer_iterations: int = opt(3, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0)
-    schedule: str = opt("joint", "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation", choices=("joint", "seed"))
-    damping: float = opt(0.5, "fraction of the previous refresh's Pd that Pd keeps after each photon refit (under-relaxation; 0 = none)", low=0.0, high=0.95)
-    smoothing: float = opt(1.0, "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each texel's own photons)", low=0.0)
-    diffuse_paths: str = opt("photons", "source of the all-diffuse paths' indirect light: photons, or radiosity (the radiosity solution, noise-free)", choices=("photons", "radiosity"))
-    specular_smoothing: float = opt(0.0, "std in texels of the 3 x 3 Gaussian that spreads each photon's specular entry (0 = per texel)", low=0.0)
-    specular_gather: int = opt(0, "with diffuse_paths radiosity: lobe directions per texel that gather the specular reflection of diffuse light (0 = off)", low=0)
+    photons_per_light: int = opt(
+        400_000, "photons traced per light and cache refresh (shared by its light maps)", low=1
+    )
+    light_maps: int = opt(
+        8,
+        "photon maps per light when the lights move with the scan (co-rotating rig); texels interpolate cubically between the four nearest",
+        low=1,
+    )
+    outer_iterations: int = opt(
+        3, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0
+    )
+    schedule: str = opt(
+        "joint",
+        "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation",
+        choices=("joint", "seed"),
+    )
+    damping: float = opt(
+        0.5,
+        "fraction of the previous refresh's Pd that Pd keeps after each photon refit (under-relaxation; 0 = none)",
+        low=0.0,
+        high=0.95,
+    )
+    smoothing: float = opt(
+        1.0,
+        "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each texel's own photons)",
+        low=0.0,
+    )
+    diffuse_paths: str = opt(
+        "photons",
+        "source of the all-diffuse paths' indirect light: photons, or radiosity (the radiosity solution, noise-free)",
+        choices=("photons", "radiosity"),
+    )
+    specular_smoothing: float = opt(
+        0.0, "std in texels of the 3 x 3 Gaussian that spreads each photon's specular entry (0 = per texel)", low=0.0
+    )
+    specular_gather: int = opt(
+        0,
+        "with diffuse_paths radiosity: lobe directions per texel that gather the specular reflection of diffuse light (0 = off)",
+        low=0,
+    )
 
 
 @dataclass
@@ -195,7 +308,9 @@ class Config:
     radiosity: RadiosityConfig = field(default_factory=RadiosityConfig, metadata={"doc": "radiosity level"})
     photon: PhotonConfig = field(default_factory=PhotonConfig, metadata={"doc": "photon level"})
     output: OutputConfig = field(default_factory=OutputConfig, metadata={"doc": "outputs"})
-    config_dir: str = field(default=".", metadata={"doc": "(set by the loader) folder of the config file", "internal": True})
+    config_dir: str = field(
+        default=".", metadata={"doc": "(set by the loader) folder of the config file", "internal": True}
+    )
 
     @property
     def torch_dtype(self):
@@ -269,7 +384,9 @@ def _coerce(value: Any, tp, key: str, where: str, meta: dict) -> Any:
 
 def _apply(obj, data: dict, prefix: str, where: str, sources: dict | None = None) -> None:
     if not isinstance(data, dict):
-        raise ConfigError(f"{where}: key '{prefix.rstrip('.') or '<top>'}' must be a mapping, got {type(data).__name__}")
+        raise ConfigError(
+            f"{where}: key '{prefix.rstrip('.') or '<top>'}' must be a mapping, got {type(data).__name__}"
+        )
     fields = _field_types(type(obj))
     public = [n for n, (f, _) in fields.items() if not f.metadata.get("internal")]
     for key, value in data.items():
@@ -290,35 +407,55 @@ def _apply(obj, data: dict, prefix: str, where: str, sources: dict | None = None
 def _validate(cfg: Config, where_of) -> None:
     """Cross-field checks; where_of(key) names where the key's value came from (the file or an override)."""
     if cfg.reflectance.sigma_min >= cfg.reflectance.sigma_max:
-        raise ConfigError(f"{where_of('reflectance.sigma_min')}: reflectance.sigma_min ({cfg.reflectance.sigma_min}) must be < reflectance.sigma_max ({cfg.reflectance.sigma_max})")
+        raise ConfigError(
+            f"{where_of('reflectance.sigma_min')}: reflectance.sigma_min ({cfg.reflectance.sigma_min}) must be < reflectance.sigma_max ({cfg.reflectance.sigma_max})"
+        )
     rc = cfg.reflectance
     if rc.minnaert_k is not None and rc.diffuse != "minnaert":
-        raise ConfigError(f"{where_of('reflectance.minnaert_k')}: key 'reflectance.minnaert_k' is set but reflectance.diffuse is '{rc.diffuse}'; "
-                          "set reflectance.diffuse: minnaert or drop the key")
+        raise ConfigError(
+            f"{where_of('reflectance.minnaert_k')}: key 'reflectance.minnaert_k' is set but reflectance.diffuse is '{rc.diffuse}'; "
+            "set reflectance.diffuse: minnaert or drop the key"
+        )
     if rc.diffuse != "lambert" and cfg.fit.model in ("radiosity", "photon"):
-        raise ConfigError(f"{where_of('reflectance.diffuse')}: reflectance.diffuse '{rc.diffuse}' is for local transport only; fit.model "
-                          f"'{cfg.fit.model}' carries Lambertian interreflection (use reflectance.diffuse: lambert)")
+        raise ConfigError(
+            f"{where_of('reflectance.diffuse')}: reflectance.diffuse '{rc.diffuse}' is for local transport only; fit.model "
+            f"'{cfg.fit.model}' carries Lambertian interreflection (use reflectance.diffuse: lambert)"
+        )
     if cfg.synthetic.minnaert_k != 1.0 and cfg.synthetic.indirect_samples > 0:
-        raise ConfigError(f"{where_of('synthetic.minnaert_k')}: key 'synthetic.minnaert_k' = {cfg.synthetic.minnaert_k} needs synthetic.indirect_samples: 0 "
-                          "(the interreflection renderer is Lambertian)")
+        raise ConfigError(
+            f"{where_of('synthetic.minnaert_k')}: key 'synthetic.minnaert_k' = {cfg.synthetic.minnaert_k} needs synthetic.indirect_samples: 0 "
+            "(the interreflection renderer is Lambertian)"
+        )
     if cfg.photon.specular_gather > 0 and cfg.photon.diffuse_paths != "radiosity":
-        raise ConfigError(f"{where_of('photon.specular_gather')}: key 'photon.specular_gather' ({cfg.photon.specular_gather}) gathers the radiosity "
-                          f"level's light and needs photon.diffuse_paths: radiosity (it is '{cfg.photon.diffuse_paths}'); "
-                          "set photon.diffuse_paths: radiosity or photon.specular_gather: 0")
+        raise ConfigError(
+            f"{where_of('photon.specular_gather')}: key 'photon.specular_gather' ({cfg.photon.specular_gather}) gathers the radiosity "
+            f"level's light and needs photon.diffuse_paths: radiosity (it is '{cfg.photon.diffuse_paths}'); "
+            "set photon.diffuse_paths: radiosity or photon.specular_gather: 0"
+        )
     if cfg.reflectance.theta_specular_deg >= cfg.reflectance.theta_diffuse_deg:
-        raise ConfigError(f"{where_of('reflectance.theta_specular_deg')}: reflectance.theta_specular_deg must be < reflectance.theta_diffuse_deg")
+        raise ConfigError(
+            f"{where_of('reflectance.theta_specular_deg')}: reflectance.theta_specular_deg must be < reflectance.theta_diffuse_deg"
+        )
     if len(cfg.capture.kappa) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.capture.kappa):
-        raise ConfigError(f"{where_of('capture.kappa')}: key 'capture.kappa' must be a list of 3 positive numbers, got {cfg.capture.kappa!r}")
+        raise ConfigError(
+            f"{where_of('capture.kappa')}: key 'capture.kappa' must be a list of 3 positive numbers, got {cfg.capture.kappa!r}"
+        )
     if len(cfg.synthetic.size_mm) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.synthetic.size_mm):
-        raise ConfigError(f"{where_of('synthetic.size_mm')}: key 'synthetic.size_mm' must be a list of 3 positive numbers, got {cfg.synthetic.size_mm!r}")
+        raise ConfigError(
+            f"{where_of('synthetic.size_mm')}: key 'synthetic.size_mm' must be a list of 3 positive numbers, got {cfg.synthetic.size_mm!r}"
+        )
     for key, lst in (("fit.holdout", cfg.fit.holdout), ("capture.light_subset", cfg.capture.light_subset or [])):
         if not all(isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in lst):
             raise ConfigError(f"{where_of(key)}: key '{key}' must be a list of non-negative light indices, got {lst!r}")
     if cfg.capture.light_subset == []:
-        raise ConfigError(f"{where_of('capture.light_subset')}: key 'capture.light_subset' is an empty list: it selects "
-                          "no light; list light indices, or null for all lights")
+        raise ConfigError(
+            f"{where_of('capture.light_subset')}: key 'capture.light_subset' is an empty list: it selects "
+            "no light; list light indices, or null for all lights"
+        )
     if cfg.capture.kind != "synthetic_cylindrical" and not cfg.capture.path:
-        raise ConfigError(f"{where_of('capture.kind')}: key 'capture.path' is required for capture.kind '{cfg.capture.kind}'")
+        raise ConfigError(
+            f"{where_of('capture.kind')}: key 'capture.path' is required for capture.kind '{cfg.capture.kind}'"
+        )
     for key in ("geometry.median_size", "geometry.fit_window", "fit.interpolation_window"):
         section, name = key.split(".")
         if getattr(getattr(cfg, section), name) % 2 != 1:
@@ -393,7 +530,7 @@ def load_config(path: Optional[str | Path] = None, overrides: list[str] = ()) ->
     for text in overrides:
         key, value = parse_override(text)
         if key in PATH_KEYS and isinstance(value, str) and value and not Path(value).is_absolute():
-            value = str(Path.cwd() / value)          # command-line paths are relative to the current folder
+            value = str(Path.cwd() / value)  # command-line paths are relative to the current folder
         _apply(cfg, _nest(key, value), "", override_where(text), sources)
     _validate(cfg, lambda key: sources.get(key, default_where))
     return cfg

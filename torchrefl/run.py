@@ -15,10 +15,10 @@ import yaml
 
 from torchrefl.capture.base import Capture, loader_for
 from torchrefl.config import Config, load_config, resolve_path, to_dict
+from torchrefl.core.atomic_files import atomic_write_text
 from torchrefl.core.progress import Stages
 from torchrefl.errors import ConfigError, TorchReflError
 from torchrefl.fit.pipeline import fit_capture
-from torchrefl.core.atomic_files import atomic_write_text
 from torchrefl.report.outputs import write_outputs
 from torchrefl.report.run_folder import StagedRunFolder, output_folder
 from torchrefl.report.run_result import RunResult, load_run
@@ -70,8 +70,10 @@ def _pipeline(cfg: Config, out: Path, target: Path, stages: Stages, log) -> dict
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     device = torch_device(cfg)
-    log(f"torchrefl {__version__}: capture {cfg.capture.kind}, model {cfg.fit.model}, brdf {cfg.reflectance.brdf}, "
-        f"{cfg.dtype} on {device}; outputs in {target} (written in {out.name} until complete)")
+    log(
+        f"torchrefl {__version__}: capture {cfg.capture.kind}, model {cfg.fit.model}, brdf {cfg.reflectance.brdf}, "
+        f"{cfg.dtype} on {device}; outputs in {target} (written in {out.name} until complete)"
+    )
     cap, selection = _capture(cfg, out, stages, log)
     for warning in cap.warnings:
         log(f"warning: {warning}")
@@ -109,8 +111,9 @@ def run(cfg: Config, quiet: bool = False, overwrite: bool = False) -> dict:
         log.close()
 
 
-def fit(config: Config | str | Path, overrides: list[str] = (), *, quiet: bool = True,
-        overwrite: bool = False) -> RunResult:
+def fit(
+    config: Config | str | Path, overrides: list[str] = (), *, quiet: bool = True, overwrite: bool = False
+) -> RunResult:
     """Fit a config (a Config, or a YAML file with dotted.key=value overrides) and return the finished run."""
     cfg = config if isinstance(config, Config) else load_config(config, list(overrides))
     run(cfg, quiet=quiet, overwrite=overwrite)

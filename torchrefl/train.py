@@ -23,11 +23,16 @@ def main(argv=None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("config", help="YAML config file (e.g. configs/default.yaml)")
-    parser.add_argument("overrides", nargs="*", help="dotted.key=value overrides, e.g. output.dir=/tmp/x fit.holdout=[5,11]")
+    parser.add_argument(
+        "overrides", nargs="*", help="dotted.key=value overrides, e.g. output.dir=/tmp/x fit.holdout=[5,11]"
+    )
     parser.add_argument("--quiet", action="store_true", help="no log lines on stderr (log.txt is still written)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace an earlier run in output.dir (kept until this run completes; without the flag "
-                             "a folder holding a run is refused)")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an earlier run in output.dir (kept until this run completes; without the flag "
+        "a folder holding a run is refused)",
+    )
     args = parser.parse_intermixed_args(argv)
     try:
         cfg = load_config(args.config, args.overrides)

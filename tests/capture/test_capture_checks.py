@@ -7,6 +7,8 @@ import shutil
 import numpy as np
 import pytest
 import yaml
+from capture.test_cylindrical_scan import small_cfg
+from capture.test_photometric_stereo import make_folder
 
 from torchrefl.capture.cylindrical_scan import CylindricalScanLoader
 from torchrefl.capture.images import read_image, write_png
@@ -14,9 +16,6 @@ from torchrefl.capture.photometric_stereo import PhotometricStereoLoader
 from torchrefl.config import Config, LightGridConfig
 from torchrefl.errors import CaptureError
 from torchrefl.synthetic.scan import SyntheticScan
-
-from capture.test_cylindrical_scan import small_cfg
-from capture.test_photometric_stereo import make_folder
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +61,7 @@ def edit_scan_yaml(folder, change):
 
 # ------------------------------------------------------------------ an image file used for two lights
 
+
 def test_one_texture_for_two_lights_is_refused(scan):
     edit_scan_yaml(scan, lambda d: d["lights"][2].update(image=d["lights"][0]["image"]))
     with pytest.raises(CaptureError, match=r"lights 0 and 2 use the same image file .*000\.png"):
@@ -84,6 +84,7 @@ def test_two_names_of_one_file_are_one_file(scan):
 
 # ------------------------------------------------------------------ constant or black images
 
+
 @pytest.mark.parametrize("which", [[0, 1, 2], [1]])
 def test_constant_textures_are_refused(scan, which):
     for i in which:
@@ -102,7 +103,7 @@ def test_constant_photographs_are_refused(ps, which):
 
 def test_black_noise_images_are_refused_all_and_flagged_alone(ps):
     rng = np.random.default_rng(0)
-    noise = lambda: rng.integers(0, 2 * 257, size=(6, 8, 3)).astype(np.uint16)   # below 2 DN of 8 bits
+    noise = lambda: rng.integers(0, 2 * 257, size=(6, 8, 3)).astype(np.uint16)  # below 2 DN of 8 bits
     write_png(ps / "002.png", noise(), bits=16)
     cap = load("photometric_stereo", ps)
     assert len(cap.warnings) == 1 and "002.png" in cap.warnings[0] and "black" in cap.warnings[0]
@@ -120,6 +121,7 @@ def test_identical_photographs_of_two_files_are_flagged(ps):
 
 # ------------------------------------------------------------------ channel count or size differs
 
+
 def test_a_grey_texture_among_rgb_is_refused(scan):
     grey = (read_image(scan / "textures" / "001.png")[0].mean(-1) * 255).round().astype(np.uint8)
     write_png(scan / "textures" / "001.png", grey, bits=8)
@@ -135,6 +137,7 @@ def test_a_grey_photograph_among_rgb_is_refused(ps):
 
 # ------------------------------------------------------------------ light subsets
 
+
 @pytest.mark.parametrize("kind", ["cylindrical_scan", "photometric_stereo"])
 @pytest.mark.parametrize("subset,match", [([0, 0], r"indices \[0\] repeated"), ([], "is empty")])
 def test_bad_light_subsets_are_refused_for_both_kinds(scan, ps, kind, subset, match):
@@ -144,6 +147,7 @@ def test_bad_light_subsets_are_refused_for_both_kinds(scan, ps, kind, subset, ma
 
 
 # ------------------------------------------------------------------ more images than lights
+
 
 def test_textures_no_light_lists_are_flagged(scan):
     shutil.copy(scan / "textures" / "000.png", scan / "textures" / "003.png")
@@ -161,12 +165,16 @@ def test_photographs_filenames_txt_does_not_list_are_flagged(ps):
 
 # ------------------------------------------------------------------ range maps that cannot be millimetres
 
-@pytest.mark.parametrize("change,match", [
-    (lambda r: np.round(r).astype(np.int16), "int16, integer counts are not millimetres"),
-    (lambda r: r.astype(np.float16), "float16, expected float32 or float64"),
-    (lambda r: r * 1e6, "reach past the camera.*not in mm"),
-    (lambda r: -r, "negative ranges"),
-])
+
+@pytest.mark.parametrize(
+    "change,match",
+    [
+        (lambda r: np.round(r).astype(np.int16), "int16, integer counts are not millimetres"),
+        (lambda r: r.astype(np.float16), "float16, expected float32 or float64"),
+        (lambda r: r * 1e6, "reach past the camera.*not in mm"),
+        (lambda r: -r, "negative ranges"),
+    ],
+)
 def test_range_maps_that_cannot_be_millimetres_are_refused(scan, change, match):
     r = np.load(scan / "range.npy")
     with np.errstate(invalid="ignore"):
@@ -193,11 +201,15 @@ def test_a_camera_at_the_axis_is_refused(scan):
 
 # ------------------------------------------------------------------ nothing to fit says why
 
+
 def test_nothing_to_fit_names_the_filters_scan(scan):
     """Lights behind the rotation axis (radial -300 mm in the head frame) light no texel the camera sees."""
     edit_scan_yaml(scan, lambda d: [e.update(position_mm=[0.0, 0.0, -300.0]) for e in d["lights"]])
-    with pytest.raises(CaptureError, match=r"nothing to fit: none of the \d+ observations.*not lit \(n.l at or "
-                                           r"below the threshold\): [1-9].*in cast shadow: \d+.*saturated"):
+    with pytest.raises(
+        CaptureError,
+        match=r"nothing to fit: none of the \d+ observations.*not lit \(n.l at or "
+        r"below the threshold\): [1-9].*in cast shadow: \d+.*saturated",
+    ):
         load("cylindrical_scan", scan)
 
 
@@ -219,10 +231,13 @@ def test_the_fit_side_names_its_filters():
     valid = torch.ones(3, 4, dtype=torch.bool)
     held = torch.tensor([True, True, True])
     with pytest.raises(FitError, match=r"nothing to fit in cap.*held out \(fit.holdout: 3 lights\): 12"):
-        require_fit_observations(valid & ~held[:, None], valid, torch.ones(4), torch.ones(3, 4), held, 0.05, 0.02, "cap")
+        require_fit_observations(
+            valid & ~held[:, None], valid, torch.ones(4), torch.ones(3, 4), held, 0.05, 0.02, "cap"
+        )
 
 
 # ------------------------------------------------------------------ light intensities of the wrong scale
+
 
 def test_light_intensities_of_the_wrong_scale_name_their_file(ps, scan):
     table = np.loadtxt(ps / "light_intensities.txt")
@@ -237,13 +252,17 @@ def test_light_intensities_of_the_wrong_scale_name_their_file(ps, scan):
 
 # ------------------------------------------------------------------ scan.yaml is strict
 
-@pytest.mark.parametrize("change,key", [
-    (lambda d: d.update(renderer={"samples": 4}), "renderer"),
-    (lambda d: d["grid"].update(rowz=80), "grid.rowz"),
-    (lambda d: d["light"].update(colour="white"), "light.colour"),
-    (lambda d: d["truth"].update(fiel="gt.npz"), "truth.fiel"),
-    (lambda d: d["lights"][1].update(positon_mm=[0, 0, 1]), r"lights\[1\]\.positon_mm"),
-])
+
+@pytest.mark.parametrize(
+    "change,key",
+    [
+        (lambda d: d.update(renderer={"samples": 4}), "renderer"),
+        (lambda d: d["grid"].update(rowz=80), "grid.rowz"),
+        (lambda d: d["light"].update(colour="white"), "light.colour"),
+        (lambda d: d["truth"].update(fiel="gt.npz"), "truth.fiel"),
+        (lambda d: d["lights"][1].update(positon_mm=[0, 0, 1]), r"lights\[1\]\.positon_mm"),
+    ],
+)
 def test_unknown_scan_yaml_keys_are_named(scan, change, key):
     edit_scan_yaml(scan, change)
     with pytest.raises(CaptureError, match=rf"scan\.yaml: unknown key '{key}'"):
@@ -256,7 +275,7 @@ def test_unknown_manifest_keys_are_named(scan):
     lines = [dict(e, **rig_keys) for e in doc["lights"]]
     (scan / "manifest.jsonl").write_text("".join(json.dumps(e) + "\n" for e in lines))
     edit_scan_yaml(scan, lambda d: d.update(lights="manifest.jsonl"))
-    assert load("cylindrical_scan", scan).obs.num_lights == 3          # the rig's keys are known
+    assert load("cylindrical_scan", scan).obs.num_lights == 3  # the rig's keys are known
     lines[0]["exposure"] = 0.1
     (scan / "manifest.jsonl").write_text("".join(json.dumps(e) + "\n" for e in lines))
     with pytest.raises(CaptureError, match=r"manifest\.jsonl: unknown key 'lights\[0\]\.exposure'"):
@@ -264,6 +283,7 @@ def test_unknown_manifest_keys_are_named(scan):
 
 
 # ------------------------------------------------------------------ scan.yaml against the config: one rule
+
 
 def test_the_folders_saturation_level_and_kappa_win_and_the_override_is_logged(scan):
     edit_scan_yaml(scan, lambda d: (d.update(saturation_level=0.5), d["light"].update(kappa=[3.0, 3.0, 3.0])))
@@ -294,12 +314,16 @@ def test_the_truth_file_scan_yaml_names_is_the_one_read(scan):
 
 # ------------------------------------------------------------------ truth.npz is validated
 
-@pytest.mark.parametrize("damage,match", [
-    (lambda d: d.pop("sigma"), "missing key 'sigma'"),
-    (lambda d: d.update(pd=d["pd"][:, :10]), "'pd' is float.*expected numbers of shape"),
-    (lambda d: d.update(sigma=np.full_like(d["sigma"], np.nan)), "'sigma' is NaN or infinite at"),
-    (lambda d: d.update(minnaert_k=np.array("one")), "'minnaert_k'"),
-])
+
+@pytest.mark.parametrize(
+    "damage,match",
+    [
+        (lambda d: d.pop("sigma"), "missing key 'sigma'"),
+        (lambda d: d.update(pd=d["pd"][:, :10]), "'pd' is float.*expected numbers of shape"),
+        (lambda d: d.update(sigma=np.full_like(d["sigma"], np.nan)), "'sigma' is NaN or infinite at"),
+        (lambda d: d.update(minnaert_k=np.array("one")), "'minnaert_k'"),
+    ],
+)
 def test_bad_truth_files_are_named_errors(scan, damage, match):
     data = dict(np.load(scan / "truth.npz"))
     damage(data)

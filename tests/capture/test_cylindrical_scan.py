@@ -9,14 +9,22 @@ import yaml
 
 from torchrefl.capture.cylindrical_rig import CylindricalRig, light_grid_positions
 from torchrefl.capture.cylindrical_scan import load_scan_geometry, load_scan_observations, load_truth, read_scan_yaml
-from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.config import LightGridConfig, SyntheticConfig
 from torchrefl.errors import CaptureError
+from torchrefl.synthetic.scan import SyntheticScan
 
 
 def small_cfg(**kw):
-    base = dict(columns=96, rows=80, angle_step_deg=360 / 96, height_step_mm=2.0, size_mm=[50.0, 60.0, 40.0],
-                supersample=2, mesh_subdivisions=5, noise_dn=0.0)
+    base = dict(
+        columns=96,
+        rows=80,
+        angle_step_deg=360 / 96,
+        height_step_mm=2.0,
+        size_mm=[50.0, 60.0, 40.0],
+        supersample=2,
+        mesh_subdivisions=5,
+        noise_dn=0.0,
+    )
     base.update(kw)
     return SyntheticConfig(**base)
 

@@ -35,7 +35,9 @@ def raw_png(path: Path, samples: np.ndarray) -> None:
         return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF)
 
     ihdr = struct.pack(">IIBBBBB", W, H, depth, colour, 0, 0, 0)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(data)) + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(data)) + chunk(b"IEND", b"")
+    )
 
 
 def hostile_16bit() -> np.ndarray:
@@ -46,7 +48,7 @@ def hostile_16bit() -> np.ndarray:
 
 
 def as_counts(image: np.ndarray, bits: int) -> np.ndarray:
-    return np.rint(image.astype(np.float64) * (2 ** bits - 1)).astype(np.int64)
+    return np.rint(image.astype(np.float64) * (2**bits - 1)).astype(np.int64)
 
 
 def test_reader_keeps_all_16_bits_of_a_hand_made_png(tmp_path):
@@ -132,13 +134,16 @@ def test_write_png_8bit_round_trip(tmp_path):
     np.testing.assert_array_equal(as_counts(img, 8), np.repeat(np.floor(grey * 255 + 0.5)[..., None], 3, -1))
 
 
-@pytest.mark.parametrize("bad, what", [
-    (np.full((3, 4, 3), 1.5), "expected [0, 1]"),
-    (np.full((3, 4, 3), -0.1), "expected [0, 1]"),
-    (np.full((3, 4, 3), np.nan), "NaN"),
-    (np.zeros((3, 4, 3), np.uint16), "8-bit"),   # uint16 samples for an 8-bit file
-    (np.zeros((3, 4, 2)), "expected (H, W)"),
-])
+@pytest.mark.parametrize(
+    "bad, what",
+    [
+        (np.full((3, 4, 3), 1.5), "expected [0, 1]"),
+        (np.full((3, 4, 3), -0.1), "expected [0, 1]"),
+        (np.full((3, 4, 3), np.nan), "NaN"),
+        (np.zeros((3, 4, 3), np.uint16), "8-bit"),  # uint16 samples for an 8-bit file
+        (np.zeros((3, 4, 2)), "expected (H, W)"),
+    ],
+)
 def test_write_png_rejects_bad_images(tmp_path, bad, what):
     with pytest.raises(CaptureError) as err:
         write_png(tmp_path / "bad.png", bad, bits=8)

@@ -149,7 +149,9 @@ def test_missing_folder(tmp_path):
     _expect(tmp_path / "nowhere", CaptureError, "nowhere")
 
 
-@pytest.mark.parametrize("name", ["light_directions.txt", "light_intensities.txt", "mask.png", "Normal_gt.mat", "003.png"])
+@pytest.mark.parametrize(
+    "name", ["light_directions.txt", "light_intensities.txt", "mask.png", "Normal_gt.mat", "003.png"]
+)
 def test_missing_file(fake, name):
     (fake["root"] / name).unlink()
     _expect(fake["root"], CaptureError, name, "missing")
@@ -245,8 +247,10 @@ def test_empty_mask(fake):
 def test_diligent_ball_lambertian_normals(tmp_path):
     t0 = time.perf_counter()
     surface, obs, stats = load_photometric_stereo(BALL, threads=2)
-    print(f"\nDiLiGenT ball: {stats['lights']} images, {stats['texels']} texels, {stats['bit_depth']}-bit, "
-          f"{stats['saturated_observations']} saturated, loaded in {time.perf_counter() - t0:.2f} s")
+    print(
+        f"\nDiLiGenT ball: {stats['lights']} images, {stats['texels']} texels, {stats['bit_depth']}-bit, "
+        f"{stats['saturated_observations']} saturated, loaded in {time.perf_counter() - t0:.2f} s"
+    )
     mask = np.asarray(Image.open(BALL / "mask.png").convert("RGB")).any(-1)
     assert surface.grid_shape == (512, 612) and surface.num_texels == int(mask.sum())
     assert obs.intensity.shape == (96, surface.num_texels, 3) and stats["bit_depth"] == 16
@@ -269,8 +273,10 @@ def test_diligent_ball_lambertian_normals(tmp_path):
     n_fit = b / b.norm(dim=1, keepdim=True)
     n_gt = surface.normals[ok].to(torch.float64)
     err = torch.rad2deg(torch.atan2(torch.linalg.cross(n_fit, n_gt).norm(dim=1), (n_fit * n_gt).sum(1)))
-    print(f"Lambertian fit on {sub.num_lights} images: mean angular error {float(err.mean()):.2f} deg "
-          f"over {int(ok.sum())} texels")
+    print(
+        f"Lambertian fit on {sub.num_lights} images: mean angular error {float(err.mean()):.2f} deg "
+        f"over {int(ok.sum())} texels"
+    )
     assert ok.float().mean() > 0.95
     assert float(err.mean()) < 6.0
 
@@ -289,7 +295,11 @@ def test_diligent_ball_light_subset():
     surface, obs, stats = load_photometric_stereo(BALL, light_subset=[0, 47, 95])
     assert obs.light_names == ["001.png", "048.png", "096.png"] and stats["lights"] == 3
     dirs = np.loadtxt(BALL / "light_directions.txt")[[0, 47, 95]]
-    np.testing.assert_allclose(obs.light_dir[:, 0].numpy(), dirs / np.linalg.norm(dirs, axis=1, keepdims=True), atol=1e-6)
-    np.testing.assert_allclose(obs.light_intensity.numpy(), np.loadtxt(BALL / "light_intensities.txt")[[0, 47, 95]], rtol=1e-6)
+    np.testing.assert_allclose(
+        obs.light_dir[:, 0].numpy(), dirs / np.linalg.norm(dirs, axis=1, keepdims=True), atol=1e-6
+    )
+    np.testing.assert_allclose(
+        obs.light_intensity.numpy(), np.loadtxt(BALL / "light_intensities.txt")[[0, 47, 95]], rtol=1e-6
+    )
     first = np.asarray(Image.open(BALL / "048.png").convert("RGB"))[surface.mask()].astype(np.int64)
     assert np.abs((np.rint(obs.intensity[1].numpy() * 65535.0).astype(np.int64) >> 8) - first).max() <= 1

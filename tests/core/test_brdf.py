@@ -38,7 +38,7 @@ def eq_2_9(nrm, l, v, pd, ps, sigma):
     cos_v = (nrm * v).sum(1)
     h = (l + v) / np.linalg.norm(l + v, axis=1, keepdims=True)
     th = np.arccos(np.clip((nrm * h).sum(1), -1, 1))
-    return pd * cos_d[:, None] + ps / cos_v[:, None] * np.exp(-th ** 2 / (2 * sigma ** 2))[:, None]
+    return pd * cos_d[:, None] + ps / cos_v[:, None] * np.exp(-(th**2) / (2 * sigma**2))[:, None]
 
 
 def eq_5_9(nrm, l, v, pd, ps, sigma, normalised):
@@ -46,7 +46,7 @@ def eq_5_9(nrm, l, v, pd, ps, sigma, normalised):
     cos_v = (nrm * v).sum(1)
     h = (l + v) / np.linalg.norm(l + v, axis=1, keepdims=True)
     th = np.arccos(np.clip((nrm * h).sum(1), -1, 1))
-    spec = np.exp(-np.tan(th) ** 2 / sigma ** 2) / (4 * math.pi * sigma ** 2)
+    spec = np.exp(-(np.tan(th) ** 2) / sigma**2) / (4 * math.pi * sigma**2)
     if normalised:
         spec = spec / np.sqrt(cos_l * cos_v)
     return (pd / math.pi + ps * spec[:, None]) * cos_l[:, None]
@@ -117,7 +117,9 @@ def test_extremes_are_finite(model, dtype):
     graze = [1.0, 0.0, 1e-7]
     cases_l = [up, graze, [1.0, 0.0, 0.0], [0.0, 0.6, 0.8], [0.0, 0.0, -1.0]]
     cases_v = [up, graze, [0.0, 1.0, 0.0], [0.0, -0.6, 0.8]]
-    rows = [(l_, v_, pd_, s_) for l_ in cases_l for v_ in cases_v for pd_ in (0.0, 1.0) for s_ in (1e-4, 0.01, 0.6, 2.0)]
+    rows = [
+        (l_, v_, pd_, s_) for l_ in cases_l for v_ in cases_v for pd_ in (0.0, 1.0) for s_ in (1e-4, 0.01, 0.6, 2.0)
+    ]
     n = torch.tensor([up] * len(rows), dtype=dtype)
     l = brdf.safe_normalize(torch.tensor([r[0] for r in rows], dtype=dtype))
     v = brdf.safe_normalize(torch.tensor([r[1] for r in rows], dtype=dtype))
@@ -148,8 +150,10 @@ def test_lambertian_part_integrates_to_pd():
     l = random_unit(N, rng, np.array([0.0, 0.0, 1.0]))
     n = np.tile([0.0, 0.0, 1.0], (N, 1))
     v = np.tile([0.0, 0.0, 1.0], (N, 1))
-    g = brdf.cosine_weighted_brdf("torrance_sparrow", T(n), T(l), T(v), T(np.full((N, 3), 0.7)), T(np.zeros((N, 3))), T(np.full(N, 0.2)))
-    integral = g.numpy().mean(0) * 2 * math.pi          # uniform hemisphere pdf 1 / (2 pi)
+    g = brdf.cosine_weighted_brdf(
+        "torrance_sparrow", T(n), T(l), T(v), T(np.full((N, 3), 0.7)), T(np.zeros((N, 3))), T(np.full(N, 0.2))
+    )
+    integral = g.numpy().mean(0) * 2 * math.pi  # uniform hemisphere pdf 1 / (2 pi)
     np.testing.assert_allclose(integral, 0.7, rtol=0.01)
 
 
@@ -160,7 +164,9 @@ def test_normalised_ward_lobe_reflects_about_ps():
     l = random_unit(N, rng, np.array([0.0, 0.0, 1.0]))
     n = np.tile([0.0, 0.0, 1.0], (N, 1))
     v = np.tile([0.0, 0.0, 1.0], (N, 1))
-    g = brdf.cosine_weighted_brdf("ward_normalised", T(n), T(l), T(v), T(np.zeros((N, 3))), T(np.ones((N, 3))), T(np.full(N, 0.15)))
+    g = brdf.cosine_weighted_brdf(
+        "ward_normalised", T(n), T(l), T(v), T(np.zeros((N, 3))), T(np.ones((N, 3))), T(np.full(N, 0.15))
+    )
     integral = g.numpy()[:, 0].mean() * 2 * math.pi
     assert 0.9 < integral < 1.05
 
@@ -173,6 +179,7 @@ def test_unknown_brdf_is_a_config_error():
 
 
 # ------------------------------------------------------------------ Minnaert diffuse part
+
 
 def minnaert_written_out(nrm, l, v, pd, k):
     """Pd / pi (cos_l cos_v)^(k - 1) cos_l, written out (front-facing light and view)."""
@@ -216,8 +223,16 @@ def test_minnaert_extremes_are_finite(dtype, k):
     v = brdf.safe_normalize(torch.tensor([r[1] for r in rows], dtype=dtype)).requires_grad_()
     pd = torch.ones(len(rows), 3, dtype=dtype, requires_grad=True)
     e = torch.tensor(k, dtype=dtype, requires_grad=True)
-    g = brdf.cosine_weighted_brdf("torrance_sparrow", n, l, v, pd, torch.zeros(len(rows), 3, dtype=dtype),
-                                  torch.full((len(rows),), 0.2, dtype=dtype), e)
+    g = brdf.cosine_weighted_brdf(
+        "torrance_sparrow",
+        n,
+        l,
+        v,
+        pd,
+        torch.zeros(len(rows), 3, dtype=dtype),
+        torch.full((len(rows),), 0.2, dtype=dtype),
+        e,
+    )
     assert torch.isfinite(g).all() and (g >= 0).all()
     g.sum().backward()
     for t in (l, v, pd, e):

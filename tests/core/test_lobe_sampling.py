@@ -22,7 +22,7 @@ def test_lobe_over_pdf_is_the_lobe_over_the_half_vector_pdf(lobe, model, sigma):
     p = half_vector_pdf(lobe, np.cos(theta), sig)
     trunc, ratio = lobe_constants(lobe, sig)
     ours = lobe_over_pdf(lobe, theta, np.cos(theta), np.sin(theta), ratio)
-    np.testing.assert_allclose(ours, D / p, rtol=1e-6)      # the quotient loses digits to cos near theta = 0
+    np.testing.assert_allclose(ours, D / p, rtol=1e-6)  # the quotient loses digits to cos near theta = 0
 
 
 @pytest.mark.parametrize("lobe", ["torrance_sparrow", "ward"])
@@ -37,7 +37,7 @@ def test_lobe_theta_with_precomputed_constants_is_the_plain_sampler(lobe):
 @pytest.mark.parametrize("lobe", ["torrance_sparrow", "ward"])
 def test_float32_closed_forms_are_finite_at_the_extremes_and_match_float64(lobe):
     sigma = np.array([brdf.SIGMA_EPS, brdf.SIGMA_EPS, 0.05, 1.5, 1.5, brdf.SIGMA_EPS])
-    u = np.array([0.0, 1 - 2 ** -24, 0.5, 0.0, 1 - 2 ** -24, 0.999])        # float32's largest value below 1
+    u = np.array([0.0, 1 - 2**-24, 0.5, 0.0, 1 - 2**-24, 0.999])  # float32's largest value below 1
     trunc, ratio = lobe_constants(lobe, sigma)
     th64 = lobe_theta(lobe, sigma, u, trunc)
     th32 = lobe_theta(lobe, sigma.astype(np.float32), u.astype(np.float32), trunc.astype(np.float32))

@@ -59,8 +59,15 @@ def test_restart_of_a_shared_lobe_from_its_own_expanded_values():
     """assign() with the (expanded) values of a shared-lobe TexelParams keeps them (torch's median of a
     stride-0 tensor is NaN: the constructor must not take it)."""
     T = 5
-    p = TexelParams(torch.full((T, 3), 0.5), torch.full((T, 3), 0.3), torch.full((T,), 0.1), 0.01, 0.6,
-                    shared_specular=True, ps_max=4.0)
+    p = TexelParams(
+        torch.full((T, 3), 0.5),
+        torch.full((T, 3), 0.3),
+        torch.full((T,), 0.1),
+        0.01,
+        0.6,
+        shared_specular=True,
+        ps_max=4.0,
+    )
     with torch.no_grad():
         before = [x.clone() for x in p.values()]
         p.assign(*p.values())

@@ -75,7 +75,7 @@ def reference(v, f, x, n, L, offset, min_cos=0.0):
         seg = L[i] - origin
         length = float(np.sqrt(seg @ seg))
         if length - offset <= 0:
-            continue                                   # within the offset: nothing traced, unshadowed
+            continue  # within the offset: nothing traced, unshadowed
         end = origin + seg / length * (length - offset)
         out["shadowed"][i], out["robust"][i] = segment_blocked(v, f, origin, end)
     return out
@@ -99,12 +99,19 @@ def cases():
 
 
 def expected():
-    return {"occluder between point and light": (True, True), "open sky": (True, False),
-            "grazing light, lit": (True, False), "grazing light behind the occluder": (True, True),
-            "light behind the surface": (False, False), "light in the surface's plane": (False, False),
-            "light very near the point": (True, False), "light near the point, past the offset": (True, False),
-            "light on the point": (False, False), "light just under the occluder": (True, False),
-            "light on the occluder's top": (True, False)}
+    return {
+        "occluder between point and light": (True, True),
+        "open sky": (True, False),
+        "grazing light, lit": (True, False),
+        "grazing light behind the occluder": (True, True),
+        "light behind the surface": (False, False),
+        "light in the surface's plane": (False, False),
+        "light very near the point": (True, False),
+        "light near the point, past the offset": (True, False),
+        "light on the point": (False, False),
+        "light just under the occluder": (True, False),
+        "light on the occluder's top": (True, False),
+    }
 
 
 def test_named_cases_match_the_reference_and_the_rule(scene):

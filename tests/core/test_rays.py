@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.core.rays import RayTracer, aimed_rays, raw_embree_rate
+from torchrefl.errors import ConfigError, GeometryError
 
 EPS = 1e-4
 
@@ -20,8 +20,8 @@ def moller_trumbore(vertices, faces, origins, dirs):
     """Every ray against every triangle: t, u, v and the barycentric margin min(u, v, 1-u-v), each (N, F).
     dirs: unit. t is NaN where the ray is parallel to the triangle's plane."""
     v0, v1, v2 = (np.asarray(vertices, dtype=np.float64)[faces[:, k]] for k in range(3))
-    e1, e2 = v1 - v0, v2 - v0                                   # (F, 3)
-    p = np.cross(dirs[:, None, :], e2[None])                    # (N, F, 3)
+    e1, e2 = v1 - v0, v2 - v0  # (F, 3)
+    p = np.cross(dirs[:, None, :], e2[None])  # (N, F, 3)
     det = np.einsum("nfi,fi->nf", p, e1)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = np.where(np.abs(det) > 1e-15, 1.0 / det, np.nan)
@@ -39,7 +39,7 @@ def hit_intervals(t, margin, far):
     far = np.broadcast_to(np.asarray(far, dtype=np.float64), t.shape[:1])[:, None]
     strict = (margin > EPS) & (t > EPS) & (t < far - EPS)
     loose = (margin > -EPS) & (t > -EPS) & (t < far + EPS)
-    return strict, loose                                        # comparisons with NaN t are False
+    return strict, loose  # comparisons with NaN t are False
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +54,7 @@ def scene():
     n = 3000
     origins = rng.uniform(-3.0, 3.0, size=(n, 3))
     dirs = rng.uniform(-1.5, 1.5, size=(n, 3)) - origins
-    dirs[: n // 10] = rng.normal(size=(n // 10, 3))             # some rays aimed anywhere (misses)
+    dirs[: n // 10] = rng.normal(size=(n // 10, 3))  # some rays aimed anywhere (misses)
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     t, u, v, margin = moller_trumbore(vertices, faces, origins, dirs)
     return vertices, faces, origins, dirs, t, u, v, margin
@@ -81,14 +81,14 @@ def check_closest(hits, t, u, v, margin, far=np.inf):
 def test_closest_hit_matches_brute_force(scene):
     vertices, faces, o, d, t, u, v, margin = scene
     scale = np.random.default_rng(2).uniform(0.1, 10.0, size=(len(d), 1))
-    hits = RayTracer(vertices, faces).closest_hit(o, d * scale)      # non-unit directions allowed
+    hits = RayTracer(vertices, faces).closest_hit(o, d * scale)  # non-unit directions allowed
     must, may = check_closest(hits, t, u, v, margin)
-    assert must.sum() > 2000 and (~may).sum() > 100                  # the scene tests both hits and misses
+    assert must.sum() > 2000 and (~may).sum() > 100  # the scene tests both hits and misses
     strict, loose = hit_intervals(t, margin, np.inf)
     best = np.where(strict, t, np.inf)
     nearest = best.min(1)
     two = np.sort(np.where(loose, t, np.inf), axis=1)[:, :2]
-    clear = must & (two[:, 0] > nearest - 1e-3) & (two[:, 1] > nearest + 1e-3)   # no tie, no edge graze nearer
+    clear = must & (two[:, 0] > nearest - 1e-3) & (two[:, 1] > nearest + 1e-3)  # no tie, no edge graze nearer
     assert clear.sum() > 1900
     np.testing.assert_array_equal(hits.triangle[clear], best[clear].argmin(1))
 
@@ -98,19 +98,23 @@ def test_first_hit_triangles_and_per_call_threads_agree_with_closest_hit(scene):
     vertices, faces, o, d, t, u, v, margin = scene
     tracer = RayTracer(vertices, faces, threads=2)
     ref = tracer.closest_hit(o, d)
-    tri = tracer.first_hit_triangles(np.ascontiguousarray(o, dtype=np.float32), np.ascontiguousarray(d, dtype=np.float32))
+    tri = tracer.first_hit_triangles(
+        np.ascontiguousarray(o, dtype=np.float32), np.ascontiguousarray(d, dtype=np.float32)
+    )
     assert tri.dtype == np.int64
     np.testing.assert_array_equal(tri, ref.triangle)
     unit = d / np.linalg.norm(d, axis=1, keepdims=True)
-    prim, u, v, dist = tracer.first_hits(np.ascontiguousarray(o, dtype=np.float32), np.ascontiguousarray(unit, dtype=np.float32))
+    prim, u, v, dist = tracer.first_hits(
+        np.ascontiguousarray(o, dtype=np.float32), np.ascontiguousarray(unit, dtype=np.float32)
+    )
     np.testing.assert_array_equal(prim.astype(np.int64), ref.triangle)
     hit = prim >= 0
-    np.testing.assert_allclose(dist[hit], ref.distance[hit], rtol=1e-5)          # directions normalised in float64 here
+    np.testing.assert_allclose(dist[hit], ref.distance[hit], rtol=1e-5)  # directions normalised in float64 here
     np.testing.assert_allclose(np.stack([u, v], -1)[hit], ref.barycentric[hit], atol=1e-5)
     one = tracer.closest_hit(o, d, threads=1)
     np.testing.assert_array_equal(one.triangle, ref.triangle)
     np.testing.assert_array_equal(one.distance, ref.distance)
-    assert tracer.threads == 2                                       # the override is per call
+    assert tracer.threads == 2  # the override is per call
 
 
 def test_closest_hit_with_max_distance(scene):
@@ -118,7 +122,7 @@ def test_closest_hit_with_max_distance(scene):
     far = np.random.default_rng(3).uniform(0.5, 5.0, size=len(o))
     far_in = far.copy()
     hits = RayTracer(vertices, faces).closest_hit(o, d, max_distance=far_in)
-    np.testing.assert_array_equal(far_in, far)                        # Embree's in-place tfar never leaks
+    np.testing.assert_array_equal(far_in, far)  # Embree's in-place tfar never leaks
     must, _ = check_closest(hits, t, u, v, margin, far)
     assert must.sum() > 1000 and (hits.distance[hits.hit] <= far[hits.hit] * (1 + 1e-6)).all()
 
@@ -138,7 +142,8 @@ def test_float32_input_gives_the_same_answers(scene):
     tr = RayTracer(vertices, faces)
     a = tr.closest_hit(o, d)
     b = RayTracer(vertices.astype(np.float32), faces.astype(np.int32)).closest_hit(
-        o.astype(np.float32), d.astype(np.float32))
+        o.astype(np.float32), d.astype(np.float32)
+    )
     np.testing.assert_array_equal(a.distance, b.distance)
     np.testing.assert_array_equal(a.triangle, b.triangle)
     assert a.distance.dtype == np.float64 and a.triangle.dtype == np.int64 and a.barycentric.shape == (len(o), 2)
@@ -161,7 +166,7 @@ def test_threads_and_chunks_give_identical_results(scene, threads, chunk):
 def test_large_batch_is_split_over_threads(scene):
     """A batch above the split size goes through several chunks on two threads: same answers."""
     vertices, faces, o, d, *_ = scene
-    o, d = np.tile(o, (50, 1)), np.tile(d, (50, 1))                  # 150k rays: 3 chunks of 65536 or fewer
+    o, d = np.tile(o, (50, 1)), np.tile(d, (50, 1))  # 150k rays: 3 chunks of 65536 or fewer
     a = RayTracer(vertices, faces, threads=1).closest_hit(o, d)
     b = RayTracer(vertices, faces, threads=2).closest_hit(o, d)
     np.testing.assert_array_equal(a.distance, b.distance)
@@ -177,13 +182,13 @@ def test_visible_from_a_sphere_surface_either_normal_orientation():
     tangent = np.cross(nrm, rng.normal(size=nrm.shape))
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
     outside = pts + 3.0 * (nrm + rng.uniform(0, 1.0, size=(500, 1)) * tangent)  # within 45 deg of the normal
-    for n in (nrm, -nrm, 7.0 * nrm):                                  # outward, inward, not unit
-        assert tr.visible(pts, n, outside, offset=1e-3).all()         # no self-hit
+    for n in (nrm, -nrm, 7.0 * nrm):  # outward, inward, not unit
+        assert tr.visible(pts, n, outside, offset=1e-3).all()  # no self-hit
     assert tr.visible(pts, None, outside, offset=1e-3).all()
-    behind = -pts * 5.0                                               # through the sphere
+    behind = -pts * 5.0  # through the sphere
     for n in (nrm, -nrm, None):
         assert not tr.visible(pts, n, behind, offset=1e-3).any()
-    assert not tr.visible(pts, nrm, outside, offset=0.0).all()       # without the offset the point hits itself
+    assert not tr.visible(pts, nrm, outside, offset=0.0).all()  # without the offset the point hits itself
 
 
 def test_target_hidden_behind_a_second_object():
@@ -194,13 +199,13 @@ def test_target_hidden_behind_a_second_object():
     tr = RayTracer(m.vertices, m.faces)
     facing = np.flatnonzero(sphere.vertex_normals[:, 0] > 0.5)
     p, n = sphere.vertices[facing], sphere.vertex_normals[facing]
-    beyond = p + (5.0 - p[:, :1]) / n[:, :1] * n                      # x = 5, behind the wall
-    before = p + (2.0 - p[:, :1]) / n[:, :1] * n                      # x = 2, between sphere and wall
+    beyond = p + (5.0 - p[:, :1]) / n[:, :1] * n  # x = 5, behind the wall
+    before = p + (2.0 - p[:, :1]) / n[:, :1] * n  # x = 2, between sphere and wall
     assert not tr.visible(p, n, beyond, offset=1e-3).any()
     assert tr.visible(p, n, before, offset=1e-3).all()
-    on_wall = p + (2.95 - p[:, :1]) / n[:, :1] * n                    # target on the wall's surface
+    on_wall = p + (2.95 - p[:, :1]) / n[:, :1] * n  # target on the wall's surface
     assert tr.visible(p, n, on_wall, offset=1e-3).all()
-    assert tr.visible(p, n, p + 1e-4 * n, offset=1e-3).all()         # target within the offset: visible
+    assert tr.visible(p, n, p + 1e-4 * n, offset=1e-3).all()  # target within the offset: visible
 
 
 def test_empty_batches():
@@ -219,29 +224,32 @@ _ONE = np.tile([0.0, 0.0, 1.0], (5, 1))
 _NAN = np.where(np.arange(15).reshape(5, 3) == 7, np.nan, 1.0)
 
 
-@pytest.mark.parametrize("call,pattern", [
-    (lambda tr: tr.closest_hit(np.zeros((5, 2)), _ONE), r"origins has shape \(5, 2\), expected \(N, 3\)"),
-    (lambda tr: tr.closest_hit(_Z, _ONE[:, :, None]), r"directions has shape \(5, 3, 1\), expected \(N, 3\)"),
-    (lambda tr: tr.occluded(_Z, _ONE[:4], 1.0), "directions has 4 rows, expected 5"),
-    (lambda tr: tr.closest_hit(_NAN, _ONE), "origins contains NaN or inf .*first at row 2"),
-    (lambda tr: tr.occluded(_Z, np.full((5, 3), np.inf), 1.0), "directions contains NaN or inf"),
-    (lambda tr: tr.closest_hit(_Z, np.full((5, 3), 1e300)), "directions contains NaN or inf .*float32 range"),
-    (lambda tr: tr.closest_hit(_Z, np.zeros((5, 3))), "directions has zero-length vectors, first at row 0"),
-    (lambda tr: tr.closest_hit(_Z, _ONE, max_distance=np.ones(4)), r"max_distance has shape \(4,\)"),
-    (lambda tr: tr.occluded(_Z, _ONE, np.nan), "max_distance contains NaN"),
-    (lambda tr: tr.occluded(_Z, _ONE, -1.0), "max_distance contains NaN or negative"),
-    (lambda tr: tr.visible(_Z, _ONE[:3], _ONE, offset=1e-3), "normals has 3 rows, expected 5"),
-    (lambda tr: tr.visible(_Z, np.zeros((5, 3)), _ONE, offset=1e-3), "normals has zero-length vectors"),
-    (lambda tr: tr.visible(_Z, None, np.zeros((5, 2)), offset=1e-3), r"targets has shape \(5, 2\)"),
-    (lambda tr: tr.visible(_NAN, None, _ONE, offset=1e-3), "points contains NaN"),
-    (lambda tr: tr.visible(_Z, None, _ONE, offset=-1.0), "offset is -1.0, expected"),
-    (lambda tr: RayTracer(np.zeros((0, 3)), np.zeros((0, 3), dtype=int)), "mesh is empty"),
-    (lambda tr: RayTracer(_M.vertices[:, :2], _M.faces), r"vertices have shape \(42, 2\)"),
-    (lambda tr: RayTracer(_M.vertices, _M.faces.T), r"faces have shape \(3, 80\)"),
-    (lambda tr: RayTracer(_M.vertices, _M.faces + 40), "faces index vertices .* out of range 0..41"),
-    (lambda tr: RayTracer(_M.vertices, _M.faces.astype(float)), "faces have dtype float64"),
-    (lambda tr: RayTracer(np.full((3, 3), np.nan), np.array([[0, 1, 2]])), "vertices contain NaN"),
-])
+@pytest.mark.parametrize(
+    "call,pattern",
+    [
+        (lambda tr: tr.closest_hit(np.zeros((5, 2)), _ONE), r"origins has shape \(5, 2\), expected \(N, 3\)"),
+        (lambda tr: tr.closest_hit(_Z, _ONE[:, :, None]), r"directions has shape \(5, 3, 1\), expected \(N, 3\)"),
+        (lambda tr: tr.occluded(_Z, _ONE[:4], 1.0), "directions has 4 rows, expected 5"),
+        (lambda tr: tr.closest_hit(_NAN, _ONE), "origins contains NaN or inf .*first at row 2"),
+        (lambda tr: tr.occluded(_Z, np.full((5, 3), np.inf), 1.0), "directions contains NaN or inf"),
+        (lambda tr: tr.closest_hit(_Z, np.full((5, 3), 1e300)), "directions contains NaN or inf .*float32 range"),
+        (lambda tr: tr.closest_hit(_Z, np.zeros((5, 3))), "directions has zero-length vectors, first at row 0"),
+        (lambda tr: tr.closest_hit(_Z, _ONE, max_distance=np.ones(4)), r"max_distance has shape \(4,\)"),
+        (lambda tr: tr.occluded(_Z, _ONE, np.nan), "max_distance contains NaN"),
+        (lambda tr: tr.occluded(_Z, _ONE, -1.0), "max_distance contains NaN or negative"),
+        (lambda tr: tr.visible(_Z, _ONE[:3], _ONE, offset=1e-3), "normals has 3 rows, expected 5"),
+        (lambda tr: tr.visible(_Z, np.zeros((5, 3)), _ONE, offset=1e-3), "normals has zero-length vectors"),
+        (lambda tr: tr.visible(_Z, None, np.zeros((5, 2)), offset=1e-3), r"targets has shape \(5, 2\)"),
+        (lambda tr: tr.visible(_NAN, None, _ONE, offset=1e-3), "points contains NaN"),
+        (lambda tr: tr.visible(_Z, None, _ONE, offset=-1.0), "offset is -1.0, expected"),
+        (lambda tr: RayTracer(np.zeros((0, 3)), np.zeros((0, 3), dtype=int)), "mesh is empty"),
+        (lambda tr: RayTracer(_M.vertices[:, :2], _M.faces), r"vertices have shape \(42, 2\)"),
+        (lambda tr: RayTracer(_M.vertices, _M.faces.T), r"faces have shape \(3, 80\)"),
+        (lambda tr: RayTracer(_M.vertices, _M.faces + 40), "faces index vertices .* out of range 0..41"),
+        (lambda tr: RayTracer(_M.vertices, _M.faces.astype(float)), "faces have dtype float64"),
+        (lambda tr: RayTracer(np.full((3, 3), np.nan), np.array([[0, 1, 2]])), "vertices contain NaN"),
+    ],
+)
 def test_bad_input_names_the_argument(call, pattern):
     tr = RayTracer(_M.vertices, _M.faces)
     with pytest.raises(GeometryError, match=pattern):
@@ -252,7 +260,7 @@ def test_raw_rate_uses_the_aimed_rays():
     m = trimesh.creation.icosphere(subdivisions=3)
     o, d, far = aimed_rays(m.vertices, 2000)
     hits = RayTracer(m.vertices, m.faces).closest_hit(o, d, far)
-    assert hits.hit.mean() > 0.5                                      # "aimed at the mesh"
+    assert hits.hit.mean() > 0.5  # "aimed at the mesh"
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, rtol=1e-6)
     assert raw_embree_rate(m.vertices, m.faces, 2000, "OCCLUDED") > 0
     with pytest.raises(ConfigError, match="query is 'CLOSEST'"):

@@ -32,7 +32,7 @@ def test_neighbour_and_at_match_the_loop(grid):
             got = g.neighbour(t, dy, dx)
             assert got.dtype == np.int64
             assert got.tolist() == [reference_neighbour(H, W, index, k, dy, dx) for k in t]
-    sub = np.array([5, 0, 5, 39])                            # any subset, repeats allowed
+    sub = np.array([5, 0, 5, 39])  # any subset, repeats allowed
     assert g.neighbour(sub, 0, 1).tolist() == [reference_neighbour(H, W, index, k, 0, 1) for k in sub]
     assert g.at(g.rows, g.cols).tolist() == t.tolist()
     assert g.at(np.array([-1, H, 0]), np.array([0, 0, W])).tolist() == [-1, -1, -1]

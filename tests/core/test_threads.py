@@ -19,7 +19,7 @@ def test_one_thread_or_one_unit_runs_on_the_calling_thread_and_more_use_a_pool()
     me = threading.get_ident()
     assert set(thread_map(lambda _: threading.get_ident(), range(5), 1)) == {me}
     assert thread_map(lambda _: threading.get_ident(), [0], 4) == [me]
-    barrier = threading.Barrier(2, timeout=10)               # two units that must run at the same time
+    barrier = threading.Barrier(2, timeout=10)  # two units that must run at the same time
     assert thread_map(lambda u: barrier.wait() >= 0 and u, [1, 2], 2) == [1, 2]
 
 

@@ -57,14 +57,17 @@ def test_committed_notebook_has_no_outputs():
 def executed():
     """The notebook run by a kernel that imports this tree's torchrefl (PYTHONPATH first: the kernel inherits it)."""
     nb = nbformat.read(NOTEBOOK, as_version=4)
-    env = {"PYTHONPATH": os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
-           "TORCHREFL_DILIGENT_BALL": str(BALL)}
+    env = {
+        "PYTHONPATH": os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
+        "TORCHREFL_DILIGENT_BALL": str(BALL),
+    }
     saved = {k: os.environ.get(k) for k in env}
     os.environ.update(env)
     try:
-        client = nbclient.NotebookClient(nb, timeout=CELL_TIMEOUT_S, kernel_name="python3",
-                                         resources={"metadata": {"path": str(NOTEBOOK.parent)}})
-        client.execute()        # raises CellExecutionError on the first cell that fails
+        client = nbclient.NotebookClient(
+            nb, timeout=CELL_TIMEOUT_S, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOK.parent)}}
+        )
+        client.execute()  # raises CellExecutionError on the first cell that fails
     finally:
         for k, v in saved.items():
             if v is None:
@@ -84,7 +87,7 @@ def test_tour_synthetic_section(executed):
     # the reflectance / coverage maps, the selection curve, the held-out triple and the relit views are figures
     for marker in ("show(run.figure())", "selection.json", "show_light(run.folder", "run.render("):
         assert _images(_cell(nb, marker)) == 1, marker
-    fitted = _text(_cell(nb, "torchrefl.fit(ROOT / \"configs\" / \"default.yaml\""))
+    fitted = _text(_cell(nb, 'torchrefl.fit(ROOT / "configs" / "default.yaml"'))
     assert re.search(r"fitted in [\d.]+ s: 100 x 128 texels", fitted), fitted
     held = _held_out(_text(_cell(nb, "show_light(run.folder")))
     assert held["count"] > 1000 and held["mean_abs_diff_8bit"] < 1.0
@@ -104,6 +107,6 @@ def test_tour_diligent_ball_section(executed):
         assert "DiLiGenT ball data not found" in _text(first) and _images(first) == 0 and _images(second) == 0
         pytest.skip(f"{BALL} not present: the notebook skipped its section, as checked")
     assert "DiLiGenT ball fitted" in _text(first) and _images(first) == 1
-    assert _images(second) == 2        # the held-out triple and the relit views
+    assert _images(second) == 2  # the held-out triple and the relit views
     held = _held_out(_text(second))
     assert held["count"] > 1000 and held["mean_abs_diff_8bit"] < 1.0

@@ -4,8 +4,8 @@ import math
 
 import pytest
 import torch
-
 from conftest import dome_scene, point_light_observations
+
 from torchrefl.core.observation_classes import INVALID, T_DIFF, T_NONE, T_SPEC, classify
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.transport.local import local_terms, predict
@@ -75,7 +75,7 @@ def test_two_observations_reproduce_eq_3_5_by_hand():
     i_s = i - cf.pd[t].mean() * Yc * terms.cos_l[:, t]
     a1, a2 = (i_s[keep] * terms.cos_v[keep, t] / Yc[keep]).tolist()
     th1, th2 = terms.theta_h[keep, t].tolist()
-    sig = math.sqrt((th2 ** 2 - th1 ** 2) / (2 * math.log(a1 / a2)))
+    sig = math.sqrt((th2**2 - th1**2) / (2 * math.log(a1 / a2)))
     assert abs(float(cf.sigma[t]) - sig) < 1e-9
     assert abs(float(cf.sigma[t]) - float(sigma[t])) < 1e-6
 

@@ -4,10 +4,10 @@ import math
 
 import pytest
 import torch
-
 from conftest import dome_scene, point_light_observations
-from torchrefl.errors import FitError
+
 from torchrefl.core.observation_classes import T_DIFF, classify
+from torchrefl.errors import FitError
 from torchrefl.fit.diffuse_shape import fit_minnaert_exponent
 from torchrefl.transport.local import local_terms, render_reference
 
@@ -40,7 +40,7 @@ def test_recovers_the_exponent_of_the_rendering(k_true):
     assert shape.observations == int(mask.sum())
     assert shape.mse_8bit <= shape.mse_lambert_8bit + 1e-12
     # the residual left at the fitted k is the sensor's: noise (0.3 DN) and 8-bit quantisation (1/12 DN^2)
-    assert shape.mse_8bit < 0.3 ** 2 + 1.0 / 12 + 0.05
+    assert shape.mse_8bit < 0.3**2 + 1.0 / 12 + 0.05
     if abs(k_true - 1.0) > 0.05:
         assert shape.mse_lambert_8bit > 2 * shape.mse_8bit
 

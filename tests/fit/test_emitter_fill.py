@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 import torch
-
 from conftest import fold_surface, point_light_observations
+
+from torchrefl.capture.base import Capture
 from torchrefl.config import Config
 from torchrefl.fit.emitter_fill import nearest_fitted
-from torchrefl.capture.base import Capture
 from torchrefl.fit.pipeline import level_inputs
 from torchrefl.transport.levels.photon import PhotonLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
@@ -35,8 +35,9 @@ def test_all_or_no_fitted_texels_leave_every_texel_its_own_and_bad_shapes_raise(
 
 def fold_setup(hemisphere_samples=256, **photon):
     s = fold_surface(8, 16)
-    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
-                                   torch.tensor([-150.0, 0.0, 150.0]))
+    obs = point_light_observations(
+        s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]), torch.tensor([-150.0, 0.0, 150.0])
+    )
     cfg = Config()
     cfg.reflectance.brdf = "torrance_sparrow"
     cfg.radiosity.hemisphere_samples = hemisphere_samples
@@ -76,7 +77,7 @@ def test_the_filled_indirect_light_has_float64_gradients_that_reach_the_source_t
     rng = np.random.default_rng(0)
     pd = torch.tensor(rng.uniform(0.2, 0.9, (s.num_texels, 3)), requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: filled(x)[:, :, 0].sum(0), (pd,), eps=1e-6, atol=1e-6)
-    g, = torch.autograd.grad(filled(pd).sum(), pd)
+    (g,) = torch.autograd.grad(filled(pd).sum(), pd)
     assert bool((g[~fitted] == 0).all()) and bool((g[fitted].abs().sum(1) > 0).any())
 
 
@@ -107,14 +108,19 @@ def test_the_photon_level_scatters_with_the_filled_parameters():
 def test_the_fit_logs_the_filled_texels_at_the_interreflection_levels_only():
     """End to end on a small fold: at the radiosity level the log names the texels filled (the wall's rim is never
     lit here); at the local level nothing is filled (no interreflection)."""
-    from torchrefl.fit.pipeline import fit_capture
     from torchrefl.core.progress import Stages
+    from torchrefl.fit.pipeline import fit_capture
 
     s = fold_surface(6, 12, dtype=torch.float32)
-    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0], [-30.0, 10.0, 30.0]]),
-                                   torch.tensor([-150.0, 0.0, 150.0]), dtype=torch.float32)
+    obs = point_light_observations(
+        s.normals,
+        s.positions,
+        torch.tensor([[-40.0, 0.0, 25.0], [-30.0, 10.0, 30.0]]),
+        torch.tensor([-150.0, 0.0, 150.0]),
+        dtype=torch.float32,
+    )
     col = s.texel_index % 12
-    obs.valid[:, col >= 10] = False                       # two wall columns without a fitted observation
+    obs.valid[:, col >= 10] = False  # two wall columns without a fitted observation
     lines = {}
     for model in ("radiosity", "local"):
         cfg = Config()

@@ -4,11 +4,11 @@ import itertools
 
 import pytest
 import torch
-
 from conftest import dome_scene, point_light_observations
+
 from torchrefl.core.observation_classes import classify
-from torchrefl.fit.closed_form import closed_form
 from torchrefl.core.params import TexelParams
+from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.profile_search import profile_search, sigma_grid
 from torchrefl.fit.refine import Objective, Prior, refine
 from torchrefl.transport.local import local_terms, predict
@@ -20,15 +20,17 @@ def extreme_scene(dtype):
     nrm, pos, lights, cam = dome_scene(T=64, seed=9)
     pos_t = torch.as_tensor(pos)
     n_t = torch.as_tensor(nrm)
-    near = (pos_t[:1] + 1.0 * n_t[:1]).numpy()                      # a light 1 mm from texel 0
-    grazing = (pos_t[1:2] + torch.tensor([[1000.0, 0.0, 0.0]], dtype=pos_t.dtype)).numpy()   # almost in the tangent plane
+    near = (pos_t[:1] + 1.0 * n_t[:1]).numpy()  # a light 1 mm from texel 0
+    grazing = (
+        pos_t[1:2] + torch.tensor([[1000.0, 0.0, 0.0]], dtype=pos_t.dtype)
+    ).numpy()  # almost in the tangent plane
     L = torch.cat([torch.as_tensor(lights[::8]), torch.as_tensor(near), torch.as_tensor(grazing)]).numpy()
     obs = point_light_observations(nrm, pos, L, cam, dtype=dtype)
     P, T = obs.valid.shape
     g = torch.Generator().manual_seed(0)
     obs.intensity = torch.rand(P, T, 3, generator=g, dtype=dtype) * 0.5
-    obs.intensity[:, :8] = 0.0                                       # black texels
-    obs.intensity[:, 8:16] = 1.0                                     # saturated texels
+    obs.intensity[:, :8] = 0.0  # black texels
+    obs.intensity[:, 8:16] = 1.0  # saturated texels
     obs.saturated[:, 8:16] = True
     obs.valid[:, 8:16] = False
     return obs, n_t.to(dtype)
@@ -41,11 +43,29 @@ def test_objective_and_gradients_finite_at_extremes(model, dtype):
     terms = local_terms(model, n, obs)
     T = n.shape[0]
     for pd_v, sg_v in itertools.product((0.0, 1.0), (0.01, 0.6)):
-        params = TexelParams(torch.full((T, 3), pd_v, dtype=dtype), torch.full((T, 3), 0.5, dtype=dtype),
-                             torch.full((T,), sg_v, dtype=dtype), 0.01, 0.6, init_floor=1e-6, ps_max=4.0)
-        obj = Objective(lambda a, b, c: predict(terms, a, b, c), obs.intensity, obs.valid,
-                        priors=[Prior(torch.ones(T, dtype=torch.bool), torch.full((T, 3), 0.1, dtype=dtype),
-                                      torch.full((T,), 0.1, dtype=dtype), 0.1)], smoothness=0.0)
+        params = TexelParams(
+            torch.full((T, 3), pd_v, dtype=dtype),
+            torch.full((T, 3), 0.5, dtype=dtype),
+            torch.full((T,), sg_v, dtype=dtype),
+            0.01,
+            0.6,
+            init_floor=1e-6,
+            ps_max=4.0,
+        )
+        obj = Objective(
+            lambda a, b, c: predict(terms, a, b, c),
+            obs.intensity,
+            obs.valid,
+            priors=[
+                Prior(
+                    torch.ones(T, dtype=torch.bool),
+                    torch.full((T, 3), 0.1, dtype=dtype),
+                    torch.full((T,), 0.1, dtype=dtype),
+                    0.1,
+                )
+            ],
+            smoothness=0.0,
+        )
         loss = obj(params)
         assert torch.isfinite(loss)
         loss.backward()
@@ -80,9 +100,11 @@ def test_float32_fit_agrees_with_float64():
         n = torch.as_tensor(nrm).to(dtype)
         terms = local_terms("torrance_sparrow", n, obs)
         g = torch.Generator().manual_seed(1)
-        truth = (0.2 + 0.5 * torch.rand(200, 3, generator=g, dtype=torch.float64).to(dtype),
-                 0.1 + 0.3 * torch.rand(200, 3, generator=g, dtype=torch.float64).to(dtype),
-                 0.08 + 0.15 * torch.rand(200, generator=g, dtype=torch.float64).to(dtype))
+        truth = (
+            0.2 + 0.5 * torch.rand(200, 3, generator=g, dtype=torch.float64).to(dtype),
+            0.1 + 0.3 * torch.rand(200, 3, generator=g, dtype=torch.float64).to(dtype),
+            0.08 + 0.15 * torch.rand(200, generator=g, dtype=torch.float64).to(dtype),
+        )
         obs.intensity = predict(terms, *truth)
         pd, ps, sg, _ = profile_search(terms, obs.intensity, obs.valid, sigma_grid(0.01, 0.6, 32))
         params = TexelParams(pd, ps, sg, 0.01, 0.6)

@@ -10,10 +10,10 @@ def test_holes_in_a_linear_ramp_are_filled_by_neighbours():
     yy, xx = torch.meshgrid(torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij")
     grid = torch.stack([xx * 0.01 + 0.2, yy * 0.0 + 0.5], -1)
     known = torch.ones(H, W, dtype=torch.bool)
-    known[5:7, 10:12] = False                     # a 2 x 2 hole: the symmetric window mean is exact on a ramp
+    known[5:7, 10:12] = False  # a 2 x 2 hole: the symmetric window mean is exact on a ramp
     inside = torch.ones(H, W, dtype=torch.bool)
     damaged = grid.clone()
-    damaged[~known] = 99.0                        # undetermined values must not leak
+    damaged[~known] = 99.0  # undetermined values must not leak
     out, how = fill_undetermined(damaged, known, inside, window=5)
     torch.testing.assert_close(out[~known], grid[~known], atol=2e-3, rtol=0)
     assert (how[~known] == 2).all() and (how[known] == 1).all()
@@ -24,10 +24,10 @@ def test_outside_texels_are_untouched_and_never_used():
     grid[:, :5] = 1.0
     known = torch.ones(10, 10, dtype=torch.bool)
     inside = torch.ones(10, 10, dtype=torch.bool)
-    inside[:, 5:] = False                         # right half is outside the object
+    inside[:, 5:] = False  # right half is outside the object
     known[4, 4] = False
     out, how = fill_undetermined(grid, known, inside, window=3)
-    assert abs(float(out[4, 4, 0]) - 1.0) < 1e-12   # only inside neighbours (all 1) are averaged
+    assert abs(float(out[4, 4, 0]) - 1.0) < 1e-12  # only inside neighbours (all 1) are averaged
     assert (how[:, 5:] == 0).all()
 
 

@@ -3,15 +3,15 @@
 import math
 
 import torch
-
 from conftest import dome_scene, point_light_observations
+
 from torchrefl.capture.base import Capture
 from torchrefl.config import Config
+from torchrefl.core.progress import Stages
+from torchrefl.core.surface import Surface
 from torchrefl.fit.pipeline import fit_capture, level_inputs
 from torchrefl.transport.levels.photon import PhotonLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
-from torchrefl.core.surface import Surface
-from torchrefl.core.progress import Stages
 from torchrefl.transport.local import local_terms, predict
 
 
@@ -33,7 +33,7 @@ def test_a_shared_lobe_is_not_pulled_to_the_floor_by_texels_without_highlights()
     cfg.fit.model = "local"
     cfg.output.progress = False
     res = fit_capture(cfg, Capture(surface, obs), Stages(), lambda *a: None, torch.device("cpu"))
-    assert res.init_counts["spec_known"] < T           # some texel has no specular evidence of its own
+    assert res.init_counts["spec_known"] < T  # some texel has no specular evidence of its own
     ps = float(res.ps[0].mean())
     sigma = float(res.sigma[0])
     assert abs(ps / ps_true - 1) < 0.1 and abs(sigma / sigma_true - 1) < 0.1, (ps, sigma)
@@ -53,8 +53,9 @@ def test_the_radiosity_level_splits_patches_at_a_fold():
     from conftest import fold_surface
 
     s = fold_surface(6, 10)
-    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
-                                   torch.tensor([-150.0, 0.0, 150.0]))
+    obs = point_light_observations(
+        s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]), torch.tensor([-150.0, 0.0, 150.0])
+    )
     cfg = Config()
     cfg.radiosity.patch_size = 2
     cfg.radiosity.hemisphere_samples = 16
@@ -69,8 +70,9 @@ def test_the_radiosity_setup_builds_a_separate_solve_matrix_when_asked():
     from conftest import fold_surface
 
     s = fold_surface(6, 10)
-    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
-                                   torch.tensor([-150.0, 0.0, 150.0]))
+    obs = point_light_observations(
+        s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]), torch.tensor([-150.0, 0.0, 150.0])
+    )
     pd = torch.full((s.num_texels, 3), 0.7, dtype=obs.intensity.dtype)
     out = {}
     for solve in (None, 64):
@@ -90,14 +92,20 @@ def test_the_photon_level_gathers_the_radiosity_radiance_when_asked():
     light, which the same call returns (static lights: one map); the photon level's cache then holds the flagged photons' specular entries plus
     the gathered ones (counted in its stats), and without the gather every photon's entries."""
     from conftest import fold_surface
+
     from torchrefl.transport.radiosity_level import direct_irradiance
 
     s = fold_surface(8, 16)
-    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
-                                   torch.tensor([-150.0, 0.0, 150.0]))
+    obs = point_light_observations(
+        s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]), torch.tensor([-150.0, 0.0, 150.0])
+    )
     terms = local_terms("torrance_sparrow", s.normals, obs)
     T = s.num_texels
-    pd, ps, sigma = torch.full((T, 3), 0.5, dtype=torch.float64), torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64)
+    pd, ps, sigma = (
+        torch.full((T, 3), 0.5, dtype=torch.float64),
+        torch.full((T, 3), 0.3, dtype=torch.float64),
+        torch.full((T,), 0.1, dtype=torch.float64),
+    )
     stats = {}
     for gather in (0, 32):
         cfg = Config()
@@ -109,7 +117,7 @@ def test_the_photon_level_gathers_the_radiosity_radiance_when_asked():
         radiosity = radiosity_level(cfg, s, obs)
         indirect, radiance = radiosity.indirect, radiosity.radiance
         H, R, weights = radiance(pd)
-        torch.testing.assert_close(H, indirect(pd))          # one solve serves the irradiance and the radiance
+        torch.testing.assert_close(H, indirect(pd))  # one solve serves the irradiance and the radiance
         torch.testing.assert_close(R[:, 0], pd[None] * (direct_irradiance(terms, obs.kappa) + indirect(pd)) / math.pi)
         assert weights.shape == (1, T) and bool((weights == 1).all())
         level = PhotonLevel(radiosity.inputs, radiosity)
@@ -124,8 +132,13 @@ def test_the_photon_level_logs_the_damping_it_uses():
     from conftest import fold_surface
 
     s = fold_surface(6, 12, dtype=torch.float32)
-    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0], [-30.0, 10.0, 30.0]]),
-                                   torch.tensor([-150.0, 0.0, 150.0]), dtype=torch.float32)
+    obs = point_light_observations(
+        s.normals,
+        s.positions,
+        torch.tensor([[-40.0, 0.0, 25.0], [-30.0, 10.0, 30.0]]),
+        torch.tensor([-150.0, 0.0, 150.0]),
+        dtype=torch.float32,
+    )
     said = {}
     for damping in (None, 0.0):
         cfg = Config()

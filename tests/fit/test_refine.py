@@ -2,11 +2,11 @@
 
 import pytest
 import torch
-
 from conftest import dome_scene, point_light_observations
+
 from torchrefl.core.observation_classes import classify
-from torchrefl.fit.closed_form import closed_form
 from torchrefl.core.params import TexelParams
+from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.refine import Objective, grid_neighbours, refine, robust_loss
 from torchrefl.transport.local import local_terms, predict
 
@@ -70,6 +70,6 @@ def test_robust_losses_agree_near_zero_and_grow_slower():
 
 
 def test_grid_neighbours():
-    idx = torch.tensor([0, 1, 3, 4, 8])   # 3 x 3 grid, texels 0,1,3,4,8 valid
+    idx = torch.tensor([0, 1, 3, 4, 8])  # 3 x 3 grid, texels 0,1,3,4,8 valid
     pairs = {tuple(p) for p in grid_neighbours(idx, (3, 3)).tolist()}
     assert pairs == {(0, 1), (2, 3), (0, 2), (1, 3)}

@@ -16,7 +16,7 @@ from torchrefl.geometry.range_image import (
     preprocess_range_image,
 )
 
-DS = math.radians(0.7)   # the seed scanner (Table 2.1)
+DS = math.radians(0.7)  # the seed scanner (Table 2.1)
 DT = 0.56
 
 
@@ -36,7 +36,7 @@ def sphere(s, t, R, tc=0.0):
     H, W = t.numel(), s.numel()
     dz = t - tc
     valid = (dz.abs() < R)[:, None].expand(H, W).clone()
-    r = torch.sqrt((R ** 2 - dz ** 2).clamp_min(0))[:, None].expand(H, W).clone()
+    r = torch.sqrt((R**2 - dz**2).clamp_min(0))[:, None].expand(H, W).clone()
     p = r[..., None] * radial(s)[None]
     p[..., 1] = -dz[:, None]
     return r, valid, p / R
@@ -59,7 +59,7 @@ def ellipsoid(s, t, centre=(12.0, 4.0, -9.0), semi=(70.0, 55.0, 50.0)):
     valid = (disc > 0) & (lam > 0)
     r = torch.where(valid, lam, torch.zeros_like(lam))
     p = o + r[..., None] * u
-    n = (p - c) / a ** 2
+    n = (p - c) / a**2
     return r, valid, n / n.norm(dim=-1, keepdim=True), p
 
 
@@ -71,15 +71,18 @@ def erode(valid, k):
     """Pixels whose (2k+1) x (2k+1) neighbourhood is valid (image border counts as invalid)."""
     v = valid.to(torch.float64)[None, None]
     return (-torch.nn.functional.max_pool2d(-v, 2 * k + 1, stride=1, padding=k, ceil_mode=False)[0, 0] > 0.5) & (
-        torch.nn.functional.pad(torch.ones(valid.shape[0] - 2 * k, valid.shape[1] - 2 * k), (k, k, k, k)) > 0)
+        torch.nn.functional.pad(torch.ones(valid.shape[0] - 2 * k, valid.shape[1] - 2 * k), (k, k, k, k)) > 0
+    )
 
 
 def run(r, valid, s, t, **kw):
-    return preprocess_range_image(r, valid, s0=float(s[0]), ds=float(s[1] - s[0]), t0=float(t[0]),
-                                  dt=float(t[1] - t[0]), **kw)
+    return preprocess_range_image(
+        r, valid, s0=float(s[0]), ds=float(s[1] - s[0]), t0=float(t[0]), dt=float(t[1] - t[0]), **kw
+    )
 
 
 # ------------------------------------------------------------------ eq. 2.1 / 2.3 / 2.4
+
 
 def test_cylinder_normals_are_exactly_radial_and_outward():
     s, t = axes(30, 40, s0=-1.0, t0=-5.0)
@@ -89,7 +92,7 @@ def test_cylinder_normals_are_exactly_radial_and_outward():
     expected = radial(s)[None].expand(30, 40, 3)
     assert g.valid.sum() > 0.8 * valid.sum()
     torch.testing.assert_close(g.normals[g.valid], expected[g.valid], atol=1e-12, rtol=0)
-    assert ((g.normals * g.points).sum(-1)[g.valid] > 0).all()     # away from the axis
+    assert ((g.normals * g.points).sum(-1)[g.valid] > 0).all()  # away from the axis
     assert torch.isnan(g.normals[~g.valid]).all()
 
 
@@ -102,18 +105,21 @@ def test_normals_formula_against_finite_difference_cross_product():
     r_t = torch.randn(6, 7, generator=gen, dtype=torch.float64)
     n = cylindrical_normals(r, r_s, r_t, s, t)
     S = torch.stack([-r * torch.sin(s), (-t)[:, None].expand(6, 7), -r * torch.cos(s)], -1)
-    S_s = torch.stack([-r_s * torch.sin(s) - r * torch.cos(s), torch.zeros_like(r), -r_s * torch.cos(s) + r * torch.sin(s)], -1)
+    S_s = torch.stack(
+        [-r_s * torch.sin(s) - r * torch.cos(s), torch.zeros_like(r), -r_s * torch.cos(s) + r * torch.sin(s)], -1
+    )
     S_t = torch.stack([-r_t * torch.sin(s), -torch.ones_like(r), -r_t * torch.cos(s)], -1)
     c = torch.linalg.cross(S_s, S_t)
     c = c / c.norm(dim=-1, keepdim=True)
-    torch.testing.assert_close(n.abs(), c.abs(), atol=1e-12, rtol=0)      # parallel to the cross product
+    torch.testing.assert_close(n.abs(), c.abs(), atol=1e-12, rtol=0)  # parallel to the cross product
     radial_part = (n * (S * torch.tensor([1.0, 0.0, 1.0], dtype=torch.float64))).sum(-1)
-    assert (radial_part > 0).all()                                         # and outward
+    assert (radial_part > 0).all()  # and outward
     torch.testing.assert_close(n.norm(dim=-1), torch.ones(6, 7, dtype=torch.float64), atol=1e-12, rtol=0)
     torch.testing.assert_close(cylindrical_points(r, s, t), S, atol=0, rtol=0)
 
 
 # ------------------------------------------------------------------ analytic surfaces
+
 
 def test_sphere_normals_and_points_match_analytic_including_image_border():
     s, t = axes(140, 120, s0=-0.7, t0=-62.0)
@@ -135,7 +141,7 @@ def test_sphere_normals_and_points_match_analytic_including_image_border():
 def test_off_axis_ellipsoid_normals_match_analytic_in_interior():
     s, t = axes(200, 180, s0=-1.2, t0=-52.0)
     r, valid, n_true, p_true = ellipsoid(s, t)
-    assert (~valid).any() and valid.sum() > 0.5 * valid.numel()        # silhouettes inside the image
+    assert (~valid).any() and valid.sum() > 0.5 * valid.numel()  # silhouettes inside the image
     # interior: away from silhouettes (4 px), not grazing, not near the poles where r ~ sqrt(t - t_pole) is far
     # from a quadratic in (s, t)
     interior = erode(valid, 4) & ((n_true * radial(s)[None]).sum(-1) > 0.5) & (n_true[..., 1].abs() < 0.8)
@@ -160,13 +166,13 @@ def test_full_turn_wraps_across_the_seam():
     r, valid, n_true, _ = ellipsoid(s, t)
     assert valid.all()
     seam = torch.zeros_like(valid)
-    seam[:, [W - 2, W - 1, 0, 1, 2]] = True          # a 5-column strip that is only 5 wide across the seam
+    seam[:, [W - 2, W - 1, 0, 1, 2]] = True  # a 5-column strip that is only 5 wide across the seam
     f = fit_quadratic_yokoya_levine(r, seam, 2 * math.pi / W, DT, wrap=True)
     n = cylindrical_normals(f.r_hat, f.r_s, f.r_t, s, t)
     assert f.valid[seam].all() and not f.fallback.any()
     assert angle_deg(n, n_true)[seam].max() < 0.2
     f_open = fit_quadratic_yokoya_levine(r, seam, 2 * math.pi / W, DT, wrap=False)
-    assert not f_open.valid[:, W - 2:].any()          # without wrap: a 2-column strip, not fittable
+    assert not f_open.valid[:, W - 2 :].any()  # without wrap: a 2-column strip, not fittable
     assert f_open.fallback[:, :3].all()
     # a spike on the seam column is removed with the neighbours across the seam
     spiked = r.clone()
@@ -184,7 +190,7 @@ def test_gaussian_range_noise_keeps_normals_within_about_a_degree(surface):
         r, valid, n_true, _ = ellipsoid(s, t)
     noisy = r + 0.05 * torch.randn(r.shape, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
     interior = erode(valid, 4) & ((n_true * radial(s)[None]).sum(-1) > 0.3)
-    strict = angle_deg(run(noisy, valid, s, t).normals, n_true)[interior]      # the seed's minimum-residual rule
+    strict = angle_deg(run(noisy, valid, s, t).normals, n_true)[interior]  # the seed's minimum-residual rule
     assert strict.median() < 1.5, float(strict.median())
     assert strict.quantile(0.9) < 4.0, float(strict.quantile(0.9))
     tolerant = angle_deg(run(noisy, valid, s, t, noise_tolerance=2.0).normals, n_true)[interior]
@@ -193,22 +199,25 @@ def test_gaussian_range_noise_keeps_normals_within_about_a_degree(surface):
 
 
 def test_eight_bit_range_quantisation_full_seed_resolution():
-    H, W = 450, 512                                   # the seed scanner's image
+    H, W = 450, 512  # the seed scanner's image
     s, t = axes(H, W, s0=-W / 2 * DS, t0=-H / 2 * DT)
     r, valid, n_true, _ = ellipsoid(s, t, semi=(70.0, 150.0, 50.0))
     lo, hi = float(r[valid].min()), float(r[valid].max())
     step = (hi - lo) / 255
     q = lo + torch.round((r - lo) / step) * step
-    assert step > 0.1                                 # a coarse quantiser, not a no-op
+    assert step > 0.1  # a coarse quantiser, not a no-op
     interior = erode(valid, 4) & ((n_true * radial(s)[None]).sum(-1) > 0.3)
     strict = angle_deg(run(q, valid, s, t).normals, n_true)[interior]
-    assert strict.median() < 4.0, float(strict.median())       # windows on one 8-bit level win with residual 0
+    assert strict.median() < 4.0, float(strict.median())  # windows on one 8-bit level win with residual 0
     tolerant = angle_deg(run(q, valid, s, t, noise_tolerance=2.0).normals, n_true)[interior]
-    assert tolerant.median() < 1.5 and tolerant.quantile(0.9) < 3.5, (float(tolerant.median()),
-                                                                     float(tolerant.quantile(0.9)))
+    assert tolerant.median() < 1.5 and tolerant.quantile(0.9) < 3.5, (
+        float(tolerant.median()),
+        float(tolerant.quantile(0.9)),
+    )
 
 
 # ------------------------------------------------------------------ discontinuities
+
 
 def two_spheres_with_step(axis):
     """Sphere radius 80 on one side of a step, radius 70 on the other; both centred at the origin, so the analytic
@@ -220,7 +229,7 @@ def two_spheres_with_step(axis):
         R[40:] = 70.0
     else:
         R[:, 40:] = 70.0
-    r = torch.sqrt(R ** 2 - t_grid ** 2)
+    r = torch.sqrt(R**2 - t_grid**2)
     p = cylindrical_points(r, s, t)
     return s, t, r, p / p.norm(dim=-1, keepdim=True)
 
@@ -241,11 +250,12 @@ def test_yokoya_levine_stays_accurate_next_to_a_depth_step(axis, tolerance):
         n = cylindrical_normals(f.r_hat, f.r_s, f.r_t, s, t)
         errs[adaptive] = angle_deg(n, n_true)[near]
     assert errs[True].max() < 2.0, float(errs[True].max())
-    assert errs[False].median() > 20.0, float(errs[False].median())        # the plain centred fit is far off
+    assert errs[False].median() > 20.0, float(errs[False].median())  # the plain centred fit is far off
     assert errs[True].max() < 0.05 * errs[False].median()
 
 
 # ------------------------------------------------------------------ median filter
+
 
 def test_median_removes_isolated_spikes_and_keeps_a_smooth_surface():
     s, t = axes(80, 90, s0=-0.5, t0=-20.0)
@@ -255,11 +265,11 @@ def test_median_removes_isolated_spikes_and_keeps_a_smooth_surface():
     rows, cols = torch.meshgrid(torch.arange(5, 80, 9), torch.arange(4, 90, 11), indexing="ij")
     spiked[rows, cols] += torch.where((rows + cols) % 2 == 0, 15.0, -15.0).to(torch.float64)
     m = median_filter_range(spiked, valid)
-    assert (m[rows, cols] - r[rows, cols]).abs().max() < 0.25          # the 15 mm spikes are gone
+    assert (m[rows, cols] - r[rows, cols]).abs().max() < 0.25  # the 15 mm spikes are gone
     inner = erode(valid, 2)
-    assert (m - r).abs()[inner].max() < 0.25                              # no spike leaks into its neighbours
+    assert (m - r).abs()[inner].max() < 0.25  # no spike leaks into its neighbours
     clean = median_filter_range(r, valid)
-    assert (clean - r).abs()[inner].max() < 0.05                          # a smooth surface is kept
+    assert (clean - r).abs()[inner].max() < 0.05  # a smooth surface is kept
     # on noise: the median reduces the error, never adds to it
     noisy = r + 0.05 * torch.randn(r.shape, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
     mn = median_filter_range(noisy, valid)
@@ -273,7 +283,7 @@ def test_symmetric_median_is_exact_on_a_ramp_with_holes_and_border():
     m = median_filter_range(r, valid)
     torch.testing.assert_close(m[valid], r[valid], atol=1e-12, rtol=0)
     plain = median_filter_range(r, valid, symmetric=False)
-    assert (plain - r)[valid].abs().max() > 0.3                          # what the symmetric window avoids
+    assert (plain - r)[valid].abs().max() > 0.3  # what the symmetric window avoids
 
 
 def test_invalid_pixels_never_influence_valid_ones():
@@ -293,18 +303,19 @@ def test_invalid_pixels_never_influence_valid_ones():
         assert torch.equal(g.points[g.valid], g0.points[g0.valid])
         m = median_filter_range(other, valid)
         assert torch.equal(m[valid], m0[valid])
-        assert torch.equal(m[~valid].isnan(), other[~valid].isnan())      # invalid pixels untouched
+        assert torch.equal(m[~valid].isnan(), other[~valid].isnan())  # invalid pixels untouched
 
 
 # ------------------------------------------------------------------ fallback for thin features
+
 
 def test_thin_strip_uses_weighted_fallback_and_too_thin_is_invalid():
     s, t = axes(40, 30, s0=-0.3, t0=-30.0)
     r, _, n_true = sphere(s, t, 80.0)
     valid = torch.zeros(40, 30, dtype=torch.bool)
-    valid[:, 10:13] = True            # 3 columns: no full 5 x 5 window, but a well-posed partial one
-    valid[:, 20:22] = True            # 2 columns: the s-curvature is not determined
-    valid[20, 26] = True              # a lone pixel
+    valid[:, 10:13] = True  # 3 columns: no full 5 x 5 window, but a well-posed partial one
+    valid[:, 20:22] = True  # 2 columns: the s-curvature is not determined
+    valid[20, 26] = True  # a lone pixel
     f = fit_quadratic_yokoya_levine(r, valid, DS, DT)
     assert f.fallback[:, 10:13].all() and f.valid[:, 10:13].all()
     n = cylindrical_normals(f.r_hat, f.r_s, f.r_t, s, t)
@@ -314,6 +325,7 @@ def test_thin_strip_uses_weighted_fallback_and_too_thin_is_invalid():
 
 
 # ------------------------------------------------------------------ precision
+
 
 def test_float32_agrees_with_float64():
     s, t = axes(90, 100, s0=-0.6, t0=-30.0)
@@ -329,6 +341,7 @@ def test_float32_agrees_with_float64():
 
 
 # ------------------------------------------------------------------ bad input
+
 
 def _good():
     r = torch.full((12, 12), 50.0, dtype=torch.float64)
@@ -367,13 +380,25 @@ BAD = [
     ("noise_tolerance", lambda: _call_pre(noise_tolerance=-1.0)),
     ("s0", lambda: _call_pre(s0=float("nan"))),
     ("wrap", lambda: _call_pre(wrap=True)),
-    ("r", lambda: fit_quadratic_yokoya_levine(torch.ones(4, 12, dtype=torch.float64),
-                                              torch.ones(4, 12, dtype=torch.bool), DS, DT)),
+    (
+        "r",
+        lambda: fit_quadratic_yokoya_levine(
+            torch.ones(4, 12, dtype=torch.float64), torch.ones(4, 12, dtype=torch.bool), DS, DT
+        ),
+    ),
     ("size", lambda: median_filter_range(*_good(), size=-3)),
     ("s", lambda: cylindrical_points(_good()[0], torch.zeros(11, dtype=torch.float64), torch.zeros(12))),
     ("t", lambda: cylindrical_points(_good()[0], torch.zeros(12, dtype=torch.float64), torch.zeros(12, 1))),
-    ("r_s", lambda: cylindrical_normals(_good()[0], torch.zeros(12, 11, dtype=torch.float64),
-                                        torch.zeros(12, 12, dtype=torch.float64), torch.zeros(12), torch.zeros(12))),
+    (
+        "r_s",
+        lambda: cylindrical_normals(
+            _good()[0],
+            torch.zeros(12, 11, dtype=torch.float64),
+            torch.zeros(12, 12, dtype=torch.float64),
+            torch.zeros(12),
+            torch.zeros(12),
+        ),
+    ),
 ]
 
 

@@ -12,14 +12,14 @@ def grid(H=10, W=12, jump_col=None):
     r, c = np.meshgrid(np.arange(H, dtype=float), np.arange(W, dtype=float), indexing="ij")
     z = np.zeros_like(r)
     if jump_col is not None:
-        z[:, jump_col:] = 100.0                      # a depth step between two columns
+        z[:, jump_col:] = 100.0  # a depth step between two columns
     return np.stack([c, r, z], -1)
 
 
 def test_the_silhouette_is_the_boundary():
     pts = grid()
     valid = np.ones(pts.shape[:2], bool)
-    valid[4:6, 5:7] = False                          # a hole
+    valid[4:6, 5:7] = False  # a hole
     _, faces = grid_triangulation(pts, valid)
     idx = np.flatnonzero(valid.ravel())
     edge = boundary_texels(faces, valid.shape, idx, 1)
@@ -27,8 +27,8 @@ def test_the_silhouette_is_the_boundary():
     grid_edge[idx] = edge
     grid_edge = grid_edge.reshape(valid.shape)
     assert grid_edge[0].all() and grid_edge[-1].all() and grid_edge[:, 0].all() and grid_edge[:, -1].all()
-    assert grid_edge[3, 5] and grid_edge[6, 6] and grid_edge[4, 4]     # around the hole
-    assert not grid_edge[2, 2] and not grid_edge[8, 9]                  # interior
+    assert grid_edge[3, 5] and grid_edge[6, 6] and grid_edge[4, 4]  # around the hole
+    assert not grid_edge[2, 2] and not grid_edge[8, 9]  # interior
     assert not boundary_texels(faces, valid.shape, idx, 0).any()
 
 
@@ -108,7 +108,7 @@ def test_crease_texels_match_a_slow_reference_on_a_bumpy_surface():
 
 def test_face_normals_turn_to_their_corners_side_whatever_the_winding():
     v = np.array([[0.0, 0, 0], [2, 0, 0], [0, 3, 0], [0, 0, 0], [1, 0, 0], [2, 0, 0]])
-    faces = np.array([[0, 1, 2], [0, 2, 1], [3, 4, 5]])              # both windings, and a degenerate face
+    faces = np.array([[0, 1, 2], [0, 2, 1], [3, 4, 5]])  # both windings, and a degenerate face
     up = np.tile([0.0, 0.0, 1.0], (3, 3, 1))
     n = oriented_face_normals(v, faces, up)
     assert np.allclose(n[:2], [[0, 0, 1], [0, 0, 1]]) and np.allclose(n[2], 0)

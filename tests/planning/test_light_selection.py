@@ -19,30 +19,36 @@ def test_measurability_thresholds():
 
 def toy():
     # 6 texels, 5 candidates
-    D = np.array([
-        [1, 1, 1, 0, 0, 0],
-        [0, 0, 0, 1, 1, 0],
-        [1, 1, 1, 1, 1, 1],   # the best diffuse light covers everything
-        [0, 0, 0, 0, 0, 0],
-        [0, 0, 0, 0, 0, 0],
-    ], dtype=bool)
-    S = np.array([
-        [0, 0, 0, 0, 0, 0],
-        [1, 1, 0, 0, 0, 0],
-        [0, 0, 0, 0, 0, 0],
-        [1, 1, 1, 1, 0, 0],
-        [1, 1, 1, 1, 1, 0],
-    ], dtype=bool)
+    D = np.array(
+        [
+            [1, 1, 1, 0, 0, 0],
+            [0, 0, 0, 1, 1, 0],
+            [1, 1, 1, 1, 1, 1],  # the best diffuse light covers everything
+            [0, 0, 0, 0, 0, 0],
+            [0, 0, 0, 0, 0, 0],
+        ],
+        dtype=bool,
+    )
+    S = np.array(
+        [
+            [0, 0, 0, 0, 0, 0],
+            [1, 1, 0, 0, 0, 0],
+            [0, 0, 0, 0, 0, 0],
+            [1, 1, 1, 1, 0, 0],
+            [1, 1, 1, 1, 1, 0],
+        ],
+        dtype=bool,
+    )
     return D, S, np.ones(6, dtype=bool)
 
 
 def test_greedy_picks_max_gain_and_stops_at_full_coverage():
     D, S, seen = toy()
     r = greedy_select(D, S, seen, stop_ratio=1.0, max_lights=10)
-    assert r.chosen[0] == 2 and r.roles[0] == "diffuse"      # covers all 6 texels diffusely
-    assert r.chosen[1] == 4 and r.roles[1] == "specular"     # 5 texels need specular, light 4 gives 5
+    assert r.chosen[0] == 2 and r.roles[0] == "diffuse"  # covers all 6 texels diffusely
+    assert r.chosen[1] == 4 and r.roles[1] == "specular"  # 5 texels need specular, light 4 gives 5
     assert r.all_diffuse == 1.0
-    assert math.isclose(r.all_specular, 4 / 6)               # texels 0-3 can reach two specular observations
+    assert math.isclose(r.all_specular, 4 / 6)  # texels 0-3 can reach two specular observations
     assert math.isclose(r.specular_curve[-1], r.all_specular)
     assert r.diffuse_curve[-1] == 1.0
     assert len(r.chosen) == len(set(r.chosen))

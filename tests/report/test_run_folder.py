@@ -9,6 +9,7 @@ import os
 import numpy as np
 import pytest
 import yaml
+from report.test_run_result import write_run
 
 from torchrefl.errors import OutputError
 from torchrefl.report.metrics import strict_json
@@ -16,8 +17,6 @@ from torchrefl.report.run_folder import StagedRunFolder, output_folder
 from torchrefl.report.run_marker import write_marker
 from torchrefl.report.run_result import load_run
 from torchrefl.train import main
-
-from report.test_run_result import write_run
 
 
 def test_output_paths_that_cannot_be_a_folder_are_named_errors(tmp_path, monkeypatch):
@@ -56,8 +55,11 @@ def test_cli_refuses_bad_output_paths_before_any_work(tmp_path, capsys, monkeypa
     monkeypatch.chdir(tmp_path)
     (tmp_path / "config.yaml").write_text("seed: 3\n")
     (tmp_path / "afile").write_text("x")
-    for value, fragment in (("", "output.dir is empty"), (str(tmp_path / "afile"), "is a file"),
-                            (str(tmp_path / "afile" / "run"), "is a file, so")):
+    for value, fragment in (
+        ("", "output.dir is empty"),
+        (str(tmp_path / "afile"), "is a file"),
+        (str(tmp_path / "afile" / "run"), "is a file, so"),
+    ):
         assert main([str(tmp_path / "config.yaml"), f"output.dir={value}", "--quiet"]) == 2
         err = capsys.readouterr().err
         assert fragment in err and "Traceback" not in err
@@ -76,7 +78,7 @@ def test_a_folder_holding_other_files_or_a_run_is_refused(tmp_path):
     write_run(tmp_path / "run")
     with pytest.raises(OutputError, match="holds an earlier run; give --overwrite"):
         StagedRunFolder(tmp_path / "run")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["other", "run"]      # no staging folder left behind
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other", "run"]  # no staging folder left behind
 
 
 def test_commit_replaces_an_earlier_run_whole(tmp_path):
@@ -89,7 +91,7 @@ def test_commit_replaces_an_earlier_run_whole(tmp_path):
     write_marker(old)
     staged = StagedRunFolder(old, overwrite=True)
     assert staged.path.parent == tmp_path and staged.path.name.startswith(".run.staging-")
-    assert load_run(old).metrics["lights"] == 3                    # the earlier run is whole until the commit
+    assert load_run(old).metrics["lights"] == 3  # the earlier run is whole until the commit
     write_run(staged.path, seed=7)
     (staged.path / "run_complete.json").unlink()
     staged.commit()
@@ -151,4 +153,7 @@ def test_an_interrupted_run_is_logged_as_interrupted(tmp_path, capsys, monkeypat
 def test_metrics_json_is_strict():
     text = strict_json({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -math.inf, "e": 2.5}})
     assert json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict constant {c}")) == {
-        "a": None, "b": [1.0, None], "c": {"d": None, "e": 2.5}}
+        "a": None,
+        "b": [1.0, None],
+        "c": {"d": None, "e": 2.5},
+    }

@@ -23,16 +23,32 @@ def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow", 
     mask = np.ones((H, W), dtype=bool)
     mask[0, 0] = False
     params = dict(
-        pd=rng.uniform(0.1, 0.9, (H, W, 3)), ps=rng.uniform(0.0, 0.8, (H, W, ps_channels)),
-        sigma=rng.uniform(0.05, 0.4, (H, W)), mask=mask, brdf=np.array(brdf), positions=50.0 * n, normals=n,
-        kappa=np.full(3, math.pi), units=np.array("mm"), coverage=np.full((H, W), 2, dtype=np.int16),
+        pd=rng.uniform(0.1, 0.9, (H, W, 3)),
+        ps=rng.uniform(0.0, 0.8, (H, W, ps_channels)),
+        sigma=rng.uniform(0.05, 0.4, (H, W)),
+        mask=mask,
+        brdf=np.array(brdf),
+        positions=50.0 * n,
+        normals=n,
+        kappa=np.full(3, math.pi),
+        units=np.array("mm"),
+        coverage=np.full((H, W), 2, dtype=np.int16),
     )
     if minnaert_k is not None:
         params.update(diffuse=np.array("minnaert"), minnaert_k=np.array(minnaert_k))
     np.savez_compressed(folder / "params.npz", **params)
-    (folder / "metrics.json").write_text(json.dumps({
-        "model": "local", "brdf": brdf, "texels": int(mask.sum()), "lights": 3, "timing_s": {"fit": 1.0, "total": 2.0},
-        "rerender": {"mean_abs_diff_8bit": 0.3, "var_diff_8bit": 0.1, "rmse_8bit": 0.4}}))
+    (folder / "metrics.json").write_text(
+        json.dumps(
+            {
+                "model": "local",
+                "brdf": brdf,
+                "texels": int(mask.sum()),
+                "lights": 3,
+                "timing_s": {"fit": 1.0, "total": 2.0},
+                "rerender": {"mean_abs_diff_8bit": 0.3, "var_diff_8bit": 0.1, "rmse_8bit": 0.4},
+            }
+        )
+    )
     (folder / "config.yaml").write_text("reflectance:\n  sigma_max: 0.6\n")
     write_marker(folder)
     return params
@@ -58,8 +74,14 @@ def eq_2_9(params, L, Y, camera, k=1.0):
             h = (l + v) / np.linalg.norm(l + v)
             th = math.acos(min(1.0, float(n @ h)))
             ps = params["ps"][r, c] * np.ones(3)
-            out[r, c] = np.asarray(Y) / C ** 2 * (params["pd"][r, c] * cl * (cl * cv) ** (k - 1.0)
-                                                   + ps * math.exp(-th * th / (2 * params["sigma"][r, c] ** 2)) / cv)
+            out[r, c] = (
+                np.asarray(Y)
+                / C**2
+                * (
+                    params["pd"][r, c] * cl * (cl * cv) ** (k - 1.0)
+                    + ps * math.exp(-th * th / (2 * params["sigma"][r, c] ** 2)) / cv
+                )
+            )
     return out
 
 
@@ -70,8 +92,10 @@ def test_render_matches_eq_2_9(tmp_path, ps_channels, k):
     assert run.minnaert_k == (k or 1.0) and run.diffuse == ("minnaert" if k else "lambert")
     assert run.grid_shape == (6, 7) and run.brdf == "torrance_sparrow" and run.units == "mm"
     np.testing.assert_array_equal(run.pd, params["pd"])
-    for L, camera, Y in [((0.0, 30.0, 120.0), (0.0, 0.0, 200.0), (2.0e4, 1.5e4, 1.0e4)),
-                         ((80.0, -10.0, 40.0), (-30.0, 20.0, 150.0), 3.0e4)]:
+    for L, camera, Y in [
+        ((0.0, 30.0, 120.0), (0.0, 0.0, 200.0), (2.0e4, 1.5e4, 1.0e4)),
+        ((80.0, -10.0, 40.0), (-30.0, 20.0, 150.0), 3.0e4),
+    ]:
         Y3 = np.broadcast_to(np.asarray(Y, float), (3,))
         img = run.render(light_position=L, camera=camera, intensity=Y)
         ref = eq_2_9(params, L, Y3, camera, k or 1.0)
@@ -87,7 +111,7 @@ def test_directional_light_and_orthographic_view(tmp_path):
     far = 1.0e6
     # a directional light equals a point light far away along d, with the intensity scaled by distance^2
     a = run.render(light_direction=d, view_dir=(0, 0, 1), intensity=1.0)
-    b = run.render(light_position=far * d / np.linalg.norm(d), view_dir=(0, 0, 1), intensity=far ** 2)
+    b = run.render(light_position=far * d / np.linalg.norm(d), view_dir=(0, 0, 1), intensity=far**2)
     np.testing.assert_allclose(a, b, rtol=1e-4)
     grid_view = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (6, 7, 3))
     np.testing.assert_allclose(run.render(light_direction=d, view_dir=grid_view), a)
@@ -158,11 +182,11 @@ def test_a_folder_without_a_valid_marker_is_incomplete_or_mixed(tmp_path):
     with pytest.raises(RunFolderError, match=r"mixed folder.*light_007_diff\.png"):
         load_run(run)
     write_run(run := tmp_path / "run2")
-    (run / "config.yaml").write_text("reflectance:\n  brdf: lambertian\n  sigma_max: 0.6\n")   # a later run's config
+    (run / "config.yaml").write_text("reflectance:\n  brdf: lambertian\n  sigma_max: 0.6\n")  # a later run's config
     with pytest.raises(RunFolderError, match=r"config\.yaml.*(bytes|differs)"):
         load_run(run)
     p = write_run(run := tmp_path / "run3")
-    np.savez_compressed(run / "params.npz", **dict(p, pd=p["pd"] * 0.5))                # a later run's params
+    np.savez_compressed(run / "params.npz", **dict(p, pd=p["pd"] * 0.5))  # a later run's params
     with pytest.raises(RunFolderError, match=r"params\.npz.*(bytes|differs)"):
         load_run(run)
     write_run(run := tmp_path / "run4")
@@ -175,29 +199,65 @@ def test_a_folder_without_a_valid_marker_is_incomplete_or_mixed(tmp_path):
         load_run(run)
 
 
-@pytest.mark.parametrize("name,text,match", [
-    ("metrics_json", "[1, 2]", "expected a JSON mapping.*list"),
-    ("metrics_json", "{}", "key 'model'"),
-    ("metrics_json", json.dumps({"model": "local", "brdf": "torrance_sparrow", "texels": 41, "lights": 3,
-                                 "rerender": {}}), "key 'timing_s'"),
-    ("metrics_json", json.dumps({"model": "local", "brdf": "torrance_sparrow", "texels": 41, "lights": 3,
-                                 "rerender": {}, "timing_s": {"fit": "slow"}}), "timing_s"),
-    ("metrics_json", json.dumps({"model": "local", "brdf": "ward", "texels": 41, "lights": 3,
-                                 "rerender": {}, "timing_s": {"total": 1.0}}), "two runs"),
-    ("config_yaml", "- a\n- b\n", "expected a YAML mapping.*list"),
-    ("config_yaml", "a: [\n", "config.yaml: not valid YAML"),
-])
+@pytest.mark.parametrize(
+    "name,text,match",
+    [
+        ("metrics_json", "[1, 2]", "expected a JSON mapping.*list"),
+        ("metrics_json", "{}", "key 'model'"),
+        (
+            "metrics_json",
+            json.dumps({"model": "local", "brdf": "torrance_sparrow", "texels": 41, "lights": 3, "rerender": {}}),
+            "key 'timing_s'",
+        ),
+        (
+            "metrics_json",
+            json.dumps(
+                {
+                    "model": "local",
+                    "brdf": "torrance_sparrow",
+                    "texels": 41,
+                    "lights": 3,
+                    "rerender": {},
+                    "timing_s": {"fit": "slow"},
+                }
+            ),
+            "timing_s",
+        ),
+        (
+            "metrics_json",
+            json.dumps(
+                {
+                    "model": "local",
+                    "brdf": "ward",
+                    "texels": 41,
+                    "lights": 3,
+                    "rerender": {},
+                    "timing_s": {"total": 1.0},
+                }
+            ),
+            "two runs",
+        ),
+        ("config_yaml", "- a\n- b\n", "expected a YAML mapping.*list"),
+        ("config_yaml", "a: [\n", "config.yaml: not valid YAML"),
+    ],
+)
 def test_damaged_metrics_and_config_are_named_errors(tmp_path, name, text, match):
     write_run(tmp_path / "run")
     with pytest.raises(RunFolderError, match=match):
         load_run(resealed(tmp_path / "run", **{name: text}))
 
 
-@pytest.mark.parametrize("key,value,match", [
-    ("pd", "nan", "'pd' has NaN"), ("sigma", "inf", "'sigma' has NaN"), ("normals", "nan", "'normals' has NaN"),
-    ("kappa", np.array([math.pi, 0.0, math.pi]), "'kappa'"), ("minnaert_k", np.array("1.2"), "'minnaert_k'"),
-    ("diffuse", np.array("oren_nayar"), "'diffuse'"),
-])
+@pytest.mark.parametrize(
+    "key,value,match",
+    [
+        ("pd", "nan", "'pd' has NaN"),
+        ("sigma", "inf", "'sigma' has NaN"),
+        ("normals", "nan", "'normals' has NaN"),
+        ("kappa", np.array([math.pi, 0.0, math.pi]), "'kappa'"),
+        ("minnaert_k", np.array("1.2"), "'minnaert_k'"),
+        ("diffuse", np.array("oren_nayar"), "'diffuse'"),
+    ],
+)
 def test_non_finite_or_mistyped_parameters_are_named_errors(tmp_path, key, value, match):
     p = write_run(tmp_path / "run")
     if isinstance(value, str):

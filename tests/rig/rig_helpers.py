@@ -55,8 +55,10 @@ def connected(fake, **kw) -> GrblClient:
 
 
 def fast_settings(**data):
-    base = {"light": {"settle_s": 0.0},
-            "timeouts": {"reply_s": 1.0, "banner_s": 0.2, "poll_s": 0.005, "home_s": 2.0, "move_s": 5.0}}
+    base = {
+        "light": {"settle_s": 0.0},
+        "timeouts": {"reply_s": 1.0, "banner_s": 0.2, "poll_s": 0.005, "home_s": 2.0, "move_s": 5.0},
+    }
     for k, v in data.items():
         if isinstance(v, dict):
             base.setdefault(k, {}).update(v)

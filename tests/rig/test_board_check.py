@@ -32,14 +32,25 @@ def test_default_board_fits_the_default_config():
     assert all(c.ok for c in checks)
 
 
-@pytest.mark.parametrize("changes, message", [
-    ({"s20": 0}, r"\$20 \(soft limits\) is 0, expected 1: send `\$20=1`"),
-    ({"s22": 0, "s20": 0}, r"\$22 \(homing\) is 0.*send `\$22=1`.*board.limit_switches: false.*\$20 .*after `\$22=1`"),
-    ({"s13": 1}, r"\$13 \(report inches\) is 1, expected 0: send `\$13=0`"),
-    ({"s130": 300}, (r"\$130 .* is 300, expected \[-300, -1\].*set lateral.min_mm >= -300 in the rig config, "
-                     r"or send `\$130=495`")),
-    ({"s27": 10}, r"set lateral.max_mm <= -10 .*set vertical.max_mm <= -10"),
-])
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        ({"s20": 0}, r"\$20 \(soft limits\) is 0, expected 1: send `\$20=1`"),
+        (
+            {"s22": 0, "s20": 0},
+            r"\$22 \(homing\) is 0.*send `\$22=1`.*board.limit_switches: false.*\$20 .*after `\$22=1`",
+        ),
+        ({"s13": 1}, r"\$13 \(report inches\) is 1, expected 0: send `\$13=0`"),
+        (
+            {"s130": 300},
+            (
+                r"\$130 .* is 300, expected \[-300, -1\].*set lateral.min_mm >= -300 in the rig config, "
+                r"or send `\$130=495`"
+            ),
+        ),
+        ({"s27": 10}, r"set lateral.max_mm <= -10 .*set vertical.max_mm <= -10"),
+    ],
+)
 def test_refusals_name_setting_key_and_command(changes, message):
     with pytest.raises(RigError, match=message):
         require_board(_board(**changes), fast_settings(), "ttyX")
@@ -47,7 +58,7 @@ def test_refusals_name_setting_key_and_command(changes, message):
 
 def test_travel_follows_the_homing_direction_and_pull_off():
     assert machine_travel(_board(), 0) == (-500.0, -1.0)
-    assert machine_travel(_board(s23=1), 0) == (-499.0, 0.0)         # X homes towards -: switch at -500
+    assert machine_travel(_board(s23=1), 0) == (-499.0, 0.0)  # X homes towards -: switch at -500
     assert machine_travel(_board(s23=1), 1) == (-300.0, -1.0)
     with pytest.raises(RigError, match=r"\$130 .*set lateral.max_mm <= 0 "):
         require_board(_board(s23=1), fast_settings(lateral={"min_mm": -499.5, "max_mm": 5.0}), "ttyX")
@@ -89,8 +100,12 @@ def test_capture_refuses_a_board_without_soft_limits_before_anything_moves(tmp_p
 
 def test_capture_on_a_machine_without_switches_warns_and_runs(tmp_path):
     notes = []
-    settings = fast_settings(board={"limit_switches": False}, home_on_start=False,
-                             lateral={"min_mm": -495.0, "max_mm": 495.0}, vertical={"min_mm": -295.0, "max_mm": 295.0})
+    settings = fast_settings(
+        board={"limit_switches": False},
+        home_on_start=False,
+        lateral={"min_mm": -495.0, "max_mm": 495.0},
+        vertical={"min_mm": -295.0, "max_mm": 295.0},
+    )
     with fake_device(settings={22: 0}) as fake:
         summary = _capture(fake, tmp_path, settings, notes.append)
     assert summary["captured"] == 2
@@ -100,8 +115,20 @@ def test_capture_on_a_machine_without_switches_warns_and_runs(tmp_path):
 def test_cli_move_beyond_the_machine_travel_is_refused(capsys):
     # the case: config limits wider than the 500 mm axis and soft limits off
     with fake_device(settings={20: 0}) as fake:
-        argv = ["move", "--port", fake.path, "--mm", "-340", "0", "--set", "lateral.min_mm=-600",
-                "--set", "timeouts.poll_s=0.005", "--set", "timeouts.banner_s=0.2"]
+        argv = [
+            "move",
+            "--port",
+            fake.path,
+            "--mm",
+            "-340",
+            "0",
+            "--set",
+            "lateral.min_mm=-600",
+            "--set",
+            "timeouts.poll_s=0.005",
+            "--set",
+            "timeouts.banner_s=0.2",
+        ]
         assert main(argv) == 2
         assert fake.moves_started == 0 and "$H" not in fake.lines
     err = capsys.readouterr().err

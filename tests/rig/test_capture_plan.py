@@ -68,8 +68,15 @@ def test_load_plan_formats(tmp_path):
 
 
 def _entry(i):
-    return {"index": i, "image": f"textures/{i:03d}.png", "position_mm": [i, 0, 300], "requested_mm": [i, 0, 300],
-            "mpos": [0, 0, 0], "grid": None, "time": "2026-01-01T00:00:00Z"}
+    return {
+        "index": i,
+        "image": f"textures/{i:03d}.png",
+        "position_mm": [i, 0, 300],
+        "requested_mm": [i, 0, 300],
+        "mpos": [0, 0, 0],
+        "grid": None,
+        "time": "2026-01-01T00:00:00Z",
+    }
 
 
 def test_recover_cleans_every_crash_leftover(tmp_path):
@@ -78,11 +85,11 @@ def test_recover_cleans_every_crash_leftover(tmp_path):
     for i in range(3):
         (tmp_path / f"textures/.tmp-{i:03d}.png").write_bytes(b"png")
         f.commit(tmp_path / f"textures/.tmp-{i:03d}.png", _entry(i))
-    (tmp_path / "textures/.tmp-003.png").write_bytes(b"half")           # crash while the camera wrote
-    (tmp_path / "textures/004.png").write_bytes(b"png")                 # crash after rename, before the line
-    (tmp_path / "textures/001.png").unlink()                            # an image removed by hand
+    (tmp_path / "textures/.tmp-003.png").write_bytes(b"half")  # crash while the camera wrote
+    (tmp_path / "textures/004.png").write_bytes(b"png")  # crash after rename, before the line
+    (tmp_path / "textures/001.png").unlink()  # an image removed by hand
     with open(tmp_path / "manifest.jsonl", "a") as fh:
-        fh.write('{"index": 5, "image": "textures/005.p')               # torn last line
+        fh.write('{"index": 5, "image": "textures/005.p')  # torn last line
     report = CaptureFolder(tmp_path).recover()
     assert report == {"torn_lines": 1, "entries_without_image": 1, "temp_files": 1, "orphan_images": 1}
     entries = assert_consistent(tmp_path)
@@ -94,7 +101,7 @@ def test_recover_cleans_every_crash_leftover(tmp_path):
 
 def test_corrupt_manifest_line_in_the_middle_is_an_error(tmp_path):
     (tmp_path / "textures").mkdir()
-    (tmp_path / "manifest.jsonl").write_text(json.dumps(_entry(0)) + '\nnot json\n' + json.dumps(_entry(1)) + "\n")
+    (tmp_path / "manifest.jsonl").write_text(json.dumps(_entry(0)) + "\nnot json\n" + json.dumps(_entry(1)) + "\n")
     with pytest.raises(CaptureError, match="manifest.jsonl: line 2 is not a valid manifest entry"):
         CaptureFolder(tmp_path).recover()
 

@@ -23,7 +23,9 @@ def _run(fake, folder, camera, settings=None, nodes=NODES, progress=None):
     settings = settings or fast_settings()
     model = RigModel(settings)
     client = client_for(fake)
-    runner = CaptureRunner(client, model, camera, CaptureFolder(folder), settings, progress=progress or (lambda m: None))
+    runner = CaptureRunner(
+        client, model, camera, CaptureFolder(folder), settings, progress=progress or (lambda m: None)
+    )
     try:
         return runner.run(targets_from_grid(model, nodes)), model
     finally:
@@ -68,13 +70,13 @@ def test_order_is_shorter_than_the_given_order(tmp_path):
     with fake_device() as fake:
         summary, model = _run(fake, tmp_path, cam, settings)
     pts = np.array([model.grid_position(i, j)[:2] for i, j in NODES])
-    start = np.array([249.0, 149.0])            # head-frame position of MPos (-1, -1) after homing
+    start = np.array([249.0, 149.0])  # head-frame position of MPos (-1, -1) after homing
     given = np.linalg.norm(np.diff(np.vstack([start, pts]), axis=0), axis=1).sum()
     assert summary["path_mm"] < given
 
 
 def test_soft_limit_refusal_sends_nothing(tmp_path):
-    settings = fast_settings(lateral={"max_mm": -100.0})     # grid column 9 (lateral 225) needs X = -25
+    settings = fast_settings(lateral={"max_mm": -100.0})  # grid column 9 (lateral 225) needs X = -25
     with fake_device() as fake:
         with pytest.raises(RigError, match="lateral axis X target -25.000 is outside the travel .*nothing was sent"):
             _run(fake, tmp_path, CountingCamera(), settings)
@@ -91,7 +93,7 @@ def test_alarm_mid_move_stops_consistently_and_restart_completes(tmp_path):
             _run(fake, tmp_path, cam, settings)
         assert not fake.coolant
         assert len(assert_consistent(tmp_path)) == 2
-        summary, _ = _run(fake, tmp_path, cam, settings)       # reset + home, then the rest
+        summary, _ = _run(fake, tmp_path, cam, settings)  # reset + home, then the rest
     assert summary["skipped"] == 2 and summary["captured"] == len(NODES) - 2
     assert len(assert_consistent(tmp_path)) == len(NODES)
     _each_shot_once(cam, settings)
@@ -146,8 +148,8 @@ def test_after_a_reboot_nothing_is_sent_to_the_locked_board_and_the_message_says
         fake.reboot_during_move(5)
         with pytest.raises(ControllerReset, match="outputs .*off.*locked until homed"):
             _run(fake, tmp_path, CountingCamera(), progress=notes.append)
-        after_reboot = fake.lines[[k for k, s in enumerate(fake.lines) if s.startswith("G21 G90 G53")][4] + 1:]
-        assert after_reboot == [] and not fake.coolant           # no M9 (error:9) to the locked board
+        after_reboot = fake.lines[[k for k, s in enumerate(fake.lines) if s.startswith("G21 G90 G53")][4] + 1 :]
+        assert after_reboot == [] and not fake.coolant  # no M9 (error:9) to the locked board
     assert "light off failed" not in notes[-1]
     assert "the controller rebooted" in notes[-1] and "it homes ($H) first, then shoots the 4 positions" in notes[-1]
 
@@ -171,11 +173,11 @@ def test_keyboard_interrupt_from_camera_then_restart(tmp_path, k):
     with fake_device() as fake:
         with pytest.raises(KeyboardInterrupt):
             _run(fake, tmp_path, cam, settings)
-        assert not fake.coolant                                  # switched off on the way out
+        assert not fake.coolant  # switched off on the way out
         assert len(assert_consistent(tmp_path)) == k - 1
         _run(fake, tmp_path, cam, settings)
     assert len(assert_consistent(tmp_path)) == len(NODES)
-    assert len(cam.attempts) == len(NODES) + 1                   # only the interrupted shot was repeated
+    assert len(cam.attempts) == len(NODES) + 1  # only the interrupted shot was repeated
     _each_shot_once(cam, settings)
 
 

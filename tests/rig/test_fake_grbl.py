@@ -15,7 +15,7 @@ from torchrefl.rig.grbl_homing import homing_seconds
 
 def _unlocked(fake):
     c = connected(fake)
-    c.unlock()                                     # MPos 0, soft limits on: machine space [-$13x, 0]
+    c.unlock()  # MPos 0, soft limits on: machine space [-$13x, 0]
     return c
 
 
@@ -24,7 +24,7 @@ def test_homing_off_clears_soft_limits_and_soft_limits_need_homing():
         c = connected(fake)
         assert c.read_settings()[20] == 1.0
         c.command("$22=0")
-        assert c.read_settings()[20] == 0.0        # Grbl: homing off forces soft limits off
+        assert c.read_settings()[20] == 0.0  # Grbl: homing off forces soft limits off
         with pytest.raises(GrblErrorReply, match="error:10 .*Soft limits cannot be enabled without homing"):
             c.command("$20=1")
         c.command("$22=1")
@@ -40,15 +40,15 @@ def test_jog_runs_in_jog_state_and_error_15_beyond_the_travel():
         c.command("$J=G91 G21 X-10 F1000")
         assert c.status().state == "Jog"
         with pytest.raises(GrblErrorReply, match="error:9 "):
-            c.command("G1 X-5 F100")               # G-code is locked out while jogging
+            c.command("G1 X-5 F100")  # G-code is locked out while jogging
         clock.advance(5.0)
         st = c.status()
         assert st.state == "Idle" and st.mpos[0] == pytest.approx(-10.0)
         with pytest.raises(GrblErrorReply, match="error:15 .Travel exceeded"):
-            c.command("$J=G53 X-600 F1000")        # beyond $130=500: ignored, no alarm
+            c.command("$J=G53 X-600 F1000")  # beyond $130=500: ignored, no alarm
         assert c.status().state == "Idle" and fake.moves_started == 1
         with pytest.raises(GrblErrorReply, match="error:22"):
-            c.command("$J=G91 X-1")                # a jog needs its own feed
+            c.command("$J=G91 X-1")  # a jog needs its own feed
         with pytest.raises(GrblErrorReply, match="error:16"):
             c.command("$J=G91 X-1 M8 F100")
         c.link.close()
@@ -58,12 +58,12 @@ def test_a_setting_sent_while_moving_is_refused_at_once_with_error_8():
     clock = ManualClock()
     with fake_device(clock=clock, time_scale=1.0) as fake:
         c = _unlocked(fake)
-        c.command("G53 G1 X-100 F1000")            # frozen clock: it stays in Run
+        c.command("G53 G1 X-100 F1000")  # frozen clock: it stays in Run
         assert c.status().state == "Run"
         for line in ("$110=5000", "$$", "$H", "$J=G91 X-1 F100"):
             with pytest.raises(GrblErrorReply, match="error:8 .Not idle"):
                 c.command(line)
-        c.command("$G")                            # allowed in any state
+        c.command("$G")  # allowed in any state
         assert fake.settings[110] == 6000.0
         c.link.close()
 
@@ -73,7 +73,7 @@ def test_soft_limit_alarm_leaves_an_ok_that_arrives_after_ctrl_x():
         c = _unlocked(fake)
         with pytest.raises(GrblAlarm, match="ALARM:2 .Soft limit"):
             c.command("G53 G0 X-600")
-        c.link.readline(0.5)                       # [MSG:Reset to continue]
+        c.link.readline(0.5)  # [MSG:Reset to continue]
         c.realtime(b"\x18")
         lines = [c.link.readline(1.0) for _ in range(4)]
         assert lines == [b"ok", b"", b"Grbl 1.1h ['$' for help]", b"[MSG:'$H'|'$X' to unlock]"]
@@ -84,11 +84,11 @@ def test_motion_accelerates_and_brakes():
     clock = ManualClock()
     with fake_device(settings={120: 200.0}, clock=clock, time_scale=1.0) as fake:
         c = _unlocked(fake)
-        c.command("G53 G1 X-100 F3000")            # 50 mm/s, 200 mm/s^2: 0.25 s and 6.25 mm to reach speed
+        c.command("G53 G1 X-100 F3000")  # 50 mm/s, 200 mm/s^2: 0.25 s and 6.25 mm to reach speed
         clock.advance(0.25)
         st = c.status()
         assert st.mpos[0] == pytest.approx(-6.25) and st.feed == pytest.approx(3000.0)
-        clock.advance(1.75)                        # 2.0 s: a move without acceleration would be over
+        clock.advance(1.75)  # 2.0 s: a move without acceleration would be over
         st = c.status()
         assert st.state == "Run" and st.mpos[0] == pytest.approx(-93.75)
         assert trapezoid_seconds(100.0, 50.0, 200.0) == pytest.approx(2.25)
@@ -102,20 +102,20 @@ def test_feed_hold_brakes_in_hold_1_ignores_resume_then_holds_in_hold_0():
     clock = ManualClock()
     with fake_device(settings={120: 10.0}, clock=clock, time_scale=1.0) as fake:
         c = _unlocked(fake)
-        c.command("G53 G1 X-200 F600")             # 10 mm/s, 10 mm/s^2: 1 s and 5 mm to stop
+        c.command("G53 G1 X-200 F600")  # 10 mm/s, 10 mm/s^2: 1 s and 5 mm to stop
         clock.advance(5.0)
         assert c.status().mpos[0] == pytest.approx(-45.0)
         c.realtime(b"!")
         st = c.status()
         assert (st.state, st.substate) == ("Hold", 1)
-        c.realtime(b"~")                           # ignored while braking
+        c.realtime(b"~")  # ignored while braking
         clock.advance(0.5)
         assert (c.status().state, c.status().substate) == ("Hold", 1)
         clock.advance(0.5)
         st = c.status()
         assert (st.state, st.substate) == ("Hold", 0) and st.mpos[0] == pytest.approx(-50.0)
         clock.advance(10.0)
-        assert c.status().mpos[0] == pytest.approx(-50.0)   # still held: the early ~ was dropped
+        assert c.status().mpos[0] == pytest.approx(-50.0)  # still held: the early ~ was dropped
         c.realtime(b"~")
         clock.advance(30.0)
         st = c.status()
@@ -140,17 +140,17 @@ def test_homing_takes_the_time_its_settings_give():
         c = connected(fake)
         # X homes towards - ($23 bit 0): its switch is at -500, 400 mm away; Y's 250 mm; Z's 50 mm
         seconds = homing_seconds([400.0, 250.0, 50.0], fake.settings)
-        assert seconds == pytest.approx(61.28)     # Z: 52 mm at $25=500, X/Y: 402 mm; 2 x (1 mm at $24=25, 4 x 0.25 s)
+        assert seconds == pytest.approx(61.28)  # Z: 52 mm at $25=500, X/Y: 402 mm; 2 x (1 mm at $24=25, 4 x 0.25 s)
         c.write_line("$H")
-        for _ in range(5000):                      # until the board has taken the line: time may pass then
+        for _ in range(5000):  # until the board has taken the line: time may pass then
             if fake.state == "Home":
                 break
             time.sleep(0.001)
         clock.advance(seconds - 0.5)
-        assert c.link.readline(0.2) is None        # still homing (and `?` goes unanswered)
+        assert c.link.readline(0.2) is None  # still homing (and `?` goes unanswered)
         clock.advance(1.0)
         assert c.link.readline(1.0) == b"ok"
-        assert c.status().mpos == (-499.0, -1.0, -1.0)    # X: -$130 + $27; Y, Z: -$27
+        assert c.status().mpos == (-499.0, -1.0, -1.0)  # X: -$130 + $27; Y, Z: -$27
         c.link.close()
 
 

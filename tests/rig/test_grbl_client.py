@@ -16,7 +16,7 @@ def test_handshake_settings_and_alarm_lock():
         assert c.banner == "Grbl 1.1h ['$' for help]" and c.version == "1.1h"
         # pyserial flushes input on open, so the power-up banner is gone: the client sent Ctrl-X
         assert b"\x18" in fake.received
-        assert c.last_status.state == "Alarm"                  # homing enabled: locked at power-up
+        assert c.last_status.state == "Alarm"  # homing enabled: locked at power-up
         assert "[MSG:'$H'|'$X' to unlock]" in c.messages
         settings = c.read_settings()
         assert settings == {k: float(v) for k, v in fake.settings.items()}
@@ -32,7 +32,7 @@ def test_unlock_home_and_move_reach_position():
         c.unlock()
         assert "[MSG:Caution: Unlocked]" in c.messages
         st = c.home()
-        assert st.state == "Idle" and st.mpos == (-1.0, -1.0, -1.0)   # GRBL: home minus $27 pull-off
+        assert st.state == "Idle" and st.mpos == (-1.0, -1.0, -1.0)  # GRBL: home minus $27 pull-off
         c.move_to({"X": -123.4, "Y": -56.7}, 3000)
         st = c.wait_idle()
         assert st.mpos == pytest.approx((-123.4, -56.7, -1.0), abs=1e-9)
@@ -86,11 +86,11 @@ def test_garbage_is_reported_and_the_client_recovers():
     with fake_device() as fake:
         c = connected(fake)
         fake.garbage_before("$$", b"\xff\xfe\x80\x81 noise\r\nhello there\r\n\x01\x02\r\n")
-        settings = c.read_settings()                  # the valid lines that follow still parse
+        settings = c.read_settings()  # the valid lines that follow still parse
         assert settings[131] == 300.0
         assert b"\xff\xfe\x80\x81 noise" in c.garbage
         assert b"hello there" in c.garbage and b"\x01\x02" in c.garbage
-        c.unlock()                                    # and the next exchange works
+        c.unlock()  # and the next exchange works
         assert c.status().state == "Idle"
         c.link.close()
 
@@ -104,7 +104,7 @@ def test_error_reply_becomes_readable_rig_error():
             c.move_to({"X": -10.0}, 1000)
         msg = str(info.value)
         assert info.value.code == 22 and "Undefined feed rate" in msg and "G1 X-10.000" in msg and fake.path in msg
-        c.move_to({"X": -10.0}, 1000)                 # the next command is fine
+        c.move_to({"X": -10.0}, 1000)  # the next command is fine
         assert c.wait_idle().mpos[0] == pytest.approx(-10.0)
         c.link.close()
 
@@ -118,8 +118,8 @@ def test_alarm_mid_move_then_reset_and_rehome():
         with pytest.raises(GrblAlarm, match="ALARM:1 .Hard limit") as info:
             c.wait_idle()
         assert info.value.position_lost and c.alarm == 1
-        assert fake.state == "Alarm" and -200.0 < fake.mpos[0] < -1.0        # stopped half-way
-        c.soft_reset()                                 # critical alarm: only a reset is accepted
+        assert fake.state == "Alarm" and -200.0 < fake.mpos[0] < -1.0  # stopped half-way
+        c.soft_reset()  # critical alarm: only a reset is accepted
         assert c.status().state == "Alarm"
         c.home()
         assert c.status().mpos == (-1.0, -1.0, -1.0)
@@ -130,8 +130,8 @@ def test_feed_hold_and_resume():
     with fake_device(time_scale=0.05) as fake:
         c = connected(fake)
         c.home()
-        c.move_to({"X": -101.0}, 600)                  # 100 mm at 600 mm/min: 10 s simulated, 0.5 s here
-        while c.status().mpos[0] > -2.0:               # under way
+        c.move_to({"X": -101.0}, 600)  # 100 mm at 600 mm/min: 10 s simulated, 0.5 s here
+        while c.status().mpos[0] > -2.0:  # under way
             pass
         c.feed_hold()
         st = c.status()
@@ -140,7 +140,7 @@ def test_feed_hold_and_resume():
         assert (st.state, st.substate) == ("Hold", 0)
         a = c.status().mpos
         time.sleep(0.05)
-        assert c.status().mpos == a and -101.0 < a[0] < -1.0                 # held: not moving
+        assert c.status().mpos == a and -101.0 < a[0] < -1.0  # held: not moving
         c.resume()
         assert c.wait_idle().mpos[0] == pytest.approx(-101.0)
         c.link.close()
@@ -221,7 +221,7 @@ def test_garbled_status_report_is_retried_and_counted():
         c = connected(fake, log=notes.append)
         c.home()
         c.move_to({"X": -50.0}, 3000)
-        fake.garble_reports(2)                         # as seen: '-98:613' in the MPos field
+        fake.garble_reports(2)  # as seen: '-98:613' in the MPos field
         st = c.wait_idle()
         assert st.mpos[0] == pytest.approx(-50.0)
         assert c.status_retried == 2
@@ -239,7 +239,7 @@ def test_board_that_stops_answering_status_is_held_then_an_error():
         with pytest.raises(NoReply, match=r"status query '\?' \(3 queries.*sent a feed hold '!'"):
             c.status()
         assert c.status_retried == 2
-        for _ in range(1000):                          # until the board has read the '!'
+        for _ in range(1000):  # until the board has read the '!'
             if b"!" in fake.received:
                 break
             time.sleep(0.001)
@@ -280,8 +280,8 @@ def test_homing_timeout_is_computed_from_the_settings_with_progress_notes():
     with fake_device(time_scale=0.02, carriage_mm=(-450.0, -250.0, -150.0)) as fake:
         c = connected(fake, home_s=None, progress_s=0.1)
         assert c.homing_timeout() == pytest.approx(homing_timeout_s(c.settings))
-        assert c.homing_timeout() > 150.0              # 500 mm at $25=500 mm/min can outlast 90 s
-        st = c.home(progress=notes.append)             # about 86 s simulated, 1.7 s here
+        assert c.homing_timeout() > 150.0  # 500 mm at $25=500 mm/min can outlast 90 s
+        st = c.home(progress=notes.append)  # about 86 s simulated, 1.7 s here
         assert st.mpos == (-1.0, -1.0, -1.0)
         assert "computed from $130-$132" in notes[0]
         assert any("homing... " in n for n in notes[1:])

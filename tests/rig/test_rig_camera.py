@@ -22,11 +22,15 @@ def test_external_command_writes_the_file(tmp_path):
 
 def test_external_command_failures(tmp_path):
     with pytest.raises(RigError, match="exited with status 3: boom"):
-        ExternalCommandCamera(f"{PY} -c \"import sys; sys.stderr.write('boom'); sys.exit(3)\" {{path}}").capture(tmp_path / "a.png")
+        ExternalCommandCamera(f"{PY} -c \"import sys; sys.stderr.write('boom'); sys.exit(3)\" {{path}}").capture(
+            tmp_path / "a.png"
+        )
     with pytest.raises(RigError, match="succeeded but wrote no image"):
         ExternalCommandCamera(f"{PY} -c pass {{path}}").capture(tmp_path / "b.png")
     with pytest.raises(RigError, match="did not finish within 0.2 s"):
-        ExternalCommandCamera(f"{PY} -c \"import time; time.sleep(5)\" {{path}}", timeout_s=0.2).capture(tmp_path / "c.png")
+        ExternalCommandCamera(f'{PY} -c "import time; time.sleep(5)" {{path}}', timeout_s=0.2).capture(
+            tmp_path / "c.png"
+        )
     with pytest.raises(RigError, match="not found"):
         ExternalCommandCamera("no-such-camera-tool {path}").capture(tmp_path / "d.png")
     with pytest.raises(RigError, match="no \\{path\\} placeholder"):

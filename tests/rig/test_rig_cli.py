@@ -7,9 +7,20 @@ from rig_helpers import assert_consistent
 from torchrefl.capture.cylindrical_scan import read_scan_yaml
 from torchrefl.rig.__main__ import main
 
-SCENE = ["--scene-set", "synthetic.rows=48", "--scene-set", "synthetic.columns=48",
-         "--scene-set", "synthetic.angle_step_deg=7.5", "--scene-set", "synthetic.height_step_mm=4.4",
-         "--scene-set", "synthetic.supersample=1", "--scene-set", "synthetic.mesh_subdivisions=3"]
+SCENE = [
+    "--scene-set",
+    "synthetic.rows=48",
+    "--scene-set",
+    "synthetic.columns=48",
+    "--scene-set",
+    "synthetic.angle_step_deg=7.5",
+    "--scene-set",
+    "synthetic.height_step_mm=4.4",
+    "--scene-set",
+    "synthetic.supersample=1",
+    "--scene-set",
+    "synthetic.mesh_subdivisions=3",
+]
 FAST = ["--set", "light.settle_s=0", "--set", "timeouts.poll_s=0.005"]
 
 
@@ -20,10 +31,11 @@ def test_dry_run_capture_writes_a_loadable_folder_and_resumes(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "[3/3] textures/" in text and "capture complete: 3 new" in text
     entries = assert_consistent(out)
-    doc = read_scan_yaml(out)                      # the fitting side's reader
+    doc = read_scan_yaml(out)  # the fitting side's reader
     assert doc["lights"] == [dict(e) for e in doc["lights"]] and len(doc["lights"]) == 3
     assert sorted(tuple(e["position_mm"]) for e in doc["lights"]) == sorted(
-        [(-225.0, 125.0, 300.0), (225.0, -125.0, 300.0), (-25.0, 25.0, 300.0)])
+        [(-225.0, 125.0, 300.0), (225.0, -125.0, 300.0), (-25.0, 25.0, 300.0)]
+    )
     assert (out / "range.npy").is_file() and (out / "truth.npz").is_file()
     assert np.load(out / "range.npy").shape == (48, 48)
     # run again with one more position: only the new one is shot
@@ -41,17 +53,23 @@ def test_probe_home_move_dry_run(capsys):
     assert "reached head-frame [-125.0, 75.0, 300.0]" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["probe", "--dry-run", "--set", "lateral.axes=X"], "unknown key 'lateral.axes'"),
-    (["move", "--dry-run", "--mm", "10", "0", "--set", "lateral.max_mm=-250"],
-     "lateral axis X target -240.000 is outside the travel .* nothing was sent"),
-    (["move", "--dry-run", "--grid", "10", "0"], r"grid index \(10, 0\) outside the 10 x 6 light grid"),
-    (["probe", "--port", "/nonexistent/ttyACM9"], "cannot open serial port /nonexistent/ttyACM9"),
-    (["capture", "--port", "loop://", "--all-grid", "--out", "unused"], "camera.command is empty"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["probe", "--dry-run", "--set", "lateral.axes=X"], "unknown key 'lateral.axes'"),
+        (
+            ["move", "--dry-run", "--mm", "10", "0", "--set", "lateral.max_mm=-250"],
+            "lateral axis X target -240.000 is outside the travel .* nothing was sent",
+        ),
+        (["move", "--dry-run", "--grid", "10", "0"], r"grid index \(10, 0\) outside the 10 x 6 light grid"),
+        (["probe", "--port", "/nonexistent/ttyACM9"], "cannot open serial port /nonexistent/ttyACM9"),
+        (["capture", "--port", "loop://", "--all-grid", "--out", "unused"], "camera.command is empty"),
+    ],
+)
 def test_errors_are_one_line_messages(argv, message, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "Traceback" not in err
     import re
+
     assert re.search(message, err), err

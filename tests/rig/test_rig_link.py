@@ -12,10 +12,10 @@ def test_loop_url_lines_and_timeout():
         link.write(b"ok\r\nerror:9\r\npartial")
         assert link.readline(0.5) == b"ok"
         assert link.readline(0.5) == b"error:9"
-        assert link.readline(0.05) is None           # no newline yet
+        assert link.readline(0.05) is None  # no newline yet
         link.write(b" line\n\xff\xfe\n")
         assert link.readline(0.5) == b"partial line"
-        assert link.readline(0.5) == b"\xff\xfe"      # raw bytes: decoding is the client's job
+        assert link.readline(0.5) == b"\xff\xfe"  # raw bytes: decoding is the client's job
 
 
 def test_open_failure_and_closed_port():

@@ -15,8 +15,10 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_grid_matches_the_capture_modules_light_grid():
-    s = fast_settings(grid={"columns": 7, "rows": 4, "spacing_mm": 40.0, "center_lateral_mm": 10.0,
-                            "center_vertical_mm": -5.0}, radial_mm=280.0)
+    s = fast_settings(
+        grid={"columns": 7, "rows": 4, "spacing_mm": 40.0, "center_lateral_mm": 10.0, "center_vertical_mm": -5.0},
+        radial_mm=280.0,
+    )
     m = RigModel(s)
     truth = light_grid_positions(7, 4, 40.0, 280.0, 10.0, -5.0)
     assert np.allclose(m.grid_positions(), truth)
@@ -28,8 +30,10 @@ def test_grid_matches_the_capture_modules_light_grid():
 
 
 def test_head_frame_to_axes_and_back():
-    s = fast_settings(lateral={"axis": "Y", "origin_mm": -100.0, "sign": -1.0},
-                      vertical={"axis": "X", "origin_mm": -200.0, "min_mm": -400.0})
+    s = fast_settings(
+        lateral={"axis": "Y", "origin_mm": -100.0, "sign": -1.0},
+        vertical={"axis": "X", "origin_mm": -200.0, "min_mm": -400.0},
+    )
     m = RigModel(s)
     axes = m.head_to_axes([30.0, -20.0, 300.0])
     assert axes == {"Y": -130.0, "X": -220.0}

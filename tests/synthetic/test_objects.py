@@ -5,17 +5,25 @@ import numpy as np
 import pytest
 import trimesh
 
+from torchrefl.config import SyntheticConfig
 from torchrefl.synthetic.materials import region_materials
 from torchrefl.synthetic.objects import vase
 from torchrefl.synthetic.scan import SyntheticScan
-from torchrefl.config import SyntheticConfig
 
 LIGHT = np.array([0.0, 50.0, 300.0])
 
 
 def cfg(**kw):
-    base = dict(object="vase", columns=128, rows=112, angle_step_deg=360 / 128, height_step_mm=2.0,
-                supersample=1, noise_dn=0.0, indirect_samples=0)
+    base = dict(
+        object="vase",
+        columns=128,
+        rows=112,
+        angle_step_deg=360 / 128,
+        height_step_mm=2.0,
+        supersample=1,
+        noise_dn=0.0,
+        indirect_samples=0,
+    )
     base.update(kw)
     return SyntheticConfig(**base)
 
@@ -26,19 +34,19 @@ def test_the_vase_is_a_closed_outward_mesh_with_exact_normals():
     assert m.is_watertight and m.is_winding_consistent and m.volume > 0
     n = obj.normal(m.triangles_center, np.arange(len(m.faces)))
     assert ((n * m.face_normals).sum(-1) > 0.999).all()
-    assert obj.material is None                               # texel-aligned maps, given by the scanner
+    assert obj.material is None  # texel-aligned maps, given by the scanner
 
 
 def test_the_vase_profile_is_c1_with_a_concave_neck():
     prof = vase().info["profile"]
     y = np.linspace(-55.0, 55.0, 22001)
     r = prof.radius(y)
-    assert np.abs(np.diff(r)).max() < 0.01                    # continuous (steps of 0.005 mm)
+    assert np.abs(np.diff(r)).max() < 0.01  # continuous (steps of 0.005 mm)
     np.testing.assert_allclose(np.gradient(r, y)[2:-2], prof.slope(y)[2:-2], atol=2e-3)
     neck = np.abs(y) < prof.y_edge - 0.5
     assert (np.gradient(np.gradient(r, y), y)[neck] > 0).all()  # r'' > 0: the neck is concave seen from outside
     assert r.min() == pytest.approx(prof.core, abs=1e-6) and r.max() == pytest.approx(prof.r_max, abs=1e-6)
-    assert np.abs(prof.slope(y)).max() == pytest.approx(np.tan(np.radians(60.0)), rel=1e-3)   # flank slope at the edges
+    assert np.abs(prof.slope(y)).max() == pytest.approx(np.tan(np.radians(60.0)), rel=1e-3)  # flank slope at the edges
 
 
 def seen_share(scan, points):
@@ -91,10 +99,10 @@ def test_the_vases_neck_receives_interreflection_and_its_body_almost_none():
     direct = SyntheticScan(cfg(materials="uniform"), seed=0).radiance_image(LIGHT)
     full = SyntheticScan(cfg(materials="uniform", indirect_samples=32), seed=0).radiance_image(LIGHT)
     heights = -SyntheticScan(cfg(), seed=0).rig.heights()
-    cols = slice(48, 80)                                          # facing the head
+    cols = slice(48, 80)  # facing the head
     lit = direct[:, cols, 0] > 0.02
     ratio = np.where(lit, full[:, cols, 0] / np.where(lit, direct[:, cols, 0], 1.0) - 1.0, np.nan)
     neck = np.abs(heights) < 12.0
     body = np.abs(heights) > 50.0
-    assert np.nanmean(ratio[neck]) > 0.04                    # the local model would overestimate Pd there
+    assert np.nanmean(ratio[neck]) > 0.04  # the local model would overestimate Pd there
     assert np.nanmean(ratio[body & (np.abs(heights) < 55.0)]) < 0.01

@@ -8,19 +8,27 @@ import trimesh
 from scipy import stats
 
 from torchrefl.capture.cylindrical_rig import CylindricalRig
-from torchrefl.synthetic.path_tracer import IndirectRenderer
-from torchrefl.core.lobe_sampling import lobe_pdf, sample_lobe
-from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.config import SyntheticConfig
-from torchrefl.errors import GeometryError
+from torchrefl.core.lobe_sampling import lobe_pdf, sample_lobe
 from torchrefl.core.rays import RayTracer
+from torchrefl.errors import GeometryError
+from torchrefl.synthetic.path_tracer import IndirectRenderer
+from torchrefl.synthetic.scan import SyntheticScan
 
 LIGHTS = np.array([[0.0, 0.0, 300.0], [-150.0, 100.0, 300.0]])
 
 
 def e_cfg(**kw):
-    base = dict(object="object_e", columns=128, rows=112, angle_step_deg=360 / 128, height_step_mm=2.0,
-                supersample=1, noise_dn=0.0, indirect_samples=0)
+    base = dict(
+        object="object_e",
+        columns=128,
+        rows=112,
+        angle_step_deg=360 / 128,
+        height_step_mm=2.0,
+        supersample=1,
+        noise_dn=0.0,
+        indirect_samples=0,
+    )
     base.update(kw)
     return SyntheticConfig(**base)
 
@@ -42,8 +50,13 @@ def plate_geometry(scan, light_head):
         d = x - f0
         a = d @ info["plate_dirs"][k]
         along = d @ fd
-        on = (np.abs(d @ info["inside_normals"][k]) < 1e-3) & (a > 0.5) & (a < info["width"] - 0.5) \
-            & (along > 0.5) & (along < info["length"] - 0.5)
+        on = (
+            (np.abs(d @ info["inside_normals"][k]) < 1e-3)
+            & (a > 0.5)
+            & (a < info["width"] - 0.5)
+            & (along > 0.5)
+            & (along < info["length"] - 0.5)
+        )
         plate[on & np.isfinite(r)] = k
     lat, vert, rad = light_head
     light = rad * u + lat * w
@@ -53,7 +66,7 @@ def plate_geometry(scan, light_head):
     C = np.linalg.norm(to, axis=-1)
     cos = (n * to).sum(-1) / C
     shadow = np.zeros(r.shape, dtype=bool)
-    for k in range(2):   # segment x -> light crossing the other plate's inside rectangle
+    for k in range(2):  # segment x -> light crossing the other plate's inside rectangle
         other = 1 - k
         no, d0 = info["inside_normals"][other], f0
         denom = (to * no).sum(-1)
@@ -61,7 +74,14 @@ def plate_geometry(scan, light_head):
         q = x + t[..., None] * to - f0
         a = q @ info["plate_dirs"][other]
         along = q @ fd
-        hit = (t > 1e-6) & (t < 1) & (a > -info["thickness"]) & (a < info["width"]) & (along > 0) & (along < info["length"])
+        hit = (
+            (t > 1e-6)
+            & (t < 1)
+            & (a > -info["thickness"])
+            & (a < info["width"])
+            & (along > 0)
+            & (along < info["length"])
+        )
         shadow |= (plate == k) & hit
     rel = x - f0
     dist_fold = np.linalg.norm(rel - (rel @ fd)[..., None] * fd, axis=-1)
@@ -72,7 +92,7 @@ def local_pd(scan, img, light_head):
     """The local-only estimate Pd = C^2 i / (Y cos) (kappa = pi) on lit, unshadowed inside texels."""
     plate, cos, C, shadow, dist = plate_geometry(scan, light_head)
     ok = (plate >= 0) & ~shadow & (cos > 0.2)
-    return np.where(ok, C ** 2 * img[..., 0] / (scan.cfg.light_intensity * cos), np.nan), dist
+    return np.where(ok, C**2 * img[..., 0] / (scan.cfg.light_intensity * cos), np.nan), dist
 
 
 def test_zero_paths_is_the_direct_renderer_and_convex_objects_get_no_interreflection():
@@ -84,8 +104,16 @@ def test_zero_paths_is_the_direct_renderer_and_convex_objects_get_no_interreflec
         assert ok.sum() > 800
         np.testing.assert_allclose(pd[ok], 0.8, atol=2e-4)
     # a convex ellipsoid sees nothing of itself: paths add exactly nothing
-    cfg = SyntheticConfig(columns=64, rows=48, angle_step_deg=360 / 64, height_step_mm=4.0, size_mm=[40.0, 60.0, 30.0],
-                          supersample=1, noise_dn=0.0, mesh_subdivisions=4)
+    cfg = SyntheticConfig(
+        columns=64,
+        rows=48,
+        angle_step_deg=360 / 64,
+        height_step_mm=4.0,
+        size_mm=[40.0, 60.0, 30.0],
+        supersample=1,
+        noise_dn=0.0,
+        mesh_subdivisions=4,
+    )
     direct = SyntheticScan(cfg, seed=1).radiance_image(LIGHTS[1])
     cfg.indirect_samples = 16
     assert np.array_equal(SyntheticScan(cfg, seed=1).radiance_image(LIGHTS[1]), direct)
@@ -114,8 +142,8 @@ def test_closed_sphere_interreflection_matches_the_analytic_radiosity():
     gi, pts, nrm, mat = _sphere_renderer(rho, radius=R)
     view = nrm.copy()
     lights = np.zeros((1, len(pts), 3))
-    g = gi.render(pts, nrm, view, mat["pd"], mat["ps"], mat["sigma"], lights, n_paths)[0, :, 0] * math.pi * R ** 2
-    expected = rho ** 2 / (1 - rho)                   # 1.633; one bounce only would give 0.49, two 0.833
+    g = gi.render(pts, nrm, view, mat["pd"], mat["ps"], mat["sigma"], lights, n_paths)[0, :, 0] * math.pi * R**2
+    expected = rho**2 / (1 - rho)  # 1.633; one bounce only would give 0.49, two 0.833
     err = g.std(ddof=1) / math.sqrt(len(g))
     assert abs(g.mean() - expected) < 4 * err + 0.005 * expected, (g.mean(), expected, err)
     assert err < 0.02 * expected
@@ -143,7 +171,7 @@ def test_lobe_sampler_pdf_is_normalised_and_matches_its_histogram(model, sigma):
     c = -1 + (np.arange(nc) + 0.5) * 2 / nc
     ph = (np.arange(nphi) + 0.5) * 2 * math.pi / nphi
     C, PH = np.meshgrid(c, ph, indexing="ij")
-    s = np.sqrt(1 - C ** 2)
+    s = np.sqrt(1 - C**2)
     L = np.stack([s * np.cos(PH), s * np.sin(PH), C], -1).reshape(-1, 3)
     N = len(L)
     p = lobe_pdf(model, np.repeat(n, N, 0), np.repeat(v, N, 0), L, np.full(N, sigma)).reshape(nc, nphi)
@@ -153,7 +181,7 @@ def test_lobe_sampler_pdf_is_normalised_and_matches_its_histogram(model, sigma):
     M = 200_000
     smp = sample_lobe(model, np.repeat(n, M, 0), np.repeat(v, M, 0), np.full(M, sigma), rng.random(M), rng.random(M))
     np.testing.assert_allclose(np.linalg.norm(smp, axis=-1), 1, atol=1e-9)
-    bc, bp = 24, 24   # coarse bins = sums of quadrature cells
+    bc, bp = 24, 24  # coarse bins = sums of quadrature cells
     expected = p.reshape(bc, nc // bc, bp, nphi // bp).sum((1, 3)) * (2 / nc) * (2 * math.pi / nphi) * M
     ic = np.clip(((smp[:, 2] + 1) / 2 * bc).astype(int), 0, bc - 1)
     ip = np.clip((np.mod(np.arctan2(smp[:, 1], smp[:, 0]), 2 * math.pi) / (2 * math.pi) * bp).astype(int), 0, bp - 1)
@@ -181,10 +209,10 @@ def test_object_e_interreflection_is_strong_at_the_fold_and_biases_the_local_est
         ok = np.isfinite(pd)
         near, far = ok & (dist < 10), ok & (dist > 50)
         assert near.sum() > 50 and far.sum() > 50
-        ratio = pd / pd0 - 1                               # indirect / direct
-        assert np.median(ratio[near]) > 0.25               # tens of percent near the fold
+        ratio = pd / pd0 - 1  # indirect / direct
+        assert np.median(ratio[near]) > 0.25  # tens of percent near the fold
         assert np.median(ratio[far]) < 0.5 * np.median(ratio[near])
-        assert np.median(pd[near]) > 1.1 * 0.8             # local-only Pd overestimated by >= 10 %
+        assert np.median(pd[near]) > 1.1 * 0.8  # local-only Pd overestimated by >= 10 %
         assert np.all(ratio[ok] > -1e-9)
 
 
@@ -195,7 +223,7 @@ def test_same_seed_same_images_and_paths_do_not_depend_on_the_light_batch(object
     assert np.array_equal(again.radiance_image(LIGHTS[1]), full[1])
     other = SyntheticScan(e_cfg(indirect_samples=128), seed=1).radiance_image(LIGHTS[1])
     assert not np.array_equal(other, full[1])
-    assert np.abs(other - full[1]).max() * 255 < 40      # only the Monte Carlo noise differs
+    assert np.abs(other - full[1]).max() * 255 < 40  # only the Monte Carlo noise differs
 
 
 def test_a_texels_sub_samples_share_one_stratified_set_unbiased_and_less_noisy():
@@ -212,8 +240,17 @@ def test_a_texels_sub_samples_share_one_stratified_set_unbiased_and_less_noisy()
 
     def texel_means(seed, grouped, n_paths=16):
         gi = IndirectRenderer(scan.tracer, scan._normal_at, scan._material_at, scan.cfg.brdf, seed=seed)
-        g = gi.render(smp["points"][sel], smp["normals"][sel], smp["view"][sel], mat["pd"], mat["ps"], mat["sigma"],
-                      lights, n_paths, groups=tex if grouped else None)[0].mean(-1)
+        g = gi.render(
+            smp["points"][sel],
+            smp["normals"][sel],
+            smp["view"][sel],
+            mat["pd"],
+            mat["ps"],
+            mat["sigma"],
+            lights,
+            n_paths,
+            groups=tex if grouped else None,
+        )[0].mean(-1)
         return g.reshape(-1, 4).mean(1)
 
     noise = {}
@@ -227,8 +264,17 @@ def test_a_texels_sub_samples_share_one_stratified_set_unbiased_and_less_noisy()
     assert abs(grouped.sum() / reference.sum() - 1) < 0.01
     gi = IndirectRenderer(scan.tracer, scan._normal_at, scan._material_at, scan.cfg.brdf, seed=0)
     with pytest.raises(GeometryError, match=r"groups has shape \(3,\), expected \(4,\)"):
-        gi.render(smp["points"][sel[:4]], smp["normals"][sel[:4]], smp["view"][sel[:4]], mat["pd"][:4], mat["ps"][:4],
-                  mat["sigma"][:4], lights[:, :4], 4, groups=tex[:3])
+        gi.render(
+            smp["points"][sel[:4]],
+            smp["normals"][sel[:4]],
+            smp["view"][sel[:4]],
+            mat["pd"][:4],
+            mat["ps"][:4],
+            mat["sigma"][:4],
+            lights[:, :4],
+            4,
+            groups=tex[:3],
+        )
 
 
 def test_mesh_objects_scan_only_in_front_of_the_axis_and_have_texel_truth():
@@ -239,6 +285,6 @@ def test_mesh_objects_scan_only_in_front_of_the_axis_and_have_texel_truth():
         assert hit.sum() > 500 and (r[hit] > 0).all()
         assert np.array_equal(scan.truth["region"] >= 0, hit)
         assert np.isfinite(scan.truth["pd"]).all()
-    assert len(np.unique(scan.truth["region"][hit])) >= 4          # the bowl's inside is non-uniform
+    assert len(np.unique(scan.truth["region"][hit])) >= 4  # the bowl's inside is non-uniform
     sd = scan.truth["sigma"][hit]
     assert sd.std() > 0.01

@@ -25,12 +25,14 @@ def test_facing_corner_matches_the_slow_reference():
     score = rng.random((500, 3))
     usable = rng.random((500, 3)) > 0.2
     np.testing.assert_array_equal(facing_corner(corner, n, d, score, usable), reference(corner, n, d, score, usable))
-    np.testing.assert_array_equal(facing_corner(corner, n, d, score), reference(corner, n, d, score, np.ones((500, 3), bool)))
+    np.testing.assert_array_equal(
+        facing_corner(corner, n, d, score), reference(corner, n, d, score, np.ones((500, 3), bool))
+    )
 
 
 def test_a_fold_strip_face_is_mixed_and_a_flat_or_gently_bent_one_is_not():
     up, wall = np.array([0.0, 0.0, 1.0]), np.array([-1.0, 0.0, 0.0])
-    tilt = np.array([np.sin(0.3), 0.0, np.cos(0.3)])                   # 17 degrees off: cos 0.955 > MIXED_COS
+    tilt = np.array([np.sin(0.3), 0.0, np.cos(0.3)])  # 17 degrees off: cos 0.955 > MIXED_COS
     faces = np.stack([np.stack([up, up, wall]), np.stack([up, up, up]), np.stack([up, tilt, up])])
     np.testing.assert_array_equal(mixed_faces(faces), [True, False, False])
     assert float(up @ tilt) > MIXED_COS

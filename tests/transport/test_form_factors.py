@@ -10,12 +10,17 @@ import numpy as np
 import pytest
 import torch
 
+from torchrefl.core.rays import RayTracer
+from torchrefl.core.surface import Surface
 from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.geometry.range_mesh import grid_triangulation
-from torchrefl.core.surface import Surface
-from torchrefl.core.rays import RayTracer
-from torchrefl.transport.form_factors import (face_patches, form_factors_for_surface, hemisphere_form_factors,
-                                              sampling_error, texel_patches)
+from torchrefl.transport.form_factors import (
+    face_patches,
+    form_factors_for_surface,
+    hemisphere_form_factors,
+    sampling_error,
+    texel_patches,
+)
 
 DISC = 5e-4
 OFFSET = 1e-5
@@ -26,20 +31,30 @@ def perpendicular(w, h, l):
     W, H = w / l, h / l
     S = W * W + H * H
     t = W * math.atan(1 / W) + H * math.atan(1 / H) - math.sqrt(S) * math.atan(1 / math.sqrt(S))
-    g = ((1 + W * W) * (1 + H * H) / (1 + S)
-         * (W * W * (1 + S) / ((1 + W * W) * S)) ** (W * W)
-         * (H * H * (1 + S) / ((1 + H * H) * S)) ** (H * H))
+    g = (
+        (1 + W * W)
+        * (1 + H * H)
+        / (1 + S)
+        * (W * W * (1 + S) / ((1 + W * W) * S)) ** (W * W)
+        * (H * H * (1 + S) / ((1 + H * H) * S)) ** (H * H)
+    )
     return (t + 0.25 * math.log(g)) / (math.pi * W)
 
 
 def parallel(a, b, c):
     """Howell C-11: F between directly opposed parallel a x b rectangles at distance c."""
     X, Y = a / c, b / c
-    return 2 / (math.pi * X * Y) * (
-        0.5 * math.log((1 + X * X) * (1 + Y * Y) / (1 + X * X + Y * Y))
-        + X * math.sqrt(1 + Y * Y) * math.atan(X / math.sqrt(1 + Y * Y))
-        + Y * math.sqrt(1 + X * X) * math.atan(Y / math.sqrt(1 + X * X))
-        - X * math.atan(X) - Y * math.atan(Y))
+    return (
+        2
+        / (math.pi * X * Y)
+        * (
+            0.5 * math.log((1 + X * X) * (1 + Y * Y) / (1 + X * X + Y * Y))
+            + X * math.sqrt(1 + Y * Y) * math.atan(X / math.sqrt(1 + Y * Y))
+            + Y * math.sqrt(1 + X * X) * math.atan(Y / math.sqrt(1 + X * X))
+            - X * math.atan(X)
+            - Y * math.atan(Y)
+        )
+    )
 
 
 def plate(corner, e1, e2, normal, n):
@@ -82,8 +97,8 @@ def tolerance(f_true, n):
 def test_perpendicular_rectangles_sharing_an_edge(w, h, l):
     if (w, h, l) == (1.0, 1.0, 1.0):
         assert perpendicular(1, 1, 1) == pytest.approx(0.20004, abs=1e-5)
-    A = plate((0, 0, 0), (w, 0, 0), (0, l, 0), (0, 0, 1), 100)        # z = 0, normal +z
-    B = plate((0, 0, 0), (0, 0, h), (0, l, 0), (1, 0, 0), 100)        # x = 0, normal +x
+    A = plate((0, 0, 0), (w, 0, 0), (0, l, 0), (0, 0, 1), 100)  # z = 0, normal +z
+    B = plate((0, 0, 0), (0, 0, h), (0, l, 0), (1, 0, 0), 100)  # x = 0, normal +x
     N = 100_000
     F = hemisphere_form_factors(*scene([A, B]), samples_per_patch=N, seed=1, offset=OFFSET)
     assert F.shape == (2, 2) and F.dtype == torch.float64
@@ -112,9 +127,12 @@ def test_parallel_coaxial_rectangles(a, b, c):
 def box(n):
     """The six inward-facing faces of the unit cube as plates."""
     return [
-        plate((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), n), plate((0, 0, 1), (1, 0, 0), (0, 1, 0), (0, 0, -1), n),
-        plate((0, 0, 0), (1, 0, 0), (0, 0, 1), (0, 1, 0), n), plate((0, 1, 0), (1, 0, 0), (0, 0, 1), (0, -1, 0), n),
-        plate((0, 0, 0), (0, 1, 0), (0, 0, 1), (1, 0, 0), n), plate((1, 0, 0), (0, 1, 0), (0, 0, 1), (-1, 0, 0), n),
+        plate((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), n),
+        plate((0, 0, 1), (1, 0, 0), (0, 1, 0), (0, 0, -1), n),
+        plate((0, 0, 0), (1, 0, 0), (0, 0, 1), (0, 1, 0), n),
+        plate((0, 1, 0), (1, 0, 0), (0, 0, 1), (0, -1, 0), n),
+        plate((0, 0, 0), (0, 1, 0), (0, 0, 1), (1, 0, 0), n),
+        plate((1, 0, 0), (0, 1, 0), (0, 0, 1), (-1, 0, 0), n),
     ]
 
 
@@ -130,8 +148,8 @@ def box_truth():
 def test_closed_box_rows_sum_to_one_and_match_analytic():
     N = 40_000
     F = hemisphere_form_factors(*scene(box(30)), samples_per_patch=N, seed=3, offset=OFFSET)
-    assert torch.all(torch.diagonal(F) == 0)                            # planar patches do not see themselves
-    assert torch.all(F.sum(1) >= 1 - 5.0 / N)                           # (almost) no ray escapes a closed box
+    assert torch.all(torch.diagonal(F) == 0)  # planar patches do not see themselves
+    assert torch.all(F.sum(1) >= 1 - 5.0 / N)  # (almost) no ray escapes a closed box
     assert torch.all(F.sum(1) <= 1 + 1e-12)
     T = box_truth()
     tol = 4 * np.sqrt(T * (1 - T) / N) + DISC
@@ -142,7 +160,7 @@ def test_blockers():
     A = plate((-0.5, -0.5, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), 40)
     B = plate((-0.5, -0.5, 1), (1, 0, 0), (0, 1, 0), (0, 0, -1), 40)
     full = plate((-1, -1, 0.5), (2, 0, 0), (0, 2, 0), (0, 0, 1), 4)
-    half = plate((-1, -1, 0.5), (1, 0, 0), (0, 2, 0), (0, 0, 1), 4)    # covers x < 0 of the mid-plane
+    half = plate((-1, -1, 0.5), (1, 0, 0), (0, 2, 0), (0, 0, 1), 4)  # covers x < 0 of the mid-plane
     N = 50_000
     F = hemisphere_form_factors(*scene([A, B], [full]), samples_per_patch=N, seed=4, offset=OFFSET)
     assert F[0, 1] == 0 and F[1, 0] == 0
@@ -156,7 +174,7 @@ def test_blockers():
 
 def test_back_side_of_a_patch_receives_nothing():
     A = plate((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), 30)
-    B = plate((0, 0, 1), (1, 0, 0), (0, 1, 0), (0, 0, 1), 30)           # faces away from A
+    B = plate((0, 0, 1), (1, 0, 0), (0, 1, 0), (0, 0, 1), 30)  # faces away from A
     N = 20_000
     args = scene([A, B])
     F = hemisphere_form_factors(*args, samples_per_patch=N, seed=5, offset=OFFSET)
@@ -164,7 +182,7 @@ def test_back_side_of_a_patch_receives_nothing():
     F = hemisphere_form_factors(*args, samples_per_patch=N, seed=5, offset=OFFSET, count_back_hits=True)
     f = parallel(1, 1, 1)
     assert abs(F[0, 1] - f) <= tolerance(f, N)
-    assert F[1, 0] == 0                                                  # B's hemisphere looks away from A
+    assert F[1, 0] == 0  # B's hemisphere looks away from A
 
 
 def test_stratified_rays_beat_independent_ones_and_converge_faster_than_one_over_sqrt_n():
@@ -176,8 +194,10 @@ def test_stratified_rays_beat_independent_ones_and_converge_faster_than_one_over
     off = ~np.eye(6, dtype=bool)
 
     def rms(n):
-        errs = [hemisphere_form_factors(*args, samples_per_patch=n, seed=s, offset=OFFSET).numpy()[off] - T[off]
-                for s in range(8)]
+        errs = [
+            hemisphere_form_factors(*args, samples_per_patch=n, seed=s, offset=OFFSET).numpy()[off] - T[off]
+            for s in range(8)
+        ]
         return float(np.sqrt(np.mean(np.square(errs))))
 
     binomial = lambda n: float(np.sqrt(np.mean(T[off] * (1 - T[off]) / n)))
@@ -203,8 +223,14 @@ def test_seed_determinism_and_layouts():
     for threads in (1, 2, 3):
         other = RayTracer(tracer.vertices, tracer.faces, threads=threads, chunk_size=777)
         calls = []
-        F4 = hemisphere_form_factors(other, *rest, samples_per_patch=30_000, seed=7, offset=OFFSET,
-                                     progress=lambda done, total: calls.append((done, total)))
+        F4 = hemisphere_form_factors(
+            other,
+            *rest,
+            samples_per_patch=30_000,
+            seed=7,
+            offset=OFFSET,
+            progress=lambda done, total: calls.append((done, total)),
+        )
         if threads == 1:
             F_ref = F4
         assert torch.equal(F4, F_ref)
@@ -236,13 +262,16 @@ def test_padding_and_weights_choose_origins():
     o3[1:, 0], n3[1:, 0] = o[1:, 0], n[1:, 0]
     F3 = hemisphere_form_factors(tracer, fp, o3, n3, w3, samples_per_patch=N, seed=9, offset=OFFSET)
     A = B = 0.5
-    corner = (A / math.sqrt(1 + A * A) * math.atan(B / math.sqrt(1 + A * A))
-              + B / math.sqrt(1 + B * B) * math.atan(A / math.sqrt(1 + B * B))) / (2 * math.pi)
+    corner = (
+        A / math.sqrt(1 + A * A) * math.atan(B / math.sqrt(1 + A * A))
+        + B / math.sqrt(1 + B * B) * math.atan(A / math.sqrt(1 + B * B))
+    ) / (2 * math.pi)
     f = 4 * corner
     assert abs(F3[0, 1] - f) <= 4 * math.sqrt(f * (1 - f) / N)
 
 
 # --- patches on the texel grid ---------------------------------------------------------------
+
 
 def small_surface(with_mesh=True):
     H, W = 6, 8
@@ -256,9 +285,15 @@ def small_surface(with_mesh=True):
     areas = rng.uniform(0.5, 2.0, size=(H, W))
     idx = np.flatnonzero(valid.ravel())
     verts, faces = grid_triangulation(pts, valid) if with_mesh else (None, None)
-    surf = Surface(grid_shape=(H, W), texel_index=torch.as_tensor(idx),
-                   positions=torch.as_tensor(pts.reshape(-1, 3)[idx]), normals=torch.as_tensor(normals.reshape(-1, 3)[idx]),
-                   areas=torch.as_tensor(areas.ravel()[idx]), mesh_vertices=verts, mesh_faces=faces)
+    surf = Surface(
+        grid_shape=(H, W),
+        texel_index=torch.as_tensor(idx),
+        positions=torch.as_tensor(pts.reshape(-1, 3)[idx]),
+        normals=torch.as_tensor(normals.reshape(-1, 3)[idx]),
+        areas=torch.as_tensor(areas.ravel()[idx]),
+        mesh_vertices=verts,
+        mesh_faces=faces,
+    )
     return surf, pts, normals, areas, valid
 
 
@@ -272,8 +307,12 @@ def test_texel_patches_membership_areas_normals(s):
     q = 0
     for bi in range(-(-H // s)):
         for bj in range(-(-W // s)):
-            cells = [(r, c) for r in range(bi * s, min(H, bi * s + s)) for c in range(bj * s, min(W, bj * s + s))
-                     if valid[r, c]]
+            cells = [
+                (r, c)
+                for r in range(bi * s, min(H, bi * s + s))
+                for c in range(bj * s, min(W, bj * s + s))
+                if valid[r, c]
+            ]
             if not cells:
                 continue
             members = sorted(texel_of[r * W + c] for r, c in cells)
@@ -318,7 +357,7 @@ def split_reference(surf, s, angle_deg):
 
 @pytest.mark.parametrize("s,angle", [(2, 20.0), (3, 15.0), (4, 25.0), (3, 180.0)])
 def test_blocks_split_where_normals_disagree_like_the_slow_reference(s, angle):
-    surf, *_ = small_surface()          # normals tilted at random by ~0.2 rad: some blocks split, most do not
+    surf, *_ = small_surface()  # normals tilted at random by ~0.2 rad: some blocks split, most do not
     P = texel_patches(surf, s, split_angle_deg=angle)
     ref = split_reference(surf, s, angle)
     assert P.num_patches == len(ref)
@@ -327,7 +366,7 @@ def test_blocks_split_where_normals_disagree_like_the_slow_reference(s, angle):
         assert P.block[q].tolist() == list(block)
     blocks = len({b for b, _ in ref})
     if angle < 180:
-        assert P.num_patches > blocks                   # the case splits something
+        assert P.num_patches > blocks  # the case splits something
     else:
         assert P.num_patches == blocks
 
@@ -343,7 +382,7 @@ def test_a_patch_does_not_straddle_a_fold():
     plain = texel_patches(surf, 2)
     split = texel_patches(surf, 2, split_angle_deg=30.0)
     assert plain.num_patches == 15 and split.num_patches == 18
-    spread = lambda P, q: float((n[P.members(q)] * n[P.members(q)[0]]).sum(-1).min())   # smallest cosine to the first
+    spread = lambda P, q: float((n[P.members(q)] * n[P.members(q)[0]]).sum(-1).min())  # smallest cosine to the first
     assert sum(spread(plain, q) < 0.5 for q in range(plain.num_patches)) == 3
     for q in range(split.num_patches):
         assert spread(split, q) > 0.999
@@ -361,13 +400,20 @@ def test_face_patches_follow_the_first_vertex():
     blocks = {tuple(b): q for q, b in enumerate(P.block.tolist())}
     for f, q in zip(surf.mesh_faces, fp):
         r, c = divmod(int(f[0]), W)
-        assert valid[r, c]                       # grid_triangulation only makes quads of valid corners
+        assert valid[r, c]  # grid_triangulation only makes quads of valid corners
         assert q == blocks[(r // s, c // s)]
     # a face whose first vertex is not a valid texel belongs to no patch
     faces = surf.mesh_faces.copy()
-    faces[0, 0] = 0                              # texel (0, 0) is invalid
-    surf2 = Surface(grid_shape=surf.grid_shape, texel_index=surf.texel_index, positions=surf.positions,
-                    normals=surf.normals, areas=surf.areas, mesh_vertices=surf.mesh_vertices, mesh_faces=faces)
+    faces[0, 0] = 0  # texel (0, 0) is invalid
+    surf2 = Surface(
+        grid_shape=surf.grid_shape,
+        texel_index=surf.texel_index,
+        positions=surf.positions,
+        normals=surf.normals,
+        areas=surf.areas,
+        mesh_vertices=surf.mesh_vertices,
+        mesh_faces=faces,
+    )
     assert face_patches(surf2, P)[0] == -1
 
 
@@ -387,9 +433,15 @@ def fold_surface(n=16, h=1.0 / 16):
     # the triangulated mesh: the exact plates (not the texel-centre grid), as a vertex grid of H x W
     # points so that face_patches' layout holds; vertices are the texel cell corners shifted by half a cell
     verts, faces = grid_triangulation(pts, valid)
-    return Surface(grid_shape=(H, W), texel_index=torch.arange(H * W), positions=torch.as_tensor(pts.reshape(-1, 3)),
-                   normals=torch.as_tensor(nrm.reshape(-1, 3)), areas=torch.full((H * W,), h * h),
-                   mesh_vertices=verts, mesh_faces=faces), first.ravel()
+    return Surface(
+        grid_shape=(H, W),
+        texel_index=torch.arange(H * W),
+        positions=torch.as_tensor(pts.reshape(-1, 3)),
+        normals=torch.as_tensor(nrm.reshape(-1, 3)),
+        areas=torch.full((H * W,), h * h),
+        mesh_vertices=verts,
+        mesh_faces=faces,
+    ), first.ravel()
 
 
 def test_form_factors_for_surface_fold_reciprocity():
@@ -430,10 +482,20 @@ def test_the_strip_that_cuts_the_fold_is_seen_as_the_other_plate():
     P, F = form_factors_for_surface(surf, None, patch_size=1, samples_per_patch=N, seed=0, offset=1e-5)
     pos, nrm, area, mask = P.padded(surf.positions.double(), surf.normals.double(), surf.areas.double())
     tracer = RayTracer(surf.mesh_vertices, surf.mesh_faces)
-    plain = hemisphere_form_factors(tracer, face_patches(surf, P), pos, nrm, area * mask, samples_per_patch=N, seed=0,
-                                    offset=1e-5)
-    again = hemisphere_form_factors(tracer, face_patches(surf, P), pos, nrm, area * mask, samples_per_patch=N, seed=0,
-                                    offset=1e-5, corners=face_corners(surf, P))
+    plain = hemisphere_form_factors(
+        tracer, face_patches(surf, P), pos, nrm, area * mask, samples_per_patch=N, seed=0, offset=1e-5
+    )
+    again = hemisphere_form_factors(
+        tracer,
+        face_patches(surf, P),
+        pos,
+        nrm,
+        area * mask,
+        samples_per_patch=N,
+        seed=0,
+        offset=1e-5,
+        corners=face_corners(surf, P),
+    )
     torch.testing.assert_close(again.to_dense(), F.to_dense())
     on1 = np.zeros(P.num_patches, dtype=bool)
     on1[P.texel_patch.numpy()[first]] = True
@@ -448,6 +510,7 @@ def test_the_strip_that_cuts_the_fold_is_seen_as_the_other_plate():
 
 
 # --- bad inputs --------------------------------------------------------------------------------
+
 
 def test_bad_inputs_raise_named_errors():
     tracer, fp, o, n, w = scene(box(3))
@@ -494,8 +557,14 @@ def test_bad_inputs_raise_named_errors():
         form_factors_for_surface(no_mesh, None, patch_size=2, samples_per_patch=10, seed=0, offset=1e-4)
     with pytest.raises(GeometryError, match="mesh"):
         face_patches(no_mesh, texel_patches(no_mesh, 2))
-    short = Surface(grid_shape=surf.grid_shape, texel_index=surf.texel_index, positions=surf.positions,
-                    normals=surf.normals, areas=surf.areas, mesh_vertices=surf.mesh_vertices[:-1],
-                    mesh_faces=np.zeros((1, 3), dtype=np.int64))
+    short = Surface(
+        grid_shape=surf.grid_shape,
+        texel_index=surf.texel_index,
+        positions=surf.positions,
+        normals=surf.normals,
+        areas=surf.areas,
+        mesh_vertices=surf.mesh_vertices[:-1],
+        mesh_faces=np.zeros((1, 3), dtype=np.int64),
+    )
     with pytest.raises(GeometryError, match="mesh_vertices"):
         face_patches(short, texel_patches(short, 2))

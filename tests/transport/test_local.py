@@ -2,8 +2,8 @@
 
 import pytest
 import torch
-
 from conftest import dome_scene, point_light_observations
+
 from torchrefl.transport.local import local_terms, predict, render_reference
 
 
@@ -20,7 +20,7 @@ def params(T, C=3, seed=0, dtype=torch.float64):
 def test_fast_path_matches_reference(model, C):
     nrm, pos, lights, cam = dome_scene(T=300)
     obs = point_light_observations(nrm, pos, lights, cam)
-    obs.shadowed[3, :50] = True            # cast shadows zero the direct term
+    obs.shadowed[3, :50] = True  # cast shadows zero the direct term
     pd, ps, sigma = params(300, C)
     n = torch.as_tensor(nrm)
     fast = predict(local_terms(model, n, obs), pd, ps, sigma)
@@ -37,8 +37,12 @@ def test_fast_path_matches_reference_with_a_minnaert_diffuse_part(k):
     n = torch.as_tensor(nrm)
     terms = local_terms("torrance_sparrow", n, obs, diffuse_exponent=k)
     assert terms.diffuse_exponent == k
-    torch.testing.assert_close(predict(terms, pd, ps, sigma), render_reference("torrance_sparrow", n, obs, pd, ps, sigma, k),
-                               rtol=1e-10, atol=1e-13)
+    torch.testing.assert_close(
+        predict(terms, pd, ps, sigma),
+        render_reference("torrance_sparrow", n, obs, pd, ps, sigma, k),
+        rtol=1e-10,
+        atol=1e-13,
+    )
     lam = predict(local_terms("torrance_sparrow", n, obs), pd, ps * 0, sigma)
     assert not torch.allclose(predict(terms, pd, ps * 0, sigma), lam)
 
@@ -54,7 +58,7 @@ def test_gradcheck_predict():
 
 def test_light_one_millimetre_from_surface_is_finite():
     nrm, pos, lights, cam = dome_scene(T=50)
-    near = torch.as_tensor(pos[:1]) + 1.0 * torch.as_tensor(nrm[:1])      # 1 mm above texel 0
+    near = torch.as_tensor(pos[:1]) + 1.0 * torch.as_tensor(nrm[:1])  # 1 mm above texel 0
     obs = point_light_observations(nrm, pos, near.numpy(), cam)
     pd, ps, sigma = params(50)
     for s in (1e-4, 0.01, 0.6):

@@ -3,17 +3,25 @@
 import numpy as np
 import pytest
 import torch
-
 from conftest import fold_surface, point_light_observations
+
 from torchrefl.errors import ConfigError
 from torchrefl.transport.form_factors import texel_patches
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
 
 
 def operator(s, patches, size=2, angle=30.0):
-    return linear_reconstruction(s.texel_index.numpy(), s.grid_shape, s.positions.numpy(), s.normals.numpy(),
-                                 patches.texel_patch.numpy(), patches.centres.numpy(), patches.normals.numpy(), size,
-                                 angle)
+    return linear_reconstruction(
+        s.texel_index.numpy(),
+        s.grid_shape,
+        s.positions.numpy(),
+        s.normals.numpy(),
+        patches.texel_patch.numpy(),
+        patches.centres.numpy(),
+        patches.normals.numpy(),
+        size,
+        angle,
+    )
 
 
 def test_a_linear_field_on_each_side_of_a_fold_is_reproduced_at_every_texel():
@@ -30,7 +38,7 @@ def test_a_linear_field_on_each_side_of_a_fold_is_reproduced_at_every_texel():
     H_q = plane(patches.centres, pfloor)
     truth = plane(s.positions, floor)
     got = torch.sparse.mm(R, H_q[:, None])[:, 0]
-    torch.testing.assert_close(got, truth, rtol=0, atol=1e-5)              # the slope ridge: 1e-6 relative
+    torch.testing.assert_close(got, truth, rtol=0, atol=1e-5)  # the slope ridge: 1e-6 relative
     constant = H_q[patches.texel_patch]
     assert float((constant - truth).abs().max()) > 0.02
 
@@ -39,7 +47,7 @@ def test_rows_sum_to_one_and_stay_finite_where_the_patches_lie_in_a_line():
     """One row of patches: they lie in a line, the slope across it is undetermined; the ridge makes the
     operator a weighted mean there (rows sum to one, a constant stays constant, a linear field along the
     row is still reproduced)."""
-    s = fold_surface(2, 16)                         # one row of 2 x 2 patches
+    s = fold_surface(2, 16)  # one row of 2 x 2 patches
     patches = texel_patches(s, 2, 30.0)
     R = operator(s, patches).to_dense()
     assert torch.isfinite(R).all()
@@ -58,8 +66,9 @@ def test_the_radiosity_level_with_the_linear_reconstruction_has_float64_gradient
     from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance
 
     s = fold_surface(4, 8)
-    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
-                                   torch.tensor([-150.0, 0.0, 150.0]))
+    obs = point_light_observations(
+        s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]), torch.tensor([-150.0, 0.0, 150.0])
+    )
     terms = local_terms("lambertian", s.normals, obs)
     patches, F = form_factors_for_surface(s, patch_size=2, samples_per_patch=64, split_angle_deg=30.0)
     pmap = PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches)

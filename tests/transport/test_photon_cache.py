@@ -1,17 +1,25 @@
 """The photon cache and its differentiable gather: against the slow per-photon reference, float64
 gradcheck, finite values and gradients at the extremes, light maps of moving lights."""
 
-
 import math
+
 import numpy as np
 import pytest
 import torch
-
 from conftest import fold_surface, point_light_observations
+
 from torchrefl.core.rays import RayTracer
 from torchrefl.errors import ConfigError
-from torchrefl.transport.photon_cache import (PhotonCache, build_cache, indirect_radiance, indirect_radiance_reference,
-                                              light_sources, smooth_on_grid, spread_on_grid, texel_light_positions)
+from torchrefl.transport.photon_cache import (
+    PhotonCache,
+    build_cache,
+    indirect_radiance,
+    indirect_radiance_reference,
+    light_sources,
+    smooth_on_grid,
+    spread_on_grid,
+    texel_light_positions,
+)
 from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
 
 LIGHTS = np.array([[-40.0, 5.0, 50.0], [-20.0, -10.0, 70.0]])
@@ -23,28 +31,62 @@ def traced():
     s = fold_surface(8, 16)
     T = s.num_texels
     obs = point_light_observations(s.normals, s.positions, LIGHTS, CAMERA, intensity=1e4)
-    pt = PhotonTracer(RayTracer(s.mesh_vertices, s.mesh_faces), s.texel_index.numpy(), s.positions.numpy(),
-                      s.normals.numpy(), "torrance_sparrow", offset=1e-3)
+    pt = PhotonTracer(
+        RayTracer(s.mesh_vertices, s.mesh_faces),
+        s.texel_index.numpy(),
+        s.positions.numpy(),
+        s.normals.numpy(),
+        "torrance_sparrow",
+        offset=1e-3,
+    )
     src = light_sources(s, obs, 4)
     g = torch.Generator().manual_seed(0)
     pd = 0.2 + 0.6 * torch.rand(T, 3, generator=g, dtype=torch.float64)
     ps = 0.1 + 0.5 * torch.rand(T, 3, generator=g, dtype=torch.float64)
     sigma = 0.05 + 0.3 * torch.rand(T, generator=g, dtype=torch.float64)
-    hits = pt.trace(src.positions.reshape(-1, 3), np.repeat(src.intensity, src.num_maps, 0), 3000,
-                    TexelMaterial.from_tensors(pd, ps, sigma), seed=0)
+    hits = pt.trace(
+        src.positions.reshape(-1, 3),
+        np.repeat(src.intensity, src.num_maps, 0),
+        3000,
+        TexelMaterial.from_tensors(pd, ps, sigma),
+        seed=0,
+    )
     return s, obs, pt, src, hits, pd, ps, sigma
 
 
-def cache_of(traced, theta_bin, sigma_max=10.0, linear=False, smoothing=0.0, smoothing_normal=0.0, specular_smoothing=0.0,
-             bin_per_sigma=0.0, cache_sigma=None):
+def cache_of(
+    traced,
+    theta_bin,
+    sigma_max=10.0,
+    linear=False,
+    smoothing=0.0,
+    smoothing_normal=0.0,
+    specular_smoothing=0.0,
+    bin_per_sigma=0.0,
+    cache_sigma=None,
+):
     s, obs, pt, src, hits, pd, ps, sigma = traced
     keep = torch.ones(obs.valid.shape, dtype=torch.bool)
     cache_sigma = np.full(s.num_texels, 1.0) if cache_sigma is None else cache_sigma
-    return build_cache(hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow",
-                       cache_sigma, sigma_max, 0.02, theta_bin=theta_bin, bin_per_sigma=bin_per_sigma,
-                       emitter_pd=pd.numpy() if linear else None, smoothing=smoothing,
-                       grid=(s.texel_index, s.grid_shape, s.normals), smoothing_normal=smoothing_normal,
-                       specular_smoothing=specular_smoothing)
+    return build_cache(
+        hits,
+        src,
+        pt.areas,
+        s.normals,
+        obs.view_dir,
+        keep,
+        "torrance_sparrow",
+        cache_sigma,
+        sigma_max,
+        0.02,
+        theta_bin=theta_bin,
+        bin_per_sigma=bin_per_sigma,
+        emitter_pd=pd.numpy() if linear else None,
+        smoothing=smoothing,
+        grid=(s.texel_index, s.grid_shape, s.normals),
+        smoothing_normal=smoothing_normal,
+        specular_smoothing=specular_smoothing,
+    )
 
 
 def test_the_linear_cache_is_exact_at_the_traced_pd(traced):
@@ -60,17 +102,40 @@ def test_the_linear_cache_follows_the_emitters_pd():
     s = fold_surface(16, 32)
     T = s.num_texels
     obs = point_light_observations(s.normals, s.positions, LIGHTS[:1], CAMERA, intensity=1e4)
-    pt = PhotonTracer(RayTracer(s.mesh_vertices, s.mesh_faces), s.texel_index.numpy(), s.positions.numpy(),
-                      s.normals.numpy(), "lambertian", offset=1e-3)
+    pt = PhotonTracer(
+        RayTracer(s.mesh_vertices, s.mesh_faces),
+        s.texel_index.numpy(),
+        s.positions.numpy(),
+        s.normals.numpy(),
+        "lambertian",
+        offset=1e-3,
+    )
     src = light_sources(s, obs, 1)
 
     def cache(pd_value, linear, seed):
         pd = torch.full((T, 3), pd_value, dtype=torch.float64)
-        hits = pt.trace(src.positions.reshape(-1, 3), src.intensity, 400_000,
-                        TexelMaterial.from_tensors(pd, torch.zeros(T, 3), torch.full((T,), 0.1)), seed=seed)
-        return build_cache(hits, src, pt.areas, s.normals, obs.view_dir, obs.valid, "lambertian", np.full(T, 0.1),
-                           0.6, 0.02, emitter_pd=pd.numpy() if linear else None, smoothing=1.0,
-                           grid=(s.texel_index, s.grid_shape))
+        hits = pt.trace(
+            src.positions.reshape(-1, 3),
+            src.intensity,
+            400_000,
+            TexelMaterial.from_tensors(pd, torch.zeros(T, 3), torch.full((T,), 0.1)),
+            seed=seed,
+        )
+        return build_cache(
+            hits,
+            src,
+            pt.areas,
+            s.normals,
+            obs.view_dir,
+            obs.valid,
+            "lambertian",
+            np.full(T, 0.1),
+            0.6,
+            0.02,
+            emitter_pd=pd.numpy() if linear else None,
+            smoothing=1.0,
+            grid=(s.texel_index, s.grid_shape),
+        )
 
     new = torch.full((T, 3), 0.3, dtype=torch.float64)
     truth = cache(0.3, False, 1).irradiance_at(new)
@@ -82,8 +147,9 @@ def test_the_linear_cache_follows_the_emitters_pd():
 def test_the_cache_reproduces_the_per_photon_sum(traced):
     s, obs, pt, src, hits, pd, ps, sigma = traced
     assert hits.count > 500
-    ref = indirect_radiance_reference(hits, src, pt.areas, s.normals, obs.view_dir, "torrance_sparrow",
-                                      obs.kappa, pd, ps, sigma, 0.02)
+    ref = indirect_radiance_reference(
+        hits, src, pt.areas, s.normals, obs.view_dir, "torrance_sparrow", obs.kappa, pd, ps, sigma, 0.02
+    )
     exact = indirect_radiance(cache_of(traced, 1e-12), obs.kappa, pd, ps, sigma)
     torch.testing.assert_close(exact, ref, rtol=1e-9, atol=1e-12)
     binned = indirect_radiance(cache_of(traced, 0.004), obs.kappa, pd, ps, sigma)
@@ -92,22 +158,32 @@ def test_the_cache_reproduces_the_per_photon_sum(traced):
     # merge photons, and stay within 1 %; the same bins for a roughness halved since the cache was built, 3 %
     wide = cache_of(traced, 0.004, bin_per_sigma=0.25, cache_sigma=sigma.numpy())
     assert wide.entry_obs.numel() < 0.8 * cache_of(traced, 0.004).entry_obs.numel()
-    err = lambda c, sg: float((indirect_radiance(c, obs.kappa, pd, ps, sg) - ref_at(sg)).abs().max() / ref_at(sg).abs().max())
+    err = lambda c, sg: float(
+        (indirect_radiance(c, obs.kappa, pd, ps, sg) - ref_at(sg)).abs().max() / ref_at(sg).abs().max()
+    )
     ref_at = lambda sg: indirect_radiance(cache_of(traced, 1e-12), obs.kappa, pd, ps, sg)
     assert err(wide, sigma) < 0.01
     assert err(wide, sigma / 2) < 0.03
 
 
-@pytest.mark.parametrize("linear,smoothing,smoothing_normal,specular", [(False, 0.0, 0.0, 0.0), (True, 1.0, 0.0, 0.0),
-                                                                        (True, 1.0, 0.1, 1.0)])
+@pytest.mark.parametrize(
+    "linear,smoothing,smoothing_normal,specular", [(False, 0.0, 0.0, 0.0), (True, 1.0, 0.0, 0.0), (True, 1.0, 0.1, 1.0)]
+)
 def test_gradcheck_float64(traced, linear, smoothing, smoothing_normal, specular):
     s, obs, pt, src, hits, pd, ps, sigma = traced
-    cache = cache_of(traced, 0.004, linear=linear, smoothing=smoothing, smoothing_normal=smoothing_normal,
-                     specular_smoothing=specular)
+    cache = cache_of(
+        traced,
+        0.004,
+        linear=linear,
+        smoothing=smoothing,
+        smoothing_normal=smoothing_normal,
+        specular_smoothing=specular,
+    )
     assert cache.entry_obs.numel() > 0
     f = lambda a, b, c: indirect_radiance(cache, obs.kappa, a, b, c)
-    assert torch.autograd.gradcheck(f, (pd.clone().requires_grad_(), ps.clone().requires_grad_(),
-                                        sigma.clone().requires_grad_()))
+    assert torch.autograd.gradcheck(
+        f, (pd.clone().requires_grad_(), ps.clone().requires_grad_(), sigma.clone().requires_grad_())
+    )
 
 
 @pytest.mark.parametrize("pd_v,ps_v,sigma_v", [(0.0, 0.0, 1e-4), (1.0, 4.0, 0.6), (0.99, 0.0, 0.01)])
@@ -128,12 +204,22 @@ def test_texels_no_photon_reaches_get_no_indirect_light_and_finite_gradients(tra
     s, obs, pt, src, *_ = traced
     T = s.num_texels
     from torchrefl.transport.photon_trace import PhotonHits
-    empty = PhotonHits(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)),
-                       np.zeros(src.positions.shape[0] * src.num_maps, np.int64), 0)
-    cache = build_cache(empty, src, pt.areas, s.normals, obs.view_dir, obs.valid, "torrance_sparrow",
-                        np.full(T, 0.1), 0.6, 0.02)
+
+    empty = PhotonHits(
+        np.zeros(0, np.int64),
+        np.zeros(0, np.int64),
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        np.zeros(src.positions.shape[0] * src.num_maps, np.int64),
+        0,
+    )
+    cache = build_cache(
+        empty, src, pt.areas, s.normals, obs.view_dir, obs.valid, "torrance_sparrow", np.full(T, 0.1), 0.6, 0.02
+    )
     pd = torch.full((T, 3), 0.5, dtype=torch.float64, requires_grad=True)
-    out = indirect_radiance(cache, obs.kappa, pd, torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64))
+    out = indirect_radiance(
+        cache, obs.kappa, pd, torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64)
+    )
     out.sum().backward()
     assert (out == 0).all() and torch.isfinite(pd.grad).all()
 
@@ -159,7 +245,7 @@ def test_moving_lights_get_light_maps_that_interpolate_by_column():
     obs = point_light_observations(s.normals, s.positions, np.zeros((1, 3)), CAMERA)
     to = L[None] - s.positions[None]
     dist = to.norm(dim=-1)
-    obs.light_dir, obs.falloff = to / dist[..., None], 1.0 / dist ** 2
+    obs.light_dir, obs.falloff = to / dist[..., None], 1.0 / dist**2
     torch.testing.assert_close(torch.as_tensor(texel_light_positions(s, obs))[0], L)
     src = light_sources(s, obs, 4)
     assert src.positions.shape == (1, 4, 3)
@@ -184,22 +270,39 @@ def test_normal_aware_smoothing_does_not_gather_across_a_fold():
     plain = smooth_on_grid(values, s.texel_index, s.grid_shape, 1.0)
     aware = smooth_on_grid(values, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)
     torch.testing.assert_close(aware, values, rtol=0, atol=1e-12)
-    col = (s.texel_index % s.grid_shape[1])
+    col = s.texel_index % s.grid_shape[1]
     next_to_fold = (col == 11) | (col == 12)
     assert (plain[0, next_to_fold, 0] - values[0, next_to_fold, 0]).abs().min() > 0.1
     # a smooth field on one plate: the normal factor is 1 there, so the result is the normalised Gaussian
     ramp = (s.positions[:, 1:2] * 0.1 + 2.0).expand(-1, 3)[None]
     on_floor = lambda x: x[:, floor & (col < 8)]
-    torch.testing.assert_close(on_floor(smooth_on_grid(ramp, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)),
-                               on_floor(smooth_on_grid(ramp, s.texel_index, s.grid_shape, 1.0)), rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(
+        on_floor(smooth_on_grid(ramp, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)),
+        on_floor(smooth_on_grid(ramp, s.texel_index, s.grid_shape, 1.0)),
+        rtol=1e-10,
+        atol=1e-12,
+    )
 
 
 def test_normal_aware_smoothing_needs_the_normals(traced):
     s, obs, pt, src, hits, pd, ps, sigma = traced
     keep = torch.ones(obs.valid.shape, dtype=torch.bool)
     with pytest.raises(ConfigError, match="smoothing_normal"):
-        build_cache(hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow", np.full(s.num_texels, 1.0),
-                    10.0, 0.02, smoothing=1.0, grid=(s.texel_index, s.grid_shape), smoothing_normal=0.1)
+        build_cache(
+            hits,
+            src,
+            pt.areas,
+            s.normals,
+            obs.view_dir,
+            keep,
+            "torrance_sparrow",
+            np.full(s.num_texels, 1.0),
+            10.0,
+            0.02,
+            smoothing=1.0,
+            grid=(s.texel_index, s.grid_shape),
+            smoothing_normal=0.1,
+        )
 
 
 def test_spreading_keeps_a_constant_field_and_does_not_cross_the_fold():
@@ -208,7 +311,7 @@ def test_spreading_keeps_a_constant_field_and_does_not_cross_the_fold():
     s = fold_surface(10, 20)
     T = s.num_texels
     for normals, ns in ((None, 0.0), (s.normals, 0.1)):
-        obs = np.concatenate([np.arange(T), T + np.arange(T)])          # lights 0 and 1
+        obs = np.concatenate([np.arange(T), T + np.arange(T)])  # lights 0 and 1
         to, src, w = spread_on_grid(obs, T, s.texel_index, s.grid_shape, 1.0, normals, ns)
         received = np.bincount(to, weights=w, minlength=2 * T)
         np.testing.assert_allclose(received, 1.0, rtol=1e-12)
@@ -217,16 +320,26 @@ def test_spreading_keeps_a_constant_field_and_does_not_cross_the_fold():
     to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)
     assert floor[to[w > 1e-12]].all()
     to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.texel_index, s.grid_shape, 1.0)
-    assert not floor[to[w > 1e-3]].all()                                 # the plain kernel does cross
+    assert not floor[to[w > 1e-3]].all()  # the plain kernel does cross
 
 
 def test_specular_spreading_needs_the_grid(traced):
     s, obs, pt, src, hits, pd, ps, sigma = traced
     keep = torch.ones(obs.valid.shape, dtype=torch.bool)
     with pytest.raises(ConfigError, match="specular_smoothing"):
-        build_cache(hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow", np.full(s.num_texels, 1.0),
-                    10.0, 0.02, specular_smoothing=1.0)
-
+        build_cache(
+            hits,
+            src,
+            pt.areas,
+            s.normals,
+            obs.view_dir,
+            keep,
+            "torrance_sparrow",
+            np.full(s.num_texels, 1.0),
+            10.0,
+            0.02,
+            specular_smoothing=1.0,
+        )
 
 
 @pytest.mark.parametrize("sigma,normal_sigma", [(1.0, 0.0), (1.0, 0.1), (0.7, 0.3), (2.0, 0.1)])
@@ -237,7 +350,7 @@ def test_the_sparse_smoothing_operator_is_kornias_filter(sigma, normal_sigma):
 
     s = fold_surface(12, 20)
     keep = torch.ones(s.num_texels, dtype=torch.bool)
-    keep[45:52] = False                                           # texels missing from the set
+    keep[45:52] = False  # texels missing from the set
     index, normals = s.texel_index[keep], s.normals[keep]
     g = torch.Generator().manual_seed(0)
     values = torch.rand(2, int(keep.sum()), 3, generator=g, dtype=torch.float64)
@@ -253,8 +366,13 @@ def test_indirect_radiance_gradients_are_bitwise_repeatable_on_two_threads():
     by up to ~1e-4 here, and LBFGS fits of the same capture drifted apart by 0.7 % in Pd)."""
     g = torch.Generator().manual_seed(0)
     P, T, E = 2, 4000, 2_000_000
-    cache = PhotonCache("torrance_sparrow", torch.rand(P, T, 3, generator=g), torch.randint(0, P * T, (E,), generator=g),
-                        torch.rand(E, generator=g) * 0.3, torch.rand(E, 3, generator=g))
+    cache = PhotonCache(
+        "torrance_sparrow",
+        torch.rand(P, T, 3, generator=g),
+        torch.randint(0, P * T, (E,), generator=g),
+        torch.rand(E, generator=g) * 0.3,
+        torch.rand(E, 3, generator=g),
+    )
     kappa = torch.tensor(math.pi)
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
@@ -282,16 +400,47 @@ def test_leaving_out_the_all_diffuse_paths_keeps_exactly_the_flagged_photons(tra
     flagged = hits.specular_path
     assert 0 < flagged.sum() < hits.count
     keep = torch.ones(obs.valid.shape, dtype=torch.bool)
-    build = lambda h, **kw: build_cache(h, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow",
-                                        np.full(s.num_texels, 1.0), 10.0, 0.02, theta_bin=1e-12, bin_per_sigma=0.0, **kw)
+    build = lambda h, **kw: build_cache(
+        h,
+        src,
+        pt.areas,
+        s.normals,
+        obs.view_dir,
+        keep,
+        "torrance_sparrow",
+        np.full(s.num_texels, 1.0),
+        10.0,
+        0.02,
+        theta_bin=1e-12,
+        bin_per_sigma=0.0,
+        **kw,
+    )
     left_out = build(hits, diffuse_paths=False)
     sub = lambda a: a[flagged]
-    only_flagged = dataclasses.replace(hits, source=sub(hits.source), texel=sub(hits.texel), direction=sub(hits.direction),
-                                       power=sub(hits.power), emitter=sub(hits.emitter),
-                                       diffuse_per_pd=sub(hits.diffuse_per_pd), specular_path=sub(flagged))
+    only_flagged = dataclasses.replace(
+        hits,
+        source=sub(hits.source),
+        texel=sub(hits.texel),
+        direction=sub(hits.direction),
+        power=sub(hits.power),
+        emitter=sub(hits.emitter),
+        diffuse_per_pd=sub(hits.diffuse_per_pd),
+        specular_path=sub(flagged),
+    )
     zero = torch.zeros_like(pd)
-    ref = indirect_radiance_reference(only_flagged, src, pt.areas, s.normals, obs.view_dir, "torrance_sparrow",
-                                      obs.kappa, pd, zero[:, :1].expand(-1, 3), sigma, 0.02)
+    ref = indirect_radiance_reference(
+        only_flagged,
+        src,
+        pt.areas,
+        s.normals,
+        obs.view_dir,
+        "torrance_sparrow",
+        obs.kappa,
+        pd,
+        zero[:, :1].expand(-1, 3),
+        sigma,
+        0.02,
+    )
     torch.testing.assert_close(indirect_radiance(left_out, obs.kappa, pd, zero, sigma), ref, rtol=1e-9, atol=1e-12)
     full = build(hits)
     torch.testing.assert_close(left_out.entry_weight, full.entry_weight)
@@ -320,7 +469,7 @@ def test_map_weights_reproduce_cubics_and_sum_to_one():
         np.testing.assert_allclose((w * f(np.arange(K))[:, None]).sum(0), f(s), atol=1e-10)
         assert int((np.abs(w) > 0).sum(0).max()) <= min(4, K)
         inside = (s >= 0) & (s <= K - 1)
-        assert float(np.sqrt((w[:, inside] ** 2).sum(0)).max()) < 1.09          # little gain on the maps' noise
+        assert float(np.sqrt((w[:, inside] ** 2).sum(0)).max()) < 1.09  # little gain on the maps' noise
     np.testing.assert_array_equal(map_weights(np.array([0.3, 2.0]), 1), np.ones((1, 2)))
     tent = map_weights(np.array([1.25, 2.0, 5.5]), 8, order=1)
     expect = np.zeros((8, 3))

@@ -47,7 +47,7 @@ def test_energy_balance_in_an_open_scene():
     rho = 0.1 + 0.8 * torch.rand(Q, 3, generator=g, dtype=torch.float64)
     E = torch.rand(4, Q, 3, generator=g, dtype=torch.float64)
     B = solve_radiosity(rho, E, F)
-    emitted_in = (A[None, :, None] * E).sum(1)                          # power of the direct light
+    emitted_in = (A[None, :, None] * E).sum(1)  # power of the direct light
     absorbed = (A[None, :, None] * B * (1 / rho - 1)).sum(1)
     escaped = (A[None, :, None] * B * (1 - F.sum(1))[None, :, None]).sum(1)
     torch.testing.assert_close(emitted_in, absorbed + escaped, rtol=1e-10, atol=1e-12)
@@ -85,8 +85,8 @@ def test_gradient_matches_autograd_through_a_dense_solve():
     rho2 = rho.detach().clone().requires_grad_()
     Bs = []
     for c in range(3):
-        M = torch.eye(8, dtype=torch.float64) - rho2[:, c:c + 1] * F
-        Bs.append(torch.linalg.solve(M, (rho2[:, c:c + 1] * E[:, :, c].t())))
+        M = torch.eye(8, dtype=torch.float64) - rho2[:, c : c + 1] * F
+        Bs.append(torch.linalg.solve(M, (rho2[:, c : c + 1] * E[:, :, c].t())))
     torch.stack(Bs, -1).square().sum().backward()
     torch.testing.assert_close(ours, rho2.grad)
 
@@ -122,7 +122,7 @@ def test_strided_right_hand_sides_are_solved():
     A, F = random_reciprocal(Q=40)
     rho = torch.full((40, 3), 0.5, dtype=torch.float32)
     big = torch.rand(40, 3, 24, dtype=torch.float32)
-    E = big[:, :, ::2].permute(2, 0, 1)                        # (12, 40, 3), non-contiguous
+    E = big[:, :, ::2].permute(2, 0, 1)  # (12, 40, 3), non-contiguous
     B = solve_radiosity(rho, E, F.float(), method="direct")
     ref = solve_radiosity(rho, E.contiguous(), F.float(), method="iterative", tol=1e-7)
     torch.testing.assert_close(B, ref, rtol=1e-4, atol=1e-5)
@@ -133,7 +133,7 @@ def test_float32_iterative_solve_meets_a_tolerance_below_its_precision():
     1e-7, right at float32's eps) is met at 8 eps instead of failing after max_iter, forward and backward."""
     A, F = random_reciprocal(Q=60, leak=0.2)
     g = torch.Generator().manual_seed(5)
-    rho = (0.5 + 0.45 * torch.rand(60, 3, generator=g, dtype=torch.float64))
+    rho = 0.5 + 0.45 * torch.rand(60, 3, generator=g, dtype=torch.float64)
     E = torch.rand(4, 60, 3, generator=g, dtype=torch.float64)
     ref = solve_radiosity(rho, E, F, method="direct")
     for tol in (1e-9, 1e-7):

@@ -4,8 +4,8 @@ on exact data, gradients flow into Pd."""
 import math
 
 import torch
-
 from conftest import dome_scene, point_light_observations
+
 from torchrefl.transport.local import local_terms, predict
 from torchrefl.transport.radiosity import solve_radiosity
 from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance, inverse_radiosity, predict_radiosity
@@ -21,7 +21,7 @@ def scene(T=24, seed=0):
     G = G + G.t()
     G.fill_diagonal_(0)
     F = G / areas[:, None]
-    F = F / F.sum(1).max() * 0.6                      # reciprocal, open
+    F = F / F.sum(1).max() * 0.6  # reciprocal, open
     patches = PatchMap(torch.arange(T), areas, T)
     pd = 0.2 + 0.6 * torch.rand(T, 3, generator=g, dtype=torch.float64)
     return obs, terms, patches, F, pd
@@ -91,7 +91,7 @@ def moving_light_fold(H=4, W=10):
     obs = point_light_observations(s.normals, s.positions, torch.zeros(1, 3), torch.tensor([-150.0, 0.0, 150.0]))
     to = L[None] - s.positions[None]
     dist = to.norm(dim=-1)
-    obs.light_dir, obs.falloff = to / dist[..., None], 1.0 / dist ** 2
+    obs.light_dir, obs.falloff = to / dist[..., None], 1.0 / dist**2
     obs.valid = (s.normals[None] * obs.light_dir).sum(-1) > 0
     return s, obs, L
 
@@ -100,8 +100,9 @@ def fold_form_factors(s):
     from torchrefl.core.rays import RayTracer
     from torchrefl.transport.form_factors import form_factors_for_surface
 
-    patches, F = form_factors_for_surface(s, RayTracer(s.mesh_vertices, s.mesh_faces), patch_size=1,
-                                          samples_per_patch=256, seed=0)
+    patches, F = form_factors_for_surface(
+        s, RayTracer(s.mesh_vertices, s.mesh_faces), patch_size=1, samples_per_patch=256, seed=0
+    )
     return PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches), F.double()
 
 
@@ -125,7 +126,7 @@ def test_emitter_maps_give_each_texel_the_radiosity_lit_from_its_own_column():
     got = indirect_irradiance(terms, obs.kappa, pd, pm, F, maps)[0]
     ref = torch.zeros_like(got)
     x, n = s.positions, s.normals
-    for c in range(W):                                   # all emitters lit from column c's light, no shadows here
+    for c in range(W):  # all emitters lit from column c's light, no shadows here
         to = L[col == c][0][None] - x
         d2 = (to * to).sum(-1)
         E = (n * to).sum(-1).clamp_min(0) / d2.sqrt() / d2
@@ -148,7 +149,7 @@ def test_one_emitter_map_of_static_lights_is_the_plain_level_and_gradcheck_with_
     light = L[0]
     to = light[None, None] - s.positions[None]
     dist = to.norm(dim=-1)
-    obs.light_dir, obs.falloff = to / dist[..., None], 1.0 / dist ** 2          # a static light now
+    obs.light_dir, obs.falloff = to / dist[..., None], 1.0 / dist**2  # a static light now
     obs.light_positions = light[None]
     terms = local_terms("lambertian", s.normals, obs)
     pm, F = fold_form_factors(s)
@@ -156,13 +157,18 @@ def test_one_emitter_map_of_static_lights_is_the_plain_level_and_gradcheck_with_
     assert src.num_maps == 1
     maps = emitter_maps(src, s.positions, s.normals, RayTracer(s.mesh_vertices, s.mesh_faces), 0.05)
     pd = torch.full((s.num_texels, 3), 0.6, dtype=torch.float64)
-    torch.testing.assert_close(indirect_irradiance(terms, obs.kappa, pd, pm, F, maps),
-                               indirect_irradiance(terms, obs.kappa, pd, pm, F), rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(
+        indirect_irradiance(terms, obs.kappa, pd, pm, F, maps),
+        indirect_irradiance(terms, obs.kappa, pd, pm, F),
+        rtol=1e-9,
+        atol=1e-12,
+    )
     s2, obs2, _ = moving_light_fold(2, 4)
     terms2 = local_terms("lambertian", s2.normals, obs2)
     pm2, F2 = fold_form_factors(s2)
-    maps2 = emitter_maps(light_sources(s2, obs2, 3), s2.positions, s2.normals, RayTracer(s2.mesh_vertices, s2.mesh_faces),
-                         0.05)
+    maps2 = emitter_maps(
+        light_sources(s2, obs2, 3), s2.positions, s2.normals, RayTracer(s2.mesh_vertices, s2.mesh_faces), 0.05
+    )
     f = lambda p: indirect_irradiance(terms2, obs2.kappa, p, pm2, F2, maps2)
     assert torch.autograd.gradcheck(f, (torch.full((s2.num_texels, 3), 0.5, dtype=torch.float64, requires_grad=True),))
 
@@ -172,38 +178,41 @@ def test_fold_texels_get_their_own_irradiance_when_patches_split_at_the_fold():
     the side that sees the other plate less. Split at the fold (radiosity.patch_split_angle_deg), the fold
     columns' H (smoothed over the texels like the pipeline does) matches a one-texel-per-patch reference."""
     from conftest import fold_surface
+
     from torchrefl.transport.form_factors import form_factors_for_surface
     from torchrefl.transport.photon_cache import apply_on_grid, smoothing_matrix
 
-    s = fold_surface(16, 66)                     # 33 columns per plate: blocks of columns 32-33 straddle the fold
+    s = fold_surface(16, 66)  # 33 columns per plate: blocks of columns 32-33 straddle the fold
     H, W = s.grid_shape
-    obs = point_light_observations(s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]),
-                                   torch.tensor([-150.0, 0.0, 150.0]))
+    obs = point_light_observations(
+        s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]), torch.tensor([-150.0, 0.0, 150.0])
+    )
     terms = local_terms("lambertian", s.normals, obs)
     pd = torch.full((s.num_texels, 3), 0.7, dtype=torch.float64)
     M = smoothing_matrix(s.texel_index.numpy(), s.grid_shape, 1.0, s.normals.numpy(), 0.1)
 
     def column_h(patch_size, angle, samples):
-        P, F = form_factors_for_surface(s, None, patch_size=patch_size, samples_per_patch=samples, seed=0,
-                                        split_angle_deg=angle)
+        P, F = form_factors_for_surface(
+            s, None, patch_size=patch_size, samples_per_patch=samples, seed=0, split_angle_deg=angle
+        )
         h = indirect_irradiance(terms, obs.kappa, pd, PatchMap(P.texel_patch, s.areas.double(), P.num_patches), F)
         if patch_size > 1:
             h = apply_on_grid(M, h)
         return h[0, :, 0].reshape(H, W).mean(0)
 
     ref = column_h(1, 180.0, 2048)
-    fold = [W // 2 - 1, W // 2]                  # the floor's and the wall's texel column at the fold
+    fold = [W // 2 - 1, W // 2]  # the floor's and the wall's texel column at the fold
     split = column_h(2, 30.0, 1024)[fold] / ref[fold] - 1
     plain = column_h(2, 180.0, 1024)[fold] / ref[fold] - 1
     assert float(split.abs().max()) < 0.025
-    assert float(plain.abs().max()) > 0.05      # the unsplit patch is off there (measured +8 % on the wall)
+    assert float(plain.abs().max()) > 0.05  # the unsplit patch is off there (measured +8 % on the wall)
 
 
 def test_a_separate_solve_matrix_solves_with_it_and_gathers_with_f():
     """F_solve (radiosity.solve_samples): B from F_solve, H = F B, against a dense solve by hand; F_solve = F is
     the one-matrix level exactly; gradcheck through both matrices."""
     obs, terms, patches, F, pd = scene()
-    _, _, _, F2, _ = scene(seed=3)                     # another reciprocal, open F for the same patches
+    _, _, _, F2, _ = scene(seed=3)  # another reciprocal, open F for the same patches
     E = terms.diffuse * (math.pi / obs.kappa)
     got = indirect_irradiance(terms, obs.kappa, pd, patches, F, F_solve=F2)
     ref = torch.zeros_like(got)
@@ -213,11 +222,18 @@ def test_a_separate_solve_matrix_solves_with_it_and_gathers_with_f():
             B = torch.linalg.solve(eye - pd[:, c, None] * F2, pd[:, c] * E[p, :, c])
             ref[p, :, c] = F @ B
     torch.testing.assert_close(got, ref, rtol=1e-9, atol=1e-12)
-    torch.testing.assert_close(indirect_irradiance(terms, obs.kappa, pd, patches, F, F_solve=F),
-                               indirect_irradiance(terms, obs.kappa, pd, patches, F), rtol=0, atol=0)
-    assert float((got - indirect_irradiance(terms, obs.kappa, pd, patches, F)).abs().max()) > 1e-6 * float(got.abs().max())
+    torch.testing.assert_close(
+        indirect_irradiance(terms, obs.kappa, pd, patches, F, F_solve=F),
+        indirect_irradiance(terms, obs.kappa, pd, patches, F),
+        rtol=0,
+        atol=0,
+    )
+    assert float((got - indirect_irradiance(terms, obs.kappa, pd, patches, F)).abs().max()) > 1e-6 * float(
+        got.abs().max()
+    )
     small = scene(T=6)
     o6, t6, p6, F6, pd6 = small
     G6 = scene(T=6, seed=4)[3]
-    assert torch.autograd.gradcheck(lambda p: indirect_irradiance(t6, o6.kappa, p, p6, F6, F_solve=G6),
-                                    (pd6.clone().requires_grad_(),))
+    assert torch.autograd.gradcheck(
+        lambda p: indirect_irradiance(t6, o6.kappa, p, p6, F6, F_solve=G6), (pd6.clone().requires_grad_(),)
+    )

@@ -10,12 +10,12 @@ import math
 import numpy as np
 import pytest
 import torch
-
 from test_photon_trace import LIGHT, away_from_fold, blocks, fold_setup, material
+
 from torchrefl.core import brdf as brdf_mod
-from torchrefl.synthetic.path_tracer import IndirectRenderer
-from torchrefl.errors import ConfigError
 from torchrefl.core.rays import RayTracer
+from torchrefl.errors import ConfigError
+from torchrefl.synthetic.path_tracer import IndirectRenderer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.local import local_terms
 from torchrefl.transport.photon_cache import build_cache, indirect_radiance, light_sources
@@ -34,24 +34,47 @@ def glossy_fold():
     s, obs, pt = fold_setup(BRDF)
     T = s.num_texels
     pd, ps, sigma = material(T, PD, PS, SIGMA)
-    patches, F = form_factors_for_surface(s, RayTracer(s.mesh_vertices, s.mesh_faces), patch_size=1,
-                                          samples_per_patch=4096, seed=3)
+    patches, F = form_factors_for_surface(
+        s, RayTracer(s.mesh_vertices, s.mesh_faces), patch_size=1, samples_per_patch=4096, seed=3
+    )
     pm = PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches)
     terms = local_terms("lambertian", s.normals, obs)
     H_maps = indirect_irradiance(terms, obs.kappa, pd, pm, F.double(), per_map=True)
     radiance = (pd[None, None] * (direct_irradiance(terms, obs.kappa)[:, None] + H_maps) / math.pi).numpy()
     src = light_sources(s, obs, 8)
     mat = TexelMaterial.from_tensors(pd, ps, sigma)
-    trace = lambda n, seed: pt.trace(src.positions.reshape(-1, 3), np.repeat(src.intensity, src.num_maps, 0), n, mat,
-                                     seed=seed)
-    return dict(s=s, obs=obs, pt=pt, pd=pd, ps=ps, sigma=sigma, src=src, radiance=radiance, trace=trace,
-                H=indirect_irradiance(terms, obs.kappa, pd, pm, F.double()))
+    trace = lambda n, seed: pt.trace(
+        src.positions.reshape(-1, 3), np.repeat(src.intensity, src.num_maps, 0), n, mat, seed=seed
+    )
+    return dict(
+        s=s,
+        obs=obs,
+        pt=pt,
+        pd=pd,
+        ps=ps,
+        sigma=sigma,
+        src=src,
+        radiance=radiance,
+        trace=trace,
+        H=indirect_irradiance(terms, obs.kappa, pd, pm, F.double()),
+    )
 
 
 def cache_of(f, hits, **kw):
     T = f["s"].num_texels
-    return build_cache(hits, f["src"], f["pt"].areas, f["s"].normals, f["obs"].view_dir, f["obs"].valid, BRDF,
-                       np.full(T, SIGMA), 0.6, 0.02, **kw)
+    return build_cache(
+        hits,
+        f["src"],
+        f["pt"].areas,
+        f["s"].normals,
+        f["obs"].view_dir,
+        f["obs"].valid,
+        BRDF,
+        np.full(T, SIGMA),
+        0.6,
+        0.02,
+        **kw,
+    )
 
 
 def gathered(f, samples=64, seed=0, sigma=SIGMA):
@@ -64,10 +87,12 @@ def gathered(f, samples=64, seed=0, sigma=SIGMA):
 def with_entries(cache, entries, irradiance=None):
     obs, th, w = entries
     return dataclasses.replace(
-        cache, irradiance=cache.irradiance if irradiance is None else irradiance,
+        cache,
+        irradiance=cache.irradiance if irradiance is None else irradiance,
         entry_obs=torch.cat([cache.entry_obs, torch.from_numpy(obs)]),
         entry_theta_h=torch.cat([cache.entry_theta_h, torch.from_numpy(th)]),
-        entry_weight=torch.cat([cache.entry_weight, torch.from_numpy(w)]))
+        entry_weight=torch.cat([cache.entry_weight, torch.from_numpy(w)]),
+    )
 
 
 def specular(f, cache):
@@ -91,18 +116,38 @@ def test_gather_plus_flagged_photons_matches_the_photons_and_the_path_tracer(glo
     assert float((a - b).norm() / b.norm()) < 0.06
     assert float(a.sum() / b.sum()) == pytest.approx(1.0, abs=0.02)
     # the gathered part is most of it on this fold: the all-diffuse paths dominate the specular reflection too
-    gather_only = with_entries(dataclasses.replace(flagged, entry_obs=flagged.entry_obs[:0],
-                                                   entry_theta_h=flagged.entry_theta_h[:0],
-                                                   entry_weight=flagged.entry_weight[:0]), gathered(f))
+    gather_only = with_entries(
+        dataclasses.replace(
+            flagged,
+            entry_obs=flagged.entry_obs[:0],
+            entry_theta_h=flagged.entry_theta_h[:0],
+            entry_weight=flagged.entry_weight[:0],
+        ),
+        gathered(f),
+    )
     assert 0.6 < float(specular(f, gather_only).sum() / specular(f, hybrid).sum()) < 0.95
 
     ours = indirect_radiance(hybrid, obs.kappa, f["pd"], f["ps"], f["sigma"])[0, :, 0]
     n_np = s.normals.numpy()
     plate = lambda y: np.where((y[:, 2] < -y[:, 0])[:, None], n_np[0], n_np[-1])
-    mat = lambda y, tri: {"pd": np.full((len(y), 3), PD), "ps": np.full((len(y), 3), PS), "sigma": np.full(len(y), SIGMA)}
-    r = IndirectRenderer(RayTracer(s.mesh_vertices, s.mesh_faces), lambda y, tri: plate(y), mat, BRDF, offset=1e-3, seed=4)
-    g = r.render(s.positions.numpy(), n_np, obs.view_dir.numpy(), np.full((T, 3), PD), np.full((T, 3), PS),
-                 np.full(T, SIGMA), np.broadcast_to(LIGHT[0], (1, T, 3)), n_paths=256)
+    mat = lambda y, tri: {
+        "pd": np.full((len(y), 3), PD),
+        "ps": np.full((len(y), 3), PS),
+        "sigma": np.full(len(y), SIGMA),
+    }
+    r = IndirectRenderer(
+        RayTracer(s.mesh_vertices, s.mesh_faces), lambda y, tri: plate(y), mat, BRDF, offset=1e-3, seed=4
+    )
+    g = r.render(
+        s.positions.numpy(),
+        n_np,
+        obs.view_dir.numpy(),
+        np.full((T, 3), PD),
+        np.full((T, 3), PS),
+        np.full(T, SIGMA),
+        np.broadcast_to(LIGHT[0], (1, T, 3)),
+        n_paths=256,
+    )
     theirs = torch.as_tensor(g[0, :, 0]) * float(obs.kappa[0]) * 1e4
     a, b = blocks(ours, H, W)[keep], blocks(theirs, H, W)[keep]
     assert float((a - b).norm() / b.norm()) < 0.06
@@ -115,8 +160,9 @@ def test_gathered_entries_are_far_less_noisy_than_the_photons(glossy_fold):
     f = glossy_fold
     seen = f["obs"].valid[0]
     empty = cache_of(f, f["trace"](1000, 0), specular_paths_only=True)
-    empty = dataclasses.replace(empty, entry_obs=empty.entry_obs[:0], entry_theta_h=empty.entry_theta_h[:0],
-                                entry_weight=empty.entry_weight[:0])
+    empty = dataclasses.replace(
+        empty, entry_obs=empty.entry_obs[:0], entry_theta_h=empty.entry_theta_h[:0], entry_weight=empty.entry_weight[:0]
+    )
     g0, g1 = (specular(f, with_entries(empty, gathered(f, samples=256, seed=k))) for k in (0, 1))
     p0, p1 = (specular(f, cache_of(f, f["trace"](400_000, k))) for k in (11, 12))
     spread = lambda x, y: float(((x - y) / (0.5 * (x + y)).clamp_min(1e-12))[seen & (x + y > 0)].std())
@@ -133,9 +179,16 @@ def test_flagged_photons_alone_stay_in_the_specular_entries(glossy_fold):
     assert 0 < flagged.sum() < hits.count
     only = cache_of(f, hits, specular_paths_only=True)
     sub = lambda a: None if a is None else a[flagged]
-    subset = dataclasses.replace(hits, source=sub(hits.source), texel=sub(hits.texel), direction=sub(hits.direction),
-                                 power=sub(hits.power), emitter=sub(hits.emitter), diffuse_per_pd=sub(hits.diffuse_per_pd),
-                                 specular_path=sub(flagged))
+    subset = dataclasses.replace(
+        hits,
+        source=sub(hits.source),
+        texel=sub(hits.texel),
+        direction=sub(hits.direction),
+        power=sub(hits.power),
+        emitter=sub(hits.emitter),
+        diffuse_per_pd=sub(hits.diffuse_per_pd),
+        specular_path=sub(flagged),
+    )
     torch.testing.assert_close(specular(f, only), specular(f, cache_of(f, subset)))
     torch.testing.assert_close(only.irradiance, cache_of(f, hits).irradiance)
     with pytest.raises(ValueError, match="specular_path"):
@@ -192,7 +245,7 @@ def test_extreme_roughness_and_a_lobe_that_leaves_the_scene_stay_finite(glossy_f
     g = SpecularGather(f["pt"], f["s"].normals.numpy(), f["obs"].valid.numpy(), BRDF, 16, 0.02, 0.6)
     obs, theta, w = g.entries(g.directions(np.full(T, sigma)), f["radiance"], np.ones((1, T)), np.full(T, sigma))
     assert np.isfinite(w).all() and len(obs) > 0
-    if sigma == 0.01:        # only the texels beside the fold line see the mesh's chamfer face across the fold
+    if sigma == 0.01:  # only the texels beside the fold line see the mesh's chamfer face across the fold
         W = f["s"].grid_shape[1]
         col = f["s"].texel_index.numpy()[obs % T] % W
         assert (np.abs(col - (W - 1) / 2) < 2).all()

@@ -29,10 +29,10 @@ class Capture:
 
     surface: Surface
     obs: Observations
-    stats: dict = field(default_factory=dict)      # loader statistics: str -> int | float | str
-    truth: dict | None = None                      # per-texel pd, ps, sigma (synthetic folders), else None
+    stats: dict = field(default_factory=dict)  # loader statistics: str -> int | float | str
+    truth: dict | None = None  # per-texel pd, ps, sigma (synthetic folders), else None
     folder: Path | None = None
-    warnings: list[str] = field(default_factory=list)   # what may be wrong with the capture (metrics: capture.warnings)
+    warnings: list[str] = field(default_factory=list)  # what may be wrong with the capture (metrics: capture.warnings)
 
 
 class CaptureLoader(ABC):

@@ -34,8 +34,10 @@ def light_indices(subset, count: int, where: str) -> list[int]:
         raise CaptureError(f"capture.light_subset is empty: it selects none of the {count} lights in {where}")
     bad = [i for i in subset if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < count]
     if bad:
-        raise CaptureError(f"capture.light_subset: indices {bad} out of range for the {count} lights in {where} "
-                           f"(expected 0..{count - 1})")
+        raise CaptureError(
+            f"capture.light_subset: indices {bad} out of range for the {count} lights in {where} "
+            f"(expected 0..{count - 1})"
+        )
     repeated = sorted(i for i, n in Counter(subset).items() if n > 1)
     if repeated:
         raise CaptureError(f"capture.light_subset: indices {repeated} repeated (each light once) for {where}")
@@ -52,8 +54,10 @@ def distinct_image_files(paths: list[Path], names: list[str], where: str) -> Non
         except OSError:
             key = (str(Path(path).resolve()),)
         if key in seen:
-            raise CaptureError(f"{where}: lights {seen[key]} and {i} use the same image file {path} "
-                               f"('{names[seen[key]]}', '{names[i]}'); each light needs its own photograph")
+            raise CaptureError(
+                f"{where}: lights {seen[key]} and {i} use the same image file {path} "
+                f"('{names[seen[key]]}', '{names[i]}'); each light needs its own photograph"
+            )
         seen[key] = i
 
 
@@ -65,15 +69,25 @@ def image_content_checks(intensity: np.ndarray, paths: list[Path]) -> list[str]:
     constant = np.flatnonzero(hi - lo <= 0)
     if constant.size:
         names = ", ".join(f"{paths[i]} (all {float(lo[i]):.4g})" for i in constant[:3])
-        raise CaptureError(f"{len(constant)} of {len(paths)} images are constant on the object, e.g. {names}: a "
-                           "light that did not fire, a covered lens or a saturated exposure carries no reflectance; "
-                           "reshoot them or leave them out with capture.light_subset")
+        raise CaptureError(
+            f"{len(constant)} of {len(paths)} images are constant on the object, e.g. {names}: a "
+            "light that did not fire, a covered lens or a saturated exposure carries no reflectance; "
+            "reshoot them or leave them out with capture.light_subset"
+        )
     dark = np.flatnonzero(hi < DARK_LEVEL)
     if dark.size == len(paths):
-        raise CaptureError(f"all {len(paths)} images are black on the object (brightest pixel below 2 DN of 8 bits, "
-                           f"e.g. {paths[0]}): no light reached the camera; check the exposure and the lights")
-    warnings = [f"{len(dark)} image(s) are black on the object (brightest pixel below 2 DN of 8 bits), e.g. "
-                f"{', '.join(str(paths[i]) for i in dark[:3])}: did their lights fire?"] if dark.size else []
+        raise CaptureError(
+            f"all {len(paths)} images are black on the object (brightest pixel below 2 DN of 8 bits, "
+            f"e.g. {paths[0]}): no light reached the camera; check the exposure and the lights"
+        )
+    warnings = (
+        [
+            f"{len(dark)} image(s) are black on the object (brightest pixel below 2 DN of 8 bits), e.g. "
+            f"{', '.join(str(paths[i]) for i in dark[:3])}: did their lights fire?"
+        ]
+        if dark.size
+        else []
+    )
     digests: dict[bytes, int] = {}
     for i in range(len(paths)):
         key = intensity[i].tobytes()
@@ -92,12 +106,15 @@ def unlisted_images(folder: Path, listed: list[Path], pattern: str, where: str) 
     extra = sorted(p.name for p in folder.glob(pattern) if p.is_file() and p.resolve() not in listed_set)
     if not extra:
         return []
-    return [f"{folder} holds {len(extra)} image file(s) that no light in {where} lists (e.g. {', '.join(extra[:3])}): "
-            "a truncated light list?"]
+    return [
+        f"{folder} holds {len(extra)} image file(s) that no light in {where} lists (e.g. {', '.join(extra[:3])}): "
+        "a truncated light list?"
+    ]
 
 
-def implied_albedo_check(intensity: np.ndarray, valid: np.ndarray, cos_l: np.ndarray, scale: np.ndarray,
-                         kappa: np.ndarray, source: str) -> None:
+def implied_albedo_check(
+    intensity: np.ndarray, valid: np.ndarray, cos_l: np.ndarray, scale: np.ndarray, kappa: np.ndarray, source: str
+) -> None:
     """CaptureError naming the light-intensity source when a light's median implied diffuse albedo
     i / (kappa / pi * Y * falloff * n.l) is outside IMPLIED_ALBEDO_RANGE.
 
@@ -113,7 +130,8 @@ def implied_albedo_check(intensity: np.ndarray, valid: np.ndarray, cos_l: np.nda
             raise CaptureError(
                 f"{source}: light {p}'s intensity gives the object a diffuse albedo of {albedo:.3g} (median over its "
                 f"lit texels), expected {lo:g}..{hi:g}: the intensities are not in the images' units (or the "
-                "images are not linear fractions of full range)")
+                "images are not linear fractions of full range)"
+            )
 
 
 def observations_left(valid: np.ndarray, removed: dict[str, np.ndarray], where: str) -> None:
@@ -123,5 +141,7 @@ def observations_left(valid: np.ndarray, removed: dict[str, np.ndarray], where: 
         return
     total = valid.size
     reasons = "; ".join(f"{name}: {int(mask.sum())}" for name, mask in removed.items())
-    raise CaptureError(f"{where}: nothing to fit: none of the {total} observations is usable ({reasons}; "
-                       "an observation may fall under several)")
+    raise CaptureError(
+        f"{where}: nothing to fit: none of the {total} observations is usable ({reasons}; "
+        "an observation may fall under several)"
+    )

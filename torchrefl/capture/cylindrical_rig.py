@@ -70,8 +70,11 @@ class CylindricalRig:
     def camera_positions(self, s):
         """(..., 3) camera position for angles s."""
         lib = torch if isinstance(s, torch.Tensor) else np
-        head = lib.asarray([0.0, self.camera_height, self.camera_distance]) if lib is np else torch.tensor(
-            [0.0, self.camera_height, self.camera_distance], dtype=s.dtype)
+        head = (
+            lib.asarray([0.0, self.camera_height, self.camera_distance])
+            if lib is np
+            else torch.tensor([0.0, self.camera_height, self.camera_distance], dtype=s.dtype)
+        )
         return self.head_to_world(s, head)
 
     def to_yaml_dict(self) -> dict:
@@ -88,8 +91,9 @@ class CylindricalRig:
         }
 
 
-def light_grid_positions(columns: int, rows: int, spacing: float, radial: float,
-                         center_lateral: float = 0.0, center_vertical: float = 0.0) -> np.ndarray:
+def light_grid_positions(
+    columns: int, rows: int, spacing: float, radial: float, center_lateral: float = 0.0, center_vertical: float = 0.0
+) -> np.ndarray:
     """(rows * columns, 3) head-frame candidate positions [lateral, vertical, radial], row-major
     from the top-left (highest, most negative lateral) position."""
     lat = center_lateral + spacing * (np.arange(columns) - (columns - 1) / 2.0)

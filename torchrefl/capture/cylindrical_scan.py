@@ -22,22 +22,28 @@ import numpy as np
 import torch
 
 from torchrefl.capture.base import Capture, CaptureLoader, Log
+from torchrefl.capture.checks import (
+    distinct_image_files,
+    image_content_checks,
+    implied_albedo_check,
+    light_indices,
+    observations_left,
+    unlisted_images,
+)
 from torchrefl.capture.cylindrical_rig import CylindricalRig
-from torchrefl.capture.checks import (distinct_image_files, image_content_checks, implied_albedo_check, light_indices,
-                                      observations_left, unlisted_images)
 from torchrefl.capture.images import read_images
+from torchrefl.capture.scan_yaml import read_manifest, read_scan_yaml  # noqa: F401  (the loader's readers)
 from torchrefl.capture.truth import TRUTH
 from torchrefl.capture.truth import load_truth as read_truth
-from torchrefl.core.observations import Observations
-from torchrefl.capture.scan_yaml import read_manifest, read_scan_yaml  # noqa: F401  (the loader's readers)
 from torchrefl.config import Config
+from torchrefl.core.observations import Observations
+from torchrefl.core.point_light import point_light
+from torchrefl.core.rays import RayTracer
+from torchrefl.core.surface import Surface
+from torchrefl.core.threads import thread_map
 from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.geometry.range_image import preprocess_range_image
 from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
-from torchrefl.core.surface import Surface
-from torchrefl.core.point_light import point_light
-from torchrefl.core.rays import RayTracer
-from torchrefl.core.threads import thread_map
 
 DEFAULT_SATURATION = 0.995
 
@@ -72,15 +78,23 @@ class ScanGeometry:
 def _range_in_mm(raw: np.ndarray, spec: dict, path: Path, where: str) -> np.ndarray:
     """The stored range values in mm: float32/float64 as they are; integers only with range.scale_mm."""
     if np.issubdtype(raw.dtype, np.integer) and "scale_mm" not in spec:
-        raise CaptureError(f"{path}: range image is {raw.dtype}, integer counts are not millimetres; store float32 "
-                           f"mm (NaN where nothing was measured) or give range.scale_mm (mm per count) in {where}")
+        raise CaptureError(
+            f"{path}: range image is {raw.dtype}, integer counts are not millimetres; store float32 "
+            f"mm (NaN where nothing was measured) or give range.scale_mm (mm per count) in {where}"
+        )
     if not np.issubdtype(raw.dtype, np.integer) and raw.dtype not in (np.float32, np.float64):
         raise CaptureError(f"{path}: range image is {raw.dtype}, expected float32 or float64 millimetres")
     for key in ("scale_mm", "offset_mm"):
-        if key in spec and (isinstance(spec[key], bool) or not isinstance(spec[key], (int, float))
-                            or not math.isfinite(spec[key]) or (key == "scale_mm" and spec[key] <= 0)):
-            raise CaptureError(f"{where}: key 'range.{key}' = {spec[key]!r}, expected a finite number"
-                               + (" > 0" if key == "scale_mm" else ""))
+        if key in spec and (
+            isinstance(spec[key], bool)
+            or not isinstance(spec[key], (int, float))
+            or not math.isfinite(spec[key])
+            or (key == "scale_mm" and spec[key] <= 0)
+        ):
+            raise CaptureError(
+                f"{where}: key 'range.{key}' = {spec[key]!r}, expected a finite number"
+                + (" > 0" if key == "scale_mm" else "")
+            )
     return raw.astype(np.float64) * float(spec.get("scale_mm", 1.0)) + float(spec.get("offset_mm", 0.0))
 
 
@@ -106,27 +120,42 @@ def read_range(folder: Path, doc: dict) -> np.ndarray:
             raise CaptureError(f"{where}: key 'grid.{key}' = {doc['grid'][key]!r} but {path} has {n} {key}")
     lo, hi, camera = float(r[finite].min()), float(r[finite].max()), float(doc["camera"]["distance_mm"])
     if lo < 0:
-        raise CaptureError(f"{path}: {int((r[finite] < 0).sum())} negative ranges (down to {lo:.4g} mm); expected "
-                           "distances from the rotation axis in mm, >= 0")
+        raise CaptureError(
+            f"{path}: {int((r[finite] < 0).sum())} negative ranges (down to {lo:.4g} mm); expected "
+            "distances from the rotation axis in mm, >= 0"
+        )
     if hi >= camera:
-        raise CaptureError(f"{path}: ranges up to {hi:.4g} mm reach past the camera at camera.distance_mm = "
-                           f"{camera:g} in {where}: the ranges are not in mm (range.scale_mm?) or the camera "
-                           "distance is wrong")
+        raise CaptureError(
+            f"{path}: ranges up to {hi:.4g} mm reach past the camera at camera.distance_mm = "
+            f"{camera:g} in {where}: the ranges are not in mm (range.scale_mm?) or the camera "
+            "distance is wrong"
+        )
     return r
 
 
 def rig_from_yaml(doc: dict, shape) -> CylindricalRig:
     g, c = doc["grid"], doc["camera"]
     return CylindricalRig(
-        rows=shape[0], columns=shape[1],
-        angle0=math.radians(g["angle0_deg"]), angle_step=math.radians(g["angle_step_deg"]),
-        height0=float(g["height0_mm"]), height_step=float(g["height_step_mm"]),
-        camera_distance=float(c["distance_mm"]), camera_height=float(c["height_mm"]),
+        rows=shape[0],
+        columns=shape[1],
+        angle0=math.radians(g["angle0_deg"]),
+        angle_step=math.radians(g["angle_step_deg"]),
+        height0=float(g["height0_mm"]),
+        height_step=float(g["height_step_mm"]),
+        camera_distance=float(c["distance_mm"]),
+        camera_height=float(c["height_mm"]),
     )
 
 
-def load_scan_geometry(folder, *, median_size: int = 5, fit_window: int = 5, noise_tolerance: float = 2.0, threads: int = 2,
-                       dtype=torch.float32) -> ScanGeometry:
+def load_scan_geometry(
+    folder,
+    *,
+    median_size: int = 5,
+    fit_window: int = 5,
+    noise_tolerance: float = 2.0,
+    threads: int = 2,
+    dtype=torch.float32,
+) -> ScanGeometry:
     """Range image -> Surface (points, normals, areas, mesh) and the rig geometry."""
     folder = Path(folder)
     doc = read_scan_yaml(folder)
@@ -135,8 +164,16 @@ def load_scan_geometry(folder, *, median_size: int = 5, fit_window: int = 5, noi
     valid = np.isfinite(r)
     r_t = torch.from_numpy(np.where(valid, r, 0.0))
     geo = preprocess_range_image(
-        r_t, torch.from_numpy(valid), s0=rig.angle0, ds=rig.angle_step, t0=rig.height0, dt=rig.height_step,
-        median_size=median_size, window=fit_window, wrap=rig.covers_full_turn(), noise_tolerance=noise_tolerance,
+        r_t,
+        torch.from_numpy(valid),
+        s0=rig.angle0,
+        ds=rig.angle_step,
+        t0=rig.height0,
+        dt=rig.height_step,
+        median_size=median_size,
+        window=fit_window,
+        wrap=rig.covers_full_turn(),
+        noise_tolerance=noise_tolerance,
     )
     ok = geo.valid.numpy() & valid
     points_ok = np.isfinite(geo.points.numpy()).all(-1) & np.isfinite(geo.normals.numpy()).all(-1)
@@ -154,14 +191,23 @@ def load_scan_geometry(folder, *, median_size: int = 5, fit_window: int = 5, noi
         positions=torch.from_numpy(points.reshape(-1, 3)[idx]).to(dtype),
         normals=torch.from_numpy(normals.reshape(-1, 3)[idx]).to(dtype),
         areas=torch.from_numpy(areas.ravel()[idx]).to(dtype),
-        mesh_vertices=verts, mesh_faces=faces, units="mm", source=str(folder / "range.npy"),
+        mesh_vertices=verts,
+        mesh_faces=faces,
+        units="mm",
+        source=str(folder / "range.npy"),
     )
     tracer = RayTracer(verts, faces, threads=threads)
     return ScanGeometry(surface, rig, tracer, doc, folder)
 
 
-def observation_geometry(geom: ScanGeometry, head_positions: np.ndarray, *, shadow_offset: float = 0.05,
-                         min_cos_view: float = 0.0, min_cos_light: float = 0.0):
+def observation_geometry(
+    geom: ScanGeometry,
+    head_positions: np.ndarray,
+    *,
+    shadow_offset: float = 0.05,
+    min_cos_view: float = 0.0,
+    min_cos_light: float = 0.0,
+):
     """Light/view geometry of P head-frame lights for every texel, with Embree visibility.
 
     Returns dict with light_dir (P, T, 3), dist (P, T), view_dir (T, 3), cos_l (P, T), cos_v (T,),
@@ -195,8 +241,16 @@ def observation_geometry(geom: ScanGeometry, head_positions: np.ndarray, *, shad
         l_all[p], dist_all[p], cos_all[p], shadowed[p] = pl.direction, pl.distance, pl.cosine, pl.shadowed
 
     thread_map(one_light, range(P), geom.tracer.threads)
-    return {"light_dir": l_all, "dist": dist_all, "view_dir": v, "cos_l": cos_all, "cos_v": cos_v,
-            "seen": seen, "lit": cos_all > min_cos_light, "shadowed": shadowed}
+    return {
+        "light_dir": l_all,
+        "dist": dist_all,
+        "view_dir": v,
+        "cos_l": cos_all,
+        "cos_v": cos_v,
+        "seen": seen,
+        "lit": cos_all > min_cos_light,
+        "shadowed": shadowed,
+    }
 
 
 def _read_textures(geom: ScanGeometry, lights: list, where: str, threads: int) -> tuple[np.ndarray, int, list[str]]:
@@ -209,18 +263,33 @@ def _read_textures(geom: ScanGeometry, lights: list, where: str, threads: int) -
     if images.shape[1:3] != (H, W):
         raise CaptureError(
             f"{paths[0]}: texture is {images.shape[2]}x{images.shape[1]}, expected {W}x{H} like the range image "
-            f"{geom.folder / 'range.npy'}")
+            f"{geom.folder / 'range.npy'}"
+        )
     intensity = images.reshape(len(lights), H * W, 3)[:, geom.surface.texel_index.numpy()]
     warnings = image_content_checks(intensity, paths)
-    warnings += unlisted_images(geom.folder / "textures", [geom.folder / e["image"] for e in read_scan_yaml(geom.folder)["lights"]],
-                                "*.png", where)
+    warnings += unlisted_images(
+        geom.folder / "textures",
+        [geom.folder / e["image"] for e in read_scan_yaml(geom.folder)["lights"]],
+        "*.png",
+        where,
+    )
     return intensity, bits, warnings
 
 
-def load_scan_observations(geom: ScanGeometry, *, light_subset=None, saturation_level: float | None = None,
-                           kappa=None, shadow_offset: float = 0.05, min_cos_view: float = 0.0,
-                           min_cos_light: float = 0.0, threads: int = 2, dtype=torch.float32, edge_width: int = 0,
-                           crease_angle_deg: float | None = None) -> tuple[Observations, dict]:
+def load_scan_observations(
+    geom: ScanGeometry,
+    *,
+    light_subset=None,
+    saturation_level: float | None = None,
+    kappa=None,
+    shadow_offset: float = 0.05,
+    min_cos_view: float = 0.0,
+    min_cos_light: float = 0.0,
+    threads: int = 2,
+    dtype=torch.float32,
+    edge_width: int = 0,
+    crease_angle_deg: float | None = None,
+) -> tuple[Observations, dict]:
     """Texture images + light table -> Observations (and load statistics, with stats['warnings'] a list).
 
     saturation_level, kappa: None = scan.yaml's (saturation_level, light.kappa), or 0.995 and pi where it
@@ -237,32 +306,56 @@ def load_scan_observations(geom: ScanGeometry, *, light_subset=None, saturation_
     kappa = np.asarray(doc["light"].get("kappa", [math.pi] * 3) if kappa is None else kappa, dtype=np.float64)
     intensity, bits, warnings = _read_textures(geom, lights, where, threads)
     head = np.array([e["position_mm"] for e in lights], dtype=np.float64)
-    og = observation_geometry(geom, head, shadow_offset=shadow_offset,
-                              min_cos_view=min_cos_view, min_cos_light=min_cos_light)
+    og = observation_geometry(
+        geom, head, shadow_offset=shadow_offset, min_cos_view=min_cos_view, min_cos_light=min_cos_light
+    )
     H, W = geom.surface.grid_shape
     idx = geom.surface.texel_index.numpy()
     saturated = (intensity >= saturation_level).any(-1)
     finite = np.isfinite(intensity).all(-1)
     edge = boundary_texels(geom.surface.mesh_faces, (H, W), idx, edge_width)
-    crease = crease_texels(geom.surface.mesh_vertices, geom.surface.mesh_faces, geom.surface.normals.double().numpy(),
-                           idx, crease_angle_deg)
-    removed = {"not seen by the camera (facing away or occluded)": np.broadcast_to(~og["seen"][None], saturated.shape),
-               "not lit (n.l at or below the threshold)": ~og["lit"], "in cast shadow": og["shadowed"],
-               f"saturated (>= {saturation_level:g})": saturated, "not finite": ~finite,
-               f"edge texels (geometry.edge_width {edge_width})": np.broadcast_to(edge[None], saturated.shape),
-               "crease texels (geometry.crease_angle_deg)": np.broadcast_to(crease[None], saturated.shape)}
+    crease = crease_texels(
+        geom.surface.mesh_vertices,
+        geom.surface.mesh_faces,
+        geom.surface.normals.double().numpy(),
+        idx,
+        crease_angle_deg,
+    )
+    removed = {
+        "not seen by the camera (facing away or occluded)": np.broadcast_to(~og["seen"][None], saturated.shape),
+        "not lit (n.l at or below the threshold)": ~og["lit"],
+        "in cast shadow": og["shadowed"],
+        f"saturated (>= {saturation_level:g})": saturated,
+        "not finite": ~finite,
+        f"edge texels (geometry.edge_width {edge_width})": np.broadcast_to(edge[None], saturated.shape),
+        "crease texels (geometry.crease_angle_deg)": np.broadcast_to(crease[None], saturated.shape),
+    }
     valid = ~np.logical_or.reduce(list(removed.values()))
     observations_left(valid, removed, where)
     Y = np.array([e.get("intensity", doc["light"]["intensity"]) for e in lights], dtype=np.float64)
     falloff = 1.0 / np.maximum(og["dist"], 1e-9) ** 2
-    implied_albedo_check(intensity, valid, og["cos_l"], Y[:, None, :] * falloff[..., None], kappa,
-                         f"{where} (light.intensity, lights[i].intensity)")
+    implied_albedo_check(
+        intensity,
+        valid,
+        og["cos_l"],
+        Y[:, None, :] * falloff[..., None],
+        kappa,
+        f"{where} (light.intensity, lights[i].intensity)",
+    )
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(dtype)
     obs = Observations(
-        intensity=t(intensity), valid=torch.from_numpy(valid), saturated=torch.from_numpy(saturated),
-        shadowed=torch.from_numpy(og["shadowed"]), light_dir=t(og["light_dir"]), falloff=t(falloff),
-        light_intensity=t(Y), view_dir=t(og["view_dir"]), kappa=t(kappa), light_positions=t(head),
-        light_names=[e["image"] for e in lights], source=where,
+        intensity=t(intensity),
+        valid=torch.from_numpy(valid),
+        saturated=torch.from_numpy(saturated),
+        shadowed=torch.from_numpy(og["shadowed"]),
+        light_dir=t(og["light_dir"]),
+        falloff=t(falloff),
+        light_intensity=t(Y),
+        view_dir=t(og["view_dir"]),
+        kappa=t(kappa),
+        light_positions=t(head),
+        light_names=[e["image"] for e in lights],
+        source=where,
     )
     stats = {
         "bit_depth": bits,
@@ -298,8 +391,9 @@ class CylindricalScanLoader(CaptureLoader):
     def load_geometry(self, folder: Path, cfg: Config) -> ScanGeometry:
         """The range image's Surface and the rig geometry (what light selection needs before any texture)."""
         g = cfg.geometry
-        return load_scan_geometry(folder, median_size=g.median_size, fit_window=g.fit_window,
-                                  threads=cfg.threads, dtype=cfg.torch_dtype)
+        return load_scan_geometry(
+            folder, median_size=g.median_size, fit_window=g.fit_window, threads=cfg.threads, dtype=cfg.torch_dtype
+        )
 
     def load(self, folder: Path, cfg: Config, log: Log, geometry: ScanGeometry | None = None) -> Capture:
         geom = geometry if geometry is not None else self.load_geometry(folder, cfg)
@@ -308,12 +402,21 @@ class CylindricalScanLoader(CaptureLoader):
         g = cfg.geometry
         saturation_level, kappa = folder_over_config(geom.meta, cfg, geom.folder / "scan.yaml", log)
         obs, stats = load_scan_observations(
-            geom, light_subset=cfg.capture.light_subset, saturation_level=saturation_level, kappa=kappa,
-            shadow_offset=g.shadow_offset_mm, threads=cfg.threads, dtype=cfg.torch_dtype,
-            edge_width=g.edge_width, crease_angle_deg=g.crease_angle_deg)
+            geom,
+            light_subset=cfg.capture.light_subset,
+            saturation_level=saturation_level,
+            kappa=kappa,
+            shadow_offset=g.shadow_offset_mm,
+            threads=cfg.threads,
+            dtype=cfg.torch_dtype,
+            edge_width=g.edge_width,
+            crease_angle_deg=g.crease_angle_deg,
+        )
         if stats["crease_texels_excluded"]:
-            log(f"geometry: {stats['crease_texels_excluded']} texels on creases sharper than "
-                f"{g.crease_angle_deg:g} deg (mixed pixels) are not fitted")
+            log(
+                f"geometry: {stats['crease_texels_excluded']} texels on creases sharper than "
+                f"{g.crease_angle_deg:g} deg (mixed pixels) are not fitted"
+            )
         warnings = stats.pop("warnings")
         return Capture(s, obs, stats, load_truth(folder, s, geom.meta), Path(folder), warnings)
 
@@ -323,14 +426,17 @@ def folder_over_config(doc: dict, cfg: Config, where: Path, log: Log) -> tuple[f
     config's capture.* value applies where scan.yaml gives none. A config value overridden is logged."""
     chosen = []
     for key, folder_value, config_value in (
-            ("saturation_level", doc.get("saturation_level"), cfg.capture.saturation_level),
-            ("light.kappa", doc["light"].get("kappa"), list(cfg.capture.kappa))):
+        ("saturation_level", doc.get("saturation_level"), cfg.capture.saturation_level),
+        ("light.kappa", doc["light"].get("kappa"), list(cfg.capture.kappa)),
+    ):
         config_key = f"capture.{key.split('.')[-1]}"
         if folder_value is None:
             chosen.append(config_value)
             continue
         if not np.allclose(folder_value, config_value, rtol=1e-12, atol=0):
-            log(f"{config_key} {config_value} (config) is overridden by {key} {folder_value} in {where}: "
-                "a value the capture folder gives is its own")
+            log(
+                f"{config_key} {config_value} (config) is overridden by {key} {folder_value} in {where}: "
+                "a value the capture folder gives is its own"
+            )
         chosen.append(folder_value)
     return float(chosen[0]), [float(k) for k in chosen[1]]

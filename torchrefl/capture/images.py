@@ -48,8 +48,7 @@ def _decode_pillow(path: Path, why: str) -> tuple[np.ndarray, int]:
                 raw = np.asarray(im.convert("I;16") if mode != "I;16" else im).astype(np.uint16)[..., None]
                 return raw, 16
             if mode not in _PIL_8BIT_MODES:
-                raise CaptureError(
-                    f"{path}: unsupported image mode {mode!r} (expected 8- or 16-bit grey, RGB or RGBA)")
+                raise CaptureError(f"{path}: unsupported image mode {mode!r} (expected 8- or 16-bit grey, RGB or RGBA)")
             has_alpha = mode in ("LA", "PA", "La", "RGBA", "RGBa") or "transparency" in im.info
             raw = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
             return raw, 8
@@ -71,8 +70,7 @@ def _decode(path) -> tuple[np.ndarray, int]:
     if png is not None:
         bit_depth, colour_type = png
         if bit_depth == 16 and colour_type not in _KORNIA_PNG_COLOUR_TYPES:
-            raise CaptureError(
-                f"{path}: unsupported 16-bit PNG colour type {colour_type} (expected grey, RGB or RGBA)")
+            raise CaptureError(f"{path}: unsupported 16-bit PNG colour type {colour_type} (expected grey, RGB or RGBA)")
         if bit_depth < 8 or colour_type not in _KORNIA_PNG_COLOUR_TYPES:
             return _decode_pillow(path, f"PNG with bit depth {bit_depth}, colour type {colour_type}")
     try:
@@ -96,7 +94,7 @@ def _decode(path) -> tuple[np.ndarray, int]:
 
 
 def _full_scale(bits: int) -> np.float32:
-    return np.float32(2 ** bits - 1)
+    return np.float32(2**bits - 1)
 
 
 def _to_float(raw: np.ndarray, bits: int, out: np.ndarray | None = None) -> np.ndarray:
@@ -150,7 +148,8 @@ def read_images(paths, *, threads: int = 2, pixels: np.ndarray | None = None) ->
         pixels = np.asarray(pixels, dtype=bool)
         if pixels.shape != shape:
             raise CaptureError(
-                f"{paths[0]}: image is {_size(shape)}, expected {_size(pixels.shape)} (the size of the pixel mask)")
+                f"{paths[0]}: image is {_size(shape)}, expected {_size(pixels.shape)} (the size of the pixel mask)"
+            )
         flat = np.flatnonzero(pixels.ravel())
         out = np.empty((len(paths), flat.size, 3), dtype=np.float32)
     else:
@@ -159,13 +158,14 @@ def read_images(paths, *, threads: int = 2, pixels: np.ndarray | None = None) ->
 
     def convert(i: int, raw: np.ndarray, depth: int) -> None:
         if raw.shape[:2] != shape:
-            raise CaptureError(
-                f"{paths[i]} is {_size(raw.shape)}, expected {_size(shape)} like {paths[0]}")
+            raise CaptureError(f"{paths[i]} is {_size(raw.shape)}, expected {_size(shape)} like {paths[0]}")
         if depth != bits:
             raise CaptureError(f"{paths[i]} is a {depth}-bit image, expected {bits}-bit like {paths[0]}")
         if _colour(raw) != colour:
-            raise CaptureError(f"{paths[i]} is a {_colour(raw)} image, expected {colour} like {paths[0]} "
-                               "(one camera mode for every light)")
+            raise CaptureError(
+                f"{paths[i]} is a {_colour(raw)} image, expected {colour} like {paths[0]} "
+                "(one camera mode for every light)"
+            )
         if flat is not None:
             raw = raw.reshape(-1, raw.shape[2])[flat]
         _to_float(raw, depth, out=out[i])
@@ -176,7 +176,7 @@ def read_images(paths, *, threads: int = 2, pixels: np.ndarray | None = None) ->
 
     convert(0, first_raw, bits)
     del first_raw
-    thread_map(job, range(1, len(paths)), threads)   # in path order, so the first bad file is the one reported
+    thread_map(job, range(1, len(paths)), threads)  # in path order, so the first bad file is the one reported
     return out, bits
 
 
@@ -198,20 +198,25 @@ def write_png(path, image, bits: int) -> None:
     if img.ndim == 2:
         img = img[..., None]
     if img.ndim != 3 or img.shape[2] not in (1, 3, 4) or img.shape[0] == 0 or img.shape[1] == 0:
-        raise CaptureError(f"{path}: image of shape {np.asarray(image).shape}, expected (H, W), (H, W, 1), (H, W, 3) or (H, W, 4)")
+        raise CaptureError(
+            f"{path}: image of shape {np.asarray(image).shape}, expected (H, W), (H, W, 1), (H, W, 3) or (H, W, 4)"
+        )
     dtype = np.uint8 if bits == 8 else np.uint16
     if np.issubdtype(img.dtype, np.floating):
         finite = np.isfinite(img)
         if not finite.all():
-            raise CaptureError(f"{path}: image has {int((~finite).sum())} NaN or inf values (expected floats in [0, 1])")
+            raise CaptureError(
+                f"{path}: image has {int((~finite).sum())} NaN or inf values (expected floats in [0, 1])"
+            )
         lo, hi = float(img.min()), float(img.max())
         if lo < 0.0 or hi > 1.0:
             raise CaptureError(f"{path}: float image values span [{lo:.6g}, {hi:.6g}], expected [0, 1]")
-        img = np.rint(img.astype(np.float64) * (2 ** bits - 1)).astype(dtype)
+        img = np.rint(img.astype(np.float64) * (2**bits - 1)).astype(dtype)
     elif img.dtype == np.bool_ or img.dtype != dtype:
         raise CaptureError(
             f"{path}: image of type {img.dtype} cannot be written as a {bits}-bit PNG "
-            f"(expected floats in [0, 1] or {np.dtype(dtype).name})")
+            f"(expected floats in [0, 1] or {np.dtype(dtype).name})"
+        )
     img = np.ascontiguousarray(img)
     mode = {1: "mono", 3: "rgb", 4: "rgba"}[img.shape[2]]
     writer = kornia_rs.io.write_image_png_u8 if bits == 8 else kornia_rs.io.write_image_png_u16

@@ -26,13 +26,18 @@ import numpy as np
 import torch
 
 from torchrefl.capture.base import Capture, CaptureLoader, Log
-from torchrefl.capture.checks import (distinct_image_files, image_content_checks, implied_albedo_check, light_indices,
-                                      observations_left)
-from torchrefl.config import Config
+from torchrefl.capture.checks import (
+    distinct_image_files,
+    image_content_checks,
+    implied_albedo_check,
+    light_indices,
+    observations_left,
+)
 from torchrefl.capture.images import read_image, read_images
+from torchrefl.config import Config
 from torchrefl.core.observations import Observations
-from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.core.surface import UNIT_TOLERANCE, Surface
+from torchrefl.errors import CaptureError, GeometryError
 
 FILENAMES = "filenames.txt"
 LIGHT_DIRECTIONS = "light_directions.txt"
@@ -67,11 +72,14 @@ def read_table(path: Path, columns: int = 3) -> np.ndarray:
         fields = line.replace(",", " ").split()
         if len(fields) != columns:
             raise CaptureError(
-                f"{path}, line {number}: {len(fields)} values {line!r}, expected {columns} numbers per line")
+                f"{path}, line {number}: {len(fields)} values {line!r}, expected {columns} numbers per line"
+            )
         try:
             rows.append([float(f) for f in fields])
         except ValueError:
-            raise CaptureError(f"{path}, line {number}: non-numeric value in {line!r}, expected {columns} numbers") from None
+            raise CaptureError(
+                f"{path}, line {number}: non-numeric value in {line!r}, expected {columns} numbers"
+            ) from None
     return np.array(rows, dtype=np.float64).reshape(-1, columns)
 
 
@@ -101,7 +109,8 @@ def image_names(folder: Path) -> list[str]:
 def _check_rows(path: Path, table: np.ndarray, num_images: int) -> None:
     if table.shape[0] != num_images:
         raise CaptureError(
-            f"{path}: {table.shape[0]} rows, expected {num_images} (one row per image; the folder lists {num_images} images)")
+            f"{path}: {table.shape[0]} rows, expected {num_images} (one row per image; the folder lists {num_images} images)"
+        )
 
 
 def read_light_directions(path: Path, num_images: int) -> np.ndarray:
@@ -114,7 +123,8 @@ def read_light_directions(path: Path, num_images: int) -> np.ndarray:
         row = int(np.flatnonzero(bad)[0])
         raise CaptureError(
             f"{path}, line {_line_numbers(path)[row]}: direction {d[row].tolist()} has length {norm[row]:.4g}, "
-            f"expected a finite unit vector (+- {DIRECTION_TOLERANCE}); {int(bad.sum())} bad rows")
+            f"expected a finite unit vector (+- {DIRECTION_TOLERANCE}); {int(bad.sum())} bad rows"
+        )
     return d / norm[:, None]
 
 
@@ -127,7 +137,8 @@ def read_light_intensities(path: Path, num_images: int) -> np.ndarray:
         row = int(np.flatnonzero(bad)[0])
         raise CaptureError(
             f"{path}, line {_line_numbers(path)[row]}: intensity {y[row].tolist()}, expected 3 finite values > 0; "
-            f"{int(bad.sum())} bad rows")
+            f"{int(bad.sum())} bad rows"
+        )
     return y
 
 
@@ -139,7 +150,8 @@ def read_normal_map(path: Path) -> np.ndarray:
         data = scipy.io.loadmat(str(path))
     except NotImplementedError:
         raise CaptureError(
-            f"{path}: MATLAB v7.3 (HDF5) files are not supported; re-save it with save(..., '-v7')") from None
+            f"{path}: MATLAB v7.3 (HDF5) files are not supported; re-save it with save(..., '-v7')"
+        ) from None
     except Exception as exc:  # scipy raises ValueError/TypeError/OSError for corrupt files
         raise CaptureError(f"{path}: not a readable MATLAB file ({exc})") from None
     if NORMALS_KEY not in data:
@@ -158,22 +170,34 @@ def _image_checks(folder: Path, names: list[str], keep: list[int], intensity: np
     on_disk = [p for p in folder.iterdir() if p.is_file() and _IMAGE_NAME.match(p.name)]
     extra = sorted(p.name for p in on_disk if p.name not in set(names))
     if extra:
-        warnings.append(f"{folder} holds {len(extra)} NNN.png image(s) that {listing.name} does not list "
-                        f"(e.g. {', '.join(extra[:3])}): a truncated light list?")
+        warnings.append(
+            f"{folder} holds {len(extra)} NNN.png image(s) that {listing.name} does not list "
+            f"(e.g. {', '.join(extra[:3])}): a truncated light list?"
+        )
     return warnings
 
 
 def _valid_observations(cos_v, cos_l, saturated, finite, folder: Path) -> np.ndarray:
-    removed = {"normal facing away from the camera (n.v <= 0)": np.broadcast_to((cos_v <= 0)[None], cos_l.shape),
-               "not lit (n.l <= 0)": cos_l <= 0, "saturated": saturated, "not finite": ~finite}
+    removed = {
+        "normal facing away from the camera (n.v <= 0)": np.broadcast_to((cos_v <= 0)[None], cos_l.shape),
+        "not lit (n.l <= 0)": cos_l <= 0,
+        "saturated": saturated,
+        "not finite": ~finite,
+    }
     valid = ~np.logical_or.reduce(list(removed.values()))
     observations_left(valid, removed, str(folder))
     return valid
 
 
-def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(math.pi, math.pi, math.pi),
-                            light_subset=None, dtype=torch.float32,
-                            threads: int = 2) -> tuple[Surface, Observations, dict]:
+def load_photometric_stereo(
+    folder,
+    *,
+    saturation_level: float = 0.995,
+    kappa=(math.pi, math.pi, math.pi),
+    light_subset=None,
+    dtype=torch.float32,
+    threads: int = 2,
+) -> tuple[Surface, Observations, dict]:
     """Load a DiLiGenT-layout folder into Surface + Observations.
 
     Surface (T = mask pixels, in row-major order): grid_shape (H, W) of the images;
@@ -214,15 +238,20 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
     paths = [folder / name for name in names]
     for p in paths:
         if not p.is_file():
-            raise CaptureError(f"{p}: image file missing (listed in {folder / FILENAMES})" if (folder / FILENAMES).is_file()
-                               else f"{p}: image file missing")
+            raise CaptureError(
+                f"{p}: image file missing (listed in {folder / FILENAMES})"
+                if (folder / FILENAMES).is_file()
+                else f"{p}: image file missing"
+            )
     dirs_path = _require_file(folder / LIGHT_DIRECTIONS)
     ints_path = _require_file(folder / LIGHT_INTENSITIES)
     mask_path = _require_file(folder / MASK)
     normals_path = _require_file(folder / NORMALS)
     directions = read_light_directions(dirs_path, len(names))
     intensities = read_light_intensities(ints_path, len(names))
-    keep = light_indices(light_subset, len(names), str(folder / FILENAMES) if (folder / FILENAMES).is_file() else str(folder))
+    keep = light_indices(
+        light_subset, len(names), str(folder / FILENAMES) if (folder / FILENAMES).is_file() else str(folder)
+    )
     distinct_image_files([paths[i] for i in keep], [names[i] for i in keep], str(folder))
 
     mask_img, _ = read_image(mask_path)
@@ -230,7 +259,8 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
     H, W = first.shape[:2]
     if mask_img.shape[:2] != (H, W):
         raise CaptureError(
-            f"{mask_path} is {mask_img.shape[1]}x{mask_img.shape[0]}, expected {W}x{H} like {paths[keep[0]]}")
+            f"{mask_path} is {mask_img.shape[1]}x{mask_img.shape[0]}, expected {W}x{H} like {paths[keep[0]]}"
+        )
     mask = (mask_img > 0).any(axis=-1)
     del first, mask_img
     if not mask.any():
@@ -240,20 +270,22 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
     if normal_map.shape[:2] != (H, W):
         raise CaptureError(
             f"{normals_path}: '{NORMALS_KEY}' is {normal_map.shape[1]}x{normal_map.shape[0]}, expected {W}x{H} "
-            f"like {paths[keep[0]]}")
+            f"like {paths[keep[0]]}"
+        )
     normals = normal_map[mask]
     length = np.linalg.norm(normals, axis=1)
     bad = ~np.isfinite(length) | (np.abs(length - 1.0) > UNIT_TOLERANCE)
     if bad.any():
         raise GeometryError(
             f"{normals_path}: {int(bad.sum())} of {normals.shape[0]} normals inside {MASK} are NaN or not unit "
-            f"length (expected |n| = 1 +- {UNIT_TOLERANCE} on the object)")
+            f"length (expected |n| = 1 +- {UNIT_TOLERANCE} on the object)"
+        )
     normals = normals / length[:, None]
 
     intensity, bits = read_images([paths[i] for i in keep], threads=threads, pixels=mask)
     warnings = _image_checks(folder, names, keep, intensity)
     if dtype == torch.float64:  # recover the exact v / (2**bits - 1) from the float32 fractions
-        full = float(2 ** bits - 1)
+        full = float(2**bits - 1)
         intensity = np.rint(intensity.astype(np.float64) * full) / full
 
     rows, cols = np.nonzero(mask)
@@ -276,8 +308,14 @@ def load_photometric_stereo(folder, *, saturation_level: float = 0.995, kappa=(m
     saturated = (intensity >= saturation_level).any(axis=-1)
     finite = np.isfinite(intensity).all(axis=-1)
     valid = _valid_observations(cos_v, cos_l, saturated, finite, folder)
-    implied_albedo_check(intensity.astype(np.float64), valid, cos_l, np.broadcast_to(intensities[keep][:, None, :], intensity.shape),
-                         kappa_arr, str(ints_path))
+    implied_albedo_check(
+        intensity.astype(np.float64),
+        valid,
+        cos_l,
+        np.broadcast_to(intensities[keep][:, None, :], intensity.shape),
+        kappa_arr,
+        str(ints_path),
+    )
 
     light_dir = torch.from_numpy(dirs).to(dtype)[:, None, :].expand(P, T, 3)
     obs = Observations(
@@ -314,8 +352,13 @@ class PhotometricStereoLoader(CaptureLoader):
 
     def load(self, folder: Path, cfg: Config, log: Log) -> Capture:
         c = cfg.capture
-        surface, obs, stats = load_photometric_stereo(folder, saturation_level=c.saturation_level, kappa=tuple(c.kappa),
-                                                      light_subset=c.light_subset, dtype=cfg.torch_dtype,
-                                                      threads=cfg.threads)
+        surface, obs, stats = load_photometric_stereo(
+            folder,
+            saturation_level=c.saturation_level,
+            kappa=tuple(c.kappa),
+            light_subset=c.light_subset,
+            dtype=cfg.torch_dtype,
+            threads=cfg.threads,
+        )
         warnings = stats.pop("warnings")
         return Capture(surface, obs, stats, None, Path(folder), warnings)

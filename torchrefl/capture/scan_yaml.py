@@ -18,7 +18,9 @@ from torchrefl.errors import CaptureError
 SCAN_YAML = "scan.yaml"
 #: section -> its keys (None: a value, not a section)
 SCHEMA = {
-    "kind": None, "saturation_level": None, "lights": None,
+    "kind": None,
+    "saturation_level": None,
+    "lights": None,
     "grid": {"angle_step_deg", "height_step_mm", "angle0_deg", "height0_mm", "rows", "columns"},
     "camera": {"distance_mm", "height_mm"},
     "light": {"intensity", "kappa"},
@@ -56,12 +58,17 @@ def _number(doc: dict, key: str, where: str, positive: bool = False) -> float:
 
 
 def triple(value, key: str, where: str, positive: bool = False) -> list:
-    ok = isinstance(value, list) and len(value) == 3 and all(
-        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)
+    ok = (
+        isinstance(value, list)
+        and len(value) == 3
+        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)
+    )
     if not ok:
         raise CaptureError(f"{where}: key '{key}' must be a list of 3 finite numbers, got {value!r}")
     if positive and any(x <= 0 for x in value):
-        raise CaptureError(f"{where}: key '{key}' must be 3 positive numbers (negative or zero light intensity?), got {value!r}")
+        raise CaptureError(
+            f"{where}: key '{key}' must be 3 positive numbers (negative or zero light intensity?), got {value!r}"
+        )
     return [float(x) for x in value]
 
 
@@ -116,7 +123,9 @@ def read_scan_yaml(folder) -> dict:
     _number(cam, "distance_mm", f"{where} [camera]", positive=True)
     _number(cam, "height_mm", f"{where} [camera]")
     light = _need(doc, "light", where)
-    light["intensity"] = triple(_need(light, "intensity", f"{where} [light]", kind=None), "light.intensity", where, positive=True)
+    light["intensity"] = triple(
+        _need(light, "intensity", f"{where} [light]", kind=None), "light.intensity", where, positive=True
+    )
     if "kappa" in light:
         light["kappa"] = triple(light["kappa"], "light.kappa", where, positive=True)
     lights = doc.get("lights", [])

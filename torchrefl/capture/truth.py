@@ -31,13 +31,17 @@ def _grid(data: dict, key: str, shapes: list[tuple], surface: Surface, path: Pat
         raise CaptureError(f"{path}: missing key '{key}' (a truth file holds pd, ps and sigma; found {sorted(data)})")
     a = data[key]
     if a.shape not in shapes or not np.issubdtype(a.dtype, np.number):
-        raise CaptureError(f"{path}: '{key}' is {a.dtype} {a.shape}, expected numbers of shape "
-                           f"{' or '.join(map(str, shapes))} (the texel grid of range.npy)")
+        raise CaptureError(
+            f"{path}: '{key}' is {a.dtype} {a.shape}, expected numbers of shape "
+            f"{' or '.join(map(str, shapes))} (the texel grid of range.npy)"
+        )
     values = surface.from_grid(a.astype(np.float64)).double()
     bad = ~values.reshape(values.shape[0], -1).isfinite().all(-1)
     if bool(bad.any()):
-        raise CaptureError(f"{path}: '{key}' is NaN or infinite at {int(bad.sum())} of {len(bad)} texels of the "
-                           "surface (expected finite values wherever range.npy has one)")
+        raise CaptureError(
+            f"{path}: '{key}' is NaN or infinite at {int(bad.sum())} of {len(bad)} texels of the "
+            "surface (expected finite values wherever range.npy has one)"
+        )
     return values
 
 
@@ -48,9 +52,11 @@ def load_truth(path: Path, surface: Surface) -> dict:
         raise CaptureError(f"{path}: truth file not found")
     data = _read_npz(path)
     H, W = surface.grid_shape
-    truth = {"pd": _grid(data, "pd", [(H, W, 3)], surface, path),
-             "ps": _grid(data, "ps", [(H, W, 3), (H, W, 1)], surface, path),
-             "sigma": _grid(data, "sigma", [(H, W)], surface, path)}
+    truth = {
+        "pd": _grid(data, "pd", [(H, W, 3)], surface, path),
+        "ps": _grid(data, "ps", [(H, W, 3), (H, W, 1)], surface, path),
+        "sigma": _grid(data, "sigma", [(H, W)], surface, path),
+    }
     brdf = data.get("brdf")
     if brdf is not None and (brdf.shape != () or brdf.dtype.kind != "U"):
         raise CaptureError(f"{path}: 'brdf' is {brdf!r}, expected a BRDF name")

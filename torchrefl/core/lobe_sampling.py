@@ -51,7 +51,7 @@ def sample_cosine(n: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
 
 def _ts_norm(sigma: np.ndarray) -> np.ndarray:
     """Z(sigma) = sigma^2 (1 - exp(-(pi/2)^2 / (2 sigma^2))), the normaliser of theta exp(-theta^2/(2 sigma^2))."""
-    return sigma * sigma * -np.expm1(-(np.pi / 2) ** 2 / (2 * sigma * sigma))
+    return sigma * sigma * -np.expm1(-((np.pi / 2) ** 2) / (2 * sigma * sigma))
 
 
 def half_vector_pdf(model: str, cos_h: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -70,11 +70,13 @@ def half_vector_pdf(model: str, cos_h: np.ndarray, sigma: np.ndarray) -> np.ndar
     if model == "ward":
         cc = np.maximum(c, 1e-12)
         tan2 = (s / cc) ** 2
-        return np.where(c > 0, np.exp(-tan2 / (sigma * sigma)) / (np.pi * sigma * sigma * cc ** 3), 0.0)
+        return np.where(c > 0, np.exp(-tan2 / (sigma * sigma)) / (np.pi * sigma * sigma * cc**3), 0.0)
     raise GeometryError(f"synthetic.brdf: no lobe sampler for '{model}'")
 
 
-def sample_lobe(model: str, n: np.ndarray, v: np.ndarray, sigma: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+def sample_lobe(
+    model: str, n: np.ndarray, v: np.ndarray, sigma: np.ndarray, u1: np.ndarray, u2: np.ndarray
+) -> np.ndarray:
     """(N, 3) directions l: a half vector h drawn from the lobe about n, then l = reflect(v, h).
 
     n, v: (N, 3) unit; sigma: (N,) roughness (radians). Its pdf is `lobe_pdf` (over the whole sphere;
@@ -82,7 +84,7 @@ def sample_lobe(model: str, n: np.ndarray, v: np.ndarray, sigma: np.ndarray, u1:
     """
     sig = np.maximum(sigma, brdf_mod.SIGMA_EPS)
     if model == "torrance_sparrow":
-        theta = sig * np.sqrt(-2.0 * np.log1p(-u1 * -np.expm1(-(np.pi / 2) ** 2 / (2 * sig * sig))))
+        theta = sig * np.sqrt(-2.0 * np.log1p(-u1 * -np.expm1(-((np.pi / 2) ** 2) / (2 * sig * sig))))
         theta = np.minimum(theta, np.pi / 2)
     elif model == "ward":
         theta = np.arctan(sig * np.sqrt(-np.log(np.maximum(1.0 - u1, 1e-300))))
@@ -144,15 +146,16 @@ def lobe_constants(lobe: str, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray
     """
     sigma = np.asarray(sigma, dtype=np.float64)
     if lobe == "torrance_sparrow":
-        trunc = -np.expm1(-(np.pi / 2) ** 2 / (2 * sigma * sigma))
+        trunc = -np.expm1(-((np.pi / 2) ** 2) / (2 * sigma * sigma))
         return trunc, 2 * np.pi * sigma * sigma * trunc
     if lobe == "ward":
         return np.ones_like(sigma), np.full_like(sigma, 0.25)
     raise GeometryError(f"synthetic.brdf: no lobe sampler for '{lobe}'")
 
 
-def lobe_over_pdf(lobe: str, theta: np.ndarray, cos_theta: np.ndarray, sin_theta: np.ndarray,
-                  ratio_scale: np.ndarray) -> np.ndarray:
+def lobe_over_pdf(
+    lobe: str, theta: np.ndarray, cos_theta: np.ndarray, sin_theta: np.ndarray, ratio_scale: np.ndarray
+) -> np.ndarray:
     """D(theta_h; sigma) / p_h(theta_h): brdf.specular_lobe over the solid-angle pdf of the half vectors
     `half_vector_pdf` draws, in closed form (the exponentials cancel, so it stays finite in the far tail):
     torrance_sparrow 2 pi Z sin(theta) / theta (2 pi Z at theta = 0), ward cos^3(theta) / 4, with
@@ -170,7 +173,7 @@ def lobe_theta(lobe: str, sigma: np.ndarray, u1: np.ndarray, truncation: np.ndar
     (computed here when None)."""
     if lobe == "torrance_sparrow":
         if truncation is None:
-            truncation = -np.expm1(-(np.pi / 2) ** 2 / (2 * sigma * sigma))
+            truncation = -np.expm1(-((np.pi / 2) ** 2) / (2 * sigma * sigma))
         theta = sigma * np.sqrt(-2.0 * np.log1p(-u1 * truncation))
         return np.minimum(theta, np.float32(np.pi / 2) if theta.dtype == np.float32 else np.pi / 2)
     if lobe == "ward":

@@ -15,8 +15,9 @@ INVALID, T_DIFF, T_SPEC, T_NONE = 0, 1, 2, 3
 CLASS_NAMES = {INVALID: "invalid", T_DIFF: "T_diff", T_SPEC: "T_spec", T_NONE: "T_none"}
 
 
-def classify(theta_h: torch.Tensor, valid: torch.Tensor, theta_diffuse_deg: float = 60.0,
-             theta_specular_deg: float = 20.0) -> torch.Tensor:
+def classify(
+    theta_h: torch.Tensor, valid: torch.Tensor, theta_diffuse_deg: float = 60.0, theta_specular_deg: float = 20.0
+) -> torch.Tensor:
     """(P, T) int8 class codes from half-angles theta_h (P, T) radians and the validity mask (P, T)."""
     th1 = math.radians(theta_diffuse_deg)
     th2 = math.radians(theta_specular_deg)

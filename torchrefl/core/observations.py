@@ -76,7 +76,9 @@ class Observations:
             if got != shape:
                 raise CaptureError(f"{where}: field '{name}' has shape {got}, expected {shape}")
         if tuple(self.view_dir.shape) not in ((T, 3), (P, T, 3)):
-            raise CaptureError(f"{where}: field 'view_dir' has shape {tuple(self.view_dir.shape)}, expected ({T}, 3) or ({P}, {T}, 3)")
+            raise CaptureError(
+                f"{where}: field 'view_dir' has shape {tuple(self.view_dir.shape)}, expected ({T}, 3) or ({P}, {T}, 3)"
+            )
         li = self.light_intensity
         if not torch.isfinite(li).all() or (li <= 0).any():
             rows = sorted(set(torch.nonzero(~torch.isfinite(li) | (li <= 0))[:, 0].tolist()))
@@ -92,7 +94,9 @@ class Observations:
 
     def subset_lights(self, keep) -> "Observations":
         """Observations restricted to the light indices in `keep` (a list or bool mask)."""
-        idx = torch.as_tensor(np.flatnonzero(np.asarray(keep)) if np.asarray(keep).dtype == bool else np.asarray(keep), dtype=torch.long)
+        idx = torch.as_tensor(
+            np.flatnonzero(np.asarray(keep)) if np.asarray(keep).dtype == bool else np.asarray(keep), dtype=torch.long
+        )
         vd = self.view_dir if self.view_dir.dim() == 2 else self.view_dir[idx]
         return Observations(
             intensity=self.intensity[idx],
@@ -113,8 +117,16 @@ class Observations:
         """A copy with float tensors in `dtype`."""
         f = lambda x: None if x is None else x.to(dtype)
         return Observations(
-            intensity=f(self.intensity), valid=self.valid, saturated=self.saturated, shadowed=self.shadowed,
-            light_dir=f(self.light_dir), falloff=f(self.falloff), light_intensity=f(self.light_intensity),
-            view_dir=f(self.view_dir), kappa=f(self.kappa), light_positions=f(self.light_positions),
-            light_names=list(self.light_names), source=self.source,
+            intensity=f(self.intensity),
+            valid=self.valid,
+            saturated=self.saturated,
+            shadowed=self.shadowed,
+            light_dir=f(self.light_dir),
+            falloff=f(self.falloff),
+            light_intensity=f(self.light_intensity),
+            view_dir=f(self.view_dir),
+            kappa=f(self.kappa),
+            light_positions=f(self.light_positions),
+            light_names=list(self.light_names),
+            source=self.source,
         )

@@ -15,7 +15,7 @@ from torch.nn import functional as F
 
 SHARPNESS = 20.0
 _EDGE = 1e-6
-START_MARGIN = 0.01      # initial values keep this fraction of the range away from a sigmoid bound
+START_MARGIN = 0.01  # initial values keep this fraction of the range away from a sigmoid bound
 
 
 def softplus_b(x: torch.Tensor) -> torch.Tensor:
@@ -41,13 +41,22 @@ class TexelParams(nn.Module):
     range inside the sigmoid's bounds.
     """
 
-    def __init__(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor, sigma_min: float, sigma_max: float,
-                 init_floor: float = INIT_FLOOR, shared_specular: bool = False, ps_max: float = float("inf")):
+    def __init__(
+        self,
+        pd: torch.Tensor,
+        ps: torch.Tensor,
+        sigma: torch.Tensor,
+        sigma_min: float,
+        sigma_max: float,
+        init_floor: float = INIT_FLOOR,
+        shared_specular: bool = False,
+        ps_max: float = float("inf"),
+    ):
         super().__init__()
         self.ps_max = float(ps_max)
         self.num_texels = int(pd.shape[0])
         self.shared_specular = shared_specular
-        if shared_specular:                      # one lobe for the whole object: (1, C) and (1,)
+        if shared_specular:  # one lobe for the whole object: (1, C) and (1,)
             # contiguous: torch's median of an expanded (stride-0) tensor returns NaN
             ps = ps.contiguous().median(dim=0, keepdim=True).values
             sigma = sigma.contiguous().median(dim=0, keepdim=True).values
@@ -81,8 +90,9 @@ class TexelParams(nn.Module):
 
     def assign(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> None:
         """Restart from new values (transformed as in __init__), in place."""
-        fresh = TexelParams(pd, ps, sigma, self.sigma_min, self.sigma_max, shared_specular=self.shared_specular,
-                            ps_max=self.ps_max)
+        fresh = TexelParams(
+            pd, ps, sigma, self.sigma_min, self.sigma_max, shared_specular=self.shared_specular, ps_max=self.ps_max
+        )
         with torch.no_grad():
             for name, value in fresh.named_parameters():
                 getattr(self, name).copy_(value.to(getattr(self, name)))

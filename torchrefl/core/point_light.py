@@ -51,7 +51,7 @@ class PointLight:
     @property
     def falloff(self) -> np.ndarray:
         """(N,) 1 / d^2."""
-        return 1.0 / self.distance ** 2
+        return 1.0 / self.distance**2
 
     def irradiance(self, intensity=1.0) -> np.ndarray:
         """E = Y max(n . l, 0) visible / d^2: (N,) for a scalar intensity Y, (N, C) for Y of shape (C,)
@@ -63,8 +63,7 @@ class PointLight:
         return e * y if y.ndim == 0 else e[:, None] * y[None, :]
 
 
-def point_light(points, normals, lights, tracer, *, offset: float, min_cos: float = 0.0,
-                trace=None) -> PointLight:
+def point_light(points, normals, lights, tracer, *, offset: float, min_cos: float = 0.0, trace=None) -> PointLight:
     """PointLight of points (N, 3) with normals (N, 3) (unit) lit by lights (N, 3) (one light position per
     point; broadcast a single light with np.broadcast_to(L, points.shape)).
 

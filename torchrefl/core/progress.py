@@ -20,7 +20,7 @@ class Stages:
     def __init__(self, log=None):
         self.timing: dict[str, float] = {}
         self.log = log
-        self.failed: str | None = None      # the stage an exception or an interruption left
+        self.failed: str | None = None  # the stage an exception or an interruption left
 
     @contextmanager
     def stage(self, name: str):
@@ -45,5 +45,13 @@ class Stages:
 
 def bar(total: int, desc: str, enabled: bool = True, unit: str = "it"):
     """A tqdm progress bar on stderr (disabled when enabled is False)."""
-    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, file=sys.stderr, leave=False,
-                dynamic_ncols=True, mininterval=0.5)
+    return tqdm(
+        total=total,
+        desc=desc,
+        unit=unit,
+        disable=not enabled,
+        file=sys.stderr,
+        leave=False,
+        dynamic_ncols=True,
+        mininterval=0.5,
+    )

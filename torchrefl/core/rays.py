@@ -33,9 +33,9 @@ from embreex.mesh_construction import TriangleMesh
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import ConfigError, GeometryError
 
-_FAR = 1e37          # "no limit" for Embree's float32 tfar
-_BLOCK = 65536       # rays per Embree call at most: a block's float32 copies and outputs stay in cache
-_MIN_SPLIT = 4096    # a batch is split over threads only into chunks of at least this many rays
+_FAR = 1e37  # "no limit" for Embree's float32 tfar
+_BLOCK = 65536  # rays per Embree call at most: a block's float32 copies and outputs stay in cache
+_MIN_SPLIT = 4096  # a batch is split over threads only into chunks of at least this many rays
 
 
 @dataclass
@@ -83,8 +83,9 @@ def _finite32(name: str, a: np.ndarray, start: int) -> np.ndarray:
         out = np.ascontiguousarray(a, dtype=np.float32)
     if not np.isfinite(out).all():
         first = int(np.flatnonzero(~np.isfinite(out).all(axis=1))[0])
-        raise GeometryError(f"{name} contains NaN or inf values (or values beyond float32 range), "
-                            f"first at row {start + first}")
+        raise GeometryError(
+            f"{name} contains NaN or inf values (or values beyond float32 range), first at row {start + first}"
+        )
     return out
 
 
@@ -126,8 +127,9 @@ def _scene(vertices32: np.ndarray, faces32: np.ndarray) -> rtcs.EmbreeScene:
     """A committed Embree scene (the BVH is built here, by one single-ray query)."""
     scene = rtcs.EmbreeScene()
     TriangleMesh(scene, vertices32, faces32)
-    scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32), dists=np.ones(1, np.float32),
-              query="OCCLUDED")
+    scene.run(
+        np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32), dists=np.ones(1, np.float32), query="OCCLUDED"
+    )
     return scene
 
 
@@ -169,13 +171,16 @@ class RayTracer:
         use closest_hit for rays from outside)."""
         return self.scene.run(origins32, directions32, query="INTERSECT").astype(np.int64)
 
-    def first_hits(self, origins32: np.ndarray, directions32: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def first_hits(
+        self, origins32: np.ndarray, directions32: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Closest hits in one Embree call on the calling thread, as Embree returns them: (triangle (N,) int32,
         -1 on a miss; u, v (N,) float32 barycentrics; t (N,) float32 distance along the unit direction,
         undefined on a miss). The photon tracer's fast path (it makes its own float32 rays and threads over work
         units); same preconditions as first_hit_triangles, and directions32 must be unit vectors."""
-        res = self.scene.run(origins32, directions32, dists=np.full(len(origins32), _FAR, np.float32),
-                             query="INTERSECT", output=1)
+        res = self.scene.run(
+            origins32, directions32, dists=np.full(len(origins32), _FAR, np.float32), query="INTERSECT", output=1
+        )
         return res["primID"], res["u"], res["v"], res["tfar"]
 
     def closest_hit(self, origins, directions, max_distance=None, threads: int | None = None) -> Hits:
@@ -198,7 +203,7 @@ class RayTracer:
         def work(a: int, b: int) -> None:
             o32 = _finite32("origins", o[a:b], a)
             d32 = _unit32("directions", d[a:b], a)
-            f32 = np.full(b - a, far, np.float32) if far.ndim == 0 else far[a:b]   # our copy: Embree overwrites it
+            f32 = np.full(b - a, far, np.float32) if far.ndim == 0 else far[a:b]  # our copy: Embree overwrites it
             res = self.scene.run(o32, d32, dists=f32, query="INTERSECT", output=1)
             prim = res["primID"]
             miss = prim < 0
@@ -276,7 +281,7 @@ class RayTracer:
             else:
                 o32 = _finite32("origins", o[a:b], a)
                 d32 = _unit32("directions", d[a:b], a)
-            f32 = np.full(b - a, far, np.float32) if far.ndim == 0 else far[a:b]   # our float32 copy
+            f32 = np.full(b - a, far, np.float32) if far.ndim == 0 else far[a:b]  # our float32 copy
             out[a:b] = self.scene.run(o32, d32, dists=f32, query="OCCLUDED") >= 0
 
         if n:

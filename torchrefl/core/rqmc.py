@@ -48,9 +48,9 @@ def grouped_points(n: int, groups: np.ndarray, rng: np.random.Generator, dim: in
     if M == 0:
         return np.zeros((0, dim))
     new = np.r_[True, groups[1:] != groups[:-1]]
-    gid = np.cumsum(new) - 1                                     # group of each member, 0..G-1
+    gid = np.cumsum(new) - 1  # group of each member, 0..G-1
     first = np.flatnonzero(new)
-    rank = np.arange(M) - first[gid]                             # position within its group
+    rank = np.arange(M) - first[gid]  # position within its group
     size = int(rank.max()) + 1
     if size == 1:
         return toroidal_shift(sobol_base(n, dim, rng), rng.random((M, dim)))

@@ -20,4 +20,3 @@ def thread_map(fn: Callable[[_U], _R], units: Sequence[_U], threads: int) -> lis
         return [fn(u) for u in units]
     with ThreadPoolExecutor(min(threads, len(units))) as pool:
         return list(pool.map(fn, units))
-

@@ -42,8 +42,9 @@ class ClosedForm:
     spec_determined: torch.Tensor
 
 
-def closed_form_pd(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tensor, usable: torch.Tensor,
-                   min_signal: float = 8.0 / 255.0):
+def closed_form_pd(
+    terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tensor, usable: torch.Tensor, min_signal: float = 8.0 / 255.0
+):
     """Eq. 3.3 over the T_diff observations. intensity (P, T, 3), cls (P, T), usable (P, T).
 
     With one T_diff observation this is the seed's Pd = C^2 i / (Y cos theta_d); with several it is
@@ -76,26 +77,39 @@ def closed_form_pd(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tensor
     return pd, from_diffuse, defined
 
 
-def closed_form_specular(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tensor, usable: torch.Tensor,
-                         pd: torch.Tensor, ps_channels: int = 3, sigma_min: float = 0.01, sigma_max: float = 0.6,
-                         min_specular: float = 2.0 / 255.0, min_spread_deg: float = 1.0):
+def closed_form_specular(
+    terms: LocalTerms,
+    intensity: torch.Tensor,
+    cls: torch.Tensor,
+    usable: torch.Tensor,
+    pd: torch.Tensor,
+    ps_channels: int = 3,
+    sigma_min: float = 0.01,
+    sigma_max: float = 0.6,
+    min_specular: float = 2.0 / 255.0,
+    min_spread_deg: float = 1.0,
+):
     """Eq. 3.4-3.5 (weighted line through ln a_k versus x_k). Returns ps (T, C), sigma (T,), determined (T,)."""
     model = terms.brdf
     dtype = terms.theta_h.dtype
     T = terms.theta_h.shape[1]
     if model == "lambertian":
-        return torch.zeros(T, ps_channels, dtype=dtype), torch.full((T,), sigma_max, dtype=dtype), torch.zeros(T, dtype=torch.bool)
-    spec_int = intensity - pd[None] * terms.diffuse                     # (P, T, 3)
+        return (
+            torch.zeros(T, ps_channels, dtype=dtype),
+            torch.full((T,), sigma_max, dtype=dtype),
+            torch.zeros(T, dtype=torch.bool),
+        )
+    spec_int = intensity - pd[None] * terms.diffuse  # (P, T, 3)
     B = terms.specular
     s_sum = spec_int.sum(-1)
     ok = (cls == T_SPEC) & usable & (B.min(-1).values > 0) & (s_sum > 3 * min_specular)
-    a = (spec_int / B.clamp_min(1e-30)).mean(-1).clamp_min(1e-30)       # (P, T) grey specular amplitude
+    a = (spec_int / B.clamp_min(1e-30)).mean(-1).clamp_min(1e-30)  # (P, T) grey specular amplitude
     if model == "torrance_sparrow":
-        x, c = terms.theta_h ** 2, 2.0
+        x, c = terms.theta_h**2, 2.0
     else:
         x, c = torch.tan(terms.theta_h.clamp_max(1.5)) ** 2, 1.0
     y = torch.log(a)
-    w = torch.where(ok, s_sum ** 2, torch.zeros_like(s_sum))
+    w = torch.where(ok, s_sum**2, torch.zeros_like(s_sum))
     S0, S1, S2 = w.sum(0), (w * x).sum(0), (w * x * x).sum(0)
     Sy, Sxy = (w * y).sum(0), (w * x * y).sum(0)
     det = S0 * S2 - S1 * S1
@@ -113,8 +127,8 @@ def closed_form_specular(terms: LocalTerms, intensity: torch.Tensor, cls: torch.
     determined &= (sigma >= sigma_min) & (sigma <= sigma_max)
     sigma = sigma.clamp(sigma_min, sigma_max)
     # Ps per channel: weighted mean over the usable observations of a_k,c / D(theta_k; sigma)
-    D = specular_lobe(model, terms.theta_h, sigma[None])                # (P, T)
-    a_c = spec_int / B.clamp_min(1e-30)                                 # (P, T, 3)
+    D = specular_lobe(model, terms.theta_h, sigma[None])  # (P, T)
+    a_c = spec_int / B.clamp_min(1e-30)  # (P, T, 3)
     wc = torch.where(ok, D * D, torch.zeros_like(D))[..., None]
     ps = (wc * a_c * D[..., None]).sum(0) / (wc * D[..., None] ** 2).sum(0).clamp_min(1e-30)
     if ps_channels == 1:

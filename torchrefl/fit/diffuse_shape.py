@@ -37,16 +37,30 @@ class DiffuseShape:
 
     @property
     def note(self) -> str:
-        return (f"diffuse: Minnaert k = {self.k:.4f} fitted on {self.observations} diffuse-only observations "
-                f"(mean squared residual {self.mse_8bit:.4g} DN^2 against {self.mse_lambert_8bit:.4g} for Lambert, k = 1)")
+        return (
+            f"diffuse: Minnaert k = {self.k:.4f} fitted on {self.observations} diffuse-only observations "
+            f"(mean squared residual {self.mse_8bit:.4g} DN^2 against {self.mse_lambert_8bit:.4g} for Lambert, k = 1)"
+        )
 
     def as_dict(self) -> dict:
-        return {"k": self.k, "mse_lambert_8bit": self.mse_lambert_8bit, "mse_8bit": self.mse_8bit,
-                "observations": self.observations}
+        return {
+            "k": self.k,
+            "mse_lambert_8bit": self.mse_lambert_8bit,
+            "mse_8bit": self.mse_8bit,
+            "observations": self.observations,
+        }
 
 
-def fit_minnaert_exponent(terms: LocalTerms, intensity: torch.Tensor, mask: torch.Tensor, *, low: float = K_LOW,
-                          high: float = K_HIGH, grid: int = 31, tol: float = 1e-4) -> DiffuseShape:
+def fit_minnaert_exponent(
+    terms: LocalTerms,
+    intensity: torch.Tensor,
+    mask: torch.Tensor,
+    *,
+    low: float = K_LOW,
+    high: float = K_HIGH,
+    grid: int = 31,
+    tol: float = 1e-4,
+) -> DiffuseShape:
     """Minnaert's k minimising E(k) (module docstring) over the observations in mask (P, T).
 
     terms: Lambertian local terms (diffuse_exponent 1); intensity (P, T, 3) measured.
@@ -56,12 +70,16 @@ def fit_minnaert_exponent(terms: LocalTerms, intensity: torch.Tensor, mask: torc
         raise ValueError("fit_minnaert_exponent needs Lambertian local terms (diffuse_exponent 1)")
     p, t = torch.nonzero(mask, as_tuple=True)
     if p.numel() == 0:
-        raise FitError("reflectance.diffuse: minnaert with a fitted k needs diffuse-only (T_diff) observations and "
-                       "the capture has none; set reflectance.minnaert_k to a value")
-    a = terms.diffuse[p, t].double()                  # (N, 3)
+        raise FitError(
+            "reflectance.diffuse: minnaert with a fitted k needs diffuse-only (T_diff) observations and "
+            "the capture has none; set reflectance.minnaert_k to a value"
+        )
+    a = terms.diffuse[p, t].double()  # (N, 3)
     i = intensity[p, t].double()
-    log_lv = (torch.log(terms.cos_l[p, t].double().clamp_min(COS_EPS))
-              + torch.log(terms.cos_v[p, t].double().clamp_min(COS_EPS)))[:, None]
+    log_lv = (
+        torch.log(terms.cos_l[p, t].double().clamp_min(COS_EPS))
+        + torch.log(terms.cos_v[p, t].double().clamp_min(COS_EPS))
+    )[:, None]
     T = int(mask.shape[1])
     sum_ii = float((i * i).sum())
     count = float(i.numel())
@@ -71,7 +89,7 @@ def fit_minnaert_exponent(terms: LocalTerms, intensity: torch.Tensor, mask: torc
         s_ai = torch.zeros(T, 3, dtype=torch.float64).index_add_(0, t, ak * i)
         s_aa = torch.zeros(T, 3, dtype=torch.float64).index_add_(0, t, ak * ak)
         used = s_aa > 0
-        return (sum_ii - float((s_ai[used] ** 2 / s_aa[used]).sum())) / count * 255.0 ** 2
+        return (sum_ii - float((s_ai[used] ** 2 / s_aa[used]).sum())) / count * 255.0**2
 
     ks = torch.linspace(low, high, grid, dtype=torch.float64).tolist()
     errs = [error(k) for k in ks]

@@ -17,10 +17,10 @@ from typing import Optional
 
 import torch
 
+from torchrefl.core.surface import Surface
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.interpolate import fill_undetermined
 from torchrefl.fit.profile_search import profile_search, sigma_grid
-from torchrefl.core.surface import Surface
 from torchrefl.transport.local import LocalTerms, predict
 
 COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND = 0, 1, 2, 3
@@ -44,9 +44,22 @@ class Initial:
     note: str
 
 
-def initialise_local(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tensor, n_spec: torch.Tensor,
-                     fit_mask: torch.Tensor, surface: Surface, *, ps_channels: int, sigma_min: float,
-                     sigma_max: float, ps_max: float, window: int, sigma_search: int, specular: str) -> Initial:
+def initialise_local(
+    terms: LocalTerms,
+    intensity: torch.Tensor,
+    cls: torch.Tensor,
+    n_spec: torch.Tensor,
+    fit_mask: torch.Tensor,
+    surface: Surface,
+    *,
+    ps_channels: int,
+    sigma_min: float,
+    sigma_max: float,
+    ps_max: float,
+    window: int,
+    sigma_search: int,
+    specular: str,
+) -> Initial:
     """Closed forms, sigma search and interpolation; see the module docstring."""
     cf = closed_form(terms, intensity, cls, fit_mask, ps_channels, sigma_min, sigma_max)
     defined = cf.pd_defined
@@ -59,7 +72,9 @@ def initialise_local(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tens
     if sigma_search > 0 and terms.brdf != "lambertian":
         grid = sigma_grid(sigma_min, sigma_max, sigma_search)
         if specular in ("shared", "pooled"):
-            pd_g, ps_g, sg_g, _ = profile_search(terms, intensity, fit_mask, grid, ps_channels, shared=True, ps_max=ps_max)
+            pd_g, ps_g, sg_g, _ = profile_search(
+                terms, intensity, fit_mask, grid, ps_channels, shared=True, ps_max=ps_max
+            )
             shared_lobe = (ps_g[:1].to(ps.dtype), sg_g[:1].to(sigma.dtype))
         if specular == "shared":
             pd, ps, sigma = pd_g.to(pd.dtype), ps_g.to(ps.dtype), sg_g.to(sigma.dtype)
@@ -81,8 +96,12 @@ def initialise_local(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tens
                 note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, sigma {float(shared_lobe[1][0]):.4f}"
     if known.any():
         grid_vals = surface.to_grid(torch.cat([ps, sigma[:, None]], 1).double())
-        filled, _ = fill_undetermined(torch.from_numpy(grid_vals), torch.from_numpy(surface.to_grid(known.numpy(), fill=False)),
-                                      torch.from_numpy(surface.to_grid(defined.numpy(), fill=False)), window=window)
+        filled, _ = fill_undetermined(
+            torch.from_numpy(grid_vals),
+            torch.from_numpy(surface.to_grid(known.numpy(), fill=False)),
+            torch.from_numpy(surface.to_grid(defined.numpy(), fill=False)),
+            window=window,
+        )
         flat = surface.from_grid(filled.numpy()).to(ps.dtype)
         ps = torch.where(known[:, None], ps, flat[:, :-1])
         sigma = torch.where(known, sigma, flat[:, -1])
@@ -95,9 +114,12 @@ def initialise_local(terms: LocalTerms, intensity: torch.Tensor, cls: torch.Tens
     coverage[defined] = COVER_PD_ONLY
     coverage[defined & ~cf.pd_from_diffuse] = COVER_PD_BOUND
     coverage[known & defined] = COVER_FULL
-    head = (f"closed form: Pd from eq. 3.3 at {int(cf.pd_from_diffuse.sum())} texels, bound at "
-            f"{int((defined & ~cf.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at {int(cf.spec_determined.sum())}; "
-            f"Ps/sigma known at {int((known & defined).sum())} of {surface.num_texels} texels, the rest interpolated "
-            f"(W = {window}); {note}")
-    return Initial(pd, ps, sigma, known & defined, defined, coverage, cf.pd_from_diffuse, cf.spec_determined,
-                   shared_lobe, head)
+    head = (
+        f"closed form: Pd from eq. 3.3 at {int(cf.pd_from_diffuse.sum())} texels, bound at "
+        f"{int((defined & ~cf.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at {int(cf.spec_determined.sum())}; "
+        f"Ps/sigma known at {int((known & defined).sum())} of {surface.num_texels} texels, the rest interpolated "
+        f"(W = {window}); {note}"
+    )
+    return Initial(
+        pd, ps, sigma, known & defined, defined, coverage, cf.pd_from_diffuse, cf.spec_determined, shared_lobe, head
+    )

@@ -14,15 +14,16 @@ import torch
 from kornia.filters import box_blur
 
 
-def fill_undetermined(grid: torch.Tensor, known: torch.Tensor, inside: torch.Tensor, window: int = 5,
-                      max_passes: int = 8) -> tuple[torch.Tensor, torch.Tensor]:
+def fill_undetermined(
+    grid: torch.Tensor, known: torch.Tensor, inside: torch.Tensor, window: int = 5, max_passes: int = 8
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Fill grid values (H, W, C) where `known` (H, W) is False and `inside` (H, W) is True.
 
     Returns the filled grid and a (H, W) int8 map of how each texel was obtained:
     0 outside, 1 determined, 2 window mean, 3 row interpolation, 4 global median.
     """
     H, W, C = grid.shape
-    g = grid.permute(2, 0, 1)[None].to(torch.float64)                     # (1, C, H, W)
+    g = grid.permute(2, 0, 1)[None].to(torch.float64)  # (1, C, H, W)
     k = (known & inside).to(torch.float64)[None, None]
     how = torch.zeros(H, W, dtype=torch.int8)
     how[known & inside] = 1

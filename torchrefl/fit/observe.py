@@ -37,8 +37,9 @@ def observe(cfg: Config, surface: Surface, obs: Observations, held: torch.Tensor
     geometric_ok = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light)
     fit_mask = geometric_ok & ~held[:, None]
     eval_mask = geometric_ok & held[:, None]
-    require_fit_observations(fit_mask, obs.valid, terms.cos_v, terms.cos_l, held, rc.min_cos_view, rc.min_cos_light,
-                             obs.source)
+    require_fit_observations(
+        fit_mask, obs.valid, terms.cos_v, terms.cos_l, held, rc.min_cos_view, rc.min_cos_light, obs.source
+    )
     classes = classify(terms.theta_h, fit_mask, rc.theta_diffuse_deg, rc.theta_specular_deg)
     diffuse = DiffuseModel(rc.diffuse)
     if rc.diffuse == "minnaert":
@@ -50,6 +51,13 @@ def observe(cfg: Config, surface: Surface, obs: Observations, held: torch.Tensor
             diffuse = DiffuseModel(rc.diffuse, float(rc.minnaert_k), False)
             log(f"diffuse: Minnaert k = {rc.minnaert_k} (reflectance.minnaert_k)")
         terms = local_terms(rc.brdf, surface.normals, obs, diffuse_exponent=diffuse.k)
-    options = dict(ps_channels=rc.ps_channels, sigma_min=rc.sigma_min, sigma_max=rc.sigma_max, ps_max=rc.ps_max,
-                   window=fc.interpolation_window, sigma_search=fc.sigma_search, specular=fc.specular)
+    options = dict(
+        ps_channels=rc.ps_channels,
+        sigma_min=rc.sigma_min,
+        sigma_max=rc.sigma_max,
+        ps_max=rc.ps_max,
+        window=fc.interpolation_window,
+        sigma_search=fc.sigma_search,
+        specular=fc.specular,
+    )
     return Observed(terms, fit_mask, eval_mask, classes, class_counts(classes), diffuse, options)

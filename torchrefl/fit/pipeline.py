@@ -31,8 +31,10 @@ def held_out(holdout: list, num_lights: int) -> torch.Tensor:
     """(P,) bool: the lights fit.holdout names (a ConfigError for an index the capture does not have)."""
     bad = [i for i in holdout if i >= num_lights]
     if bad:
-        raise ConfigError(f"fit.holdout: light indices {bad} out of range (the capture has {num_lights} lights, "
-                          f"indices 0..{num_lights - 1})")
+        raise ConfigError(
+            f"fit.holdout: light indices {bad} out of range (the capture has {num_lights} lights, "
+            f"indices 0..{num_lights - 1})"
+        )
     held = torch.zeros(num_lights, dtype=torch.bool)
     held[list(holdout)] = True
     return held
@@ -47,8 +49,10 @@ def emitter_source(cfg: Config, inputs: LevelInputs, init, log) -> torch.Tensor 
     filled = int((source != torch.arange(inputs.surface.num_texels)).sum())
     if not filled:
         return None
-    log(f"interreflection: {filled} texels without a fitted observation reflect with the parameters of "
-        "the nearest fitted texel")
+    log(
+        f"interreflection: {filled} texels without a fitted observation reflect with the parameters of "
+        "the nearest fitted texel"
+    )
     return source
 
 
@@ -59,14 +63,27 @@ def objective_factory(cfg: Config, inputs: LevelInputs, init):
     prior_weight = 0.0 if fc.specular == "shared" else fc.prior_weight
     priors = [Prior((~init.known).to(device), init.ps.to(device), init.sigma.to(device), prior_weight)]
     if fc.specular == "pooled" and init.shared_lobe is not None:
-        priors.append(Prior(torch.ones(T, dtype=torch.bool, device=device), init.shared_lobe[0].expand(T, -1).to(device),
-                            init.shared_lobe[1].expand(T).to(device), fc.pooling))
+        priors.append(
+            Prior(
+                torch.ones(T, dtype=torch.bool, device=device),
+                init.shared_lobe[0].expand(T, -1).to(device),
+                init.shared_lobe[1].expand(T).to(device),
+                fc.pooling,
+            )
+        )
     s = inputs.surface
     neighbours = grid_neighbours(s.texel_index, s.grid_shape).to(device) if fc.smoothness > 0 else None
     intensity = inputs.obs.intensity.to(device)
-    return lambda predict, mask: Objective(predict=predict, intensity=intensity, weight=mask.to(device), loss=fc.loss,
-                                           loss_scale_8bit=fc.loss_scale_8bit, priors=priors, smoothness=fc.smoothness,
-                                           neighbours=neighbours)
+    return lambda predict, mask: Objective(
+        predict=predict,
+        intensity=intensity,
+        weight=mask.to(device),
+        loss=fc.loss,
+        loss_scale_8bit=fc.loss_scale_8bit,
+        priors=priors,
+        smoothness=fc.smoothness,
+        neighbours=neighbours,
+    )
 
 
 def refit(level: TransportLevel, params: TexelParams, make_objective, cfg: Config) -> list[float]:
@@ -77,11 +94,18 @@ def refit(level: TransportLevel, params: TexelParams, make_objective, cfg: Confi
         for step in level.steps(k):
             train = None if step.train is None else [getattr(params, name) for name in step.train]
             with bar(step.iterations, step.label, cfg.output.progress) as pb:
-                history += refine(params, make_objective(level.predict, step.mask), fc.optimizer, step.iterations,
-                                  fc.learning_rate, progress=pb, train=train)
+                history += refine(
+                    params,
+                    make_objective(level.predict, step.mask),
+                    fc.optimizer,
+                    step.iterations,
+                    fc.learning_rate,
+                    progress=pb,
+                    train=train,
+                )
         level.refresh(params, k + 1)
     level.finish(params)
-    if not history:                                   # no refit (e.g. photon.outer_iterations 0): the start's loss
+    if not history:  # no refit (e.g. photon.outer_iterations 0): the start's loss
         with torch.no_grad():
             history = [float(make_objective(level.predict, level.inputs.fit_mask)(params))]
     return history
@@ -91,10 +115,18 @@ def level_inputs(cfg: Config, capture: Capture, log, device: torch.device = torc
     """What every level is built from (LevelInputs), and the observation summary (Observed) behind it."""
     held = held_out(cfg.fit.holdout, capture.obs.num_lights)
     seen = observe(cfg, capture.surface, capture.obs, held, log)
-    start = partial(initialise_local, seen.terms, cls=seen.classes, n_spec=seen.counts["T_spec"], fit_mask=seen.fit_mask,
-                    surface=capture.surface, **seen.initialise_options)
-    inputs = LevelInputs(cfg, capture.surface, capture.obs, seen.terms, seen.classes, seen.fit_mask, seen.eval_mask,
-                         device, log, start)
+    start = partial(
+        initialise_local,
+        seen.terms,
+        cls=seen.classes,
+        n_spec=seen.counts["T_spec"],
+        fit_mask=seen.fit_mask,
+        surface=capture.surface,
+        **seen.initialise_options,
+    )
+    inputs = LevelInputs(
+        cfg, capture.surface, capture.obs, seen.terms, seen.classes, seen.fit_mask, seen.eval_mask, device, log, start
+    )
     return inputs, seen
 
 
@@ -119,17 +151,39 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
     log(f"transport level: {level.name} ({level.reason})")
     with stages.stage("fit"):
         dt = obs.intensity.dtype
-        params = TexelParams(init.pd.to(dt), init.ps.to(dt), init.sigma.to(dt), rc.sigma_min, rc.sigma_max,
-                             shared_specular=cfg.fit.specular == "shared", ps_max=rc.ps_max).to(device)
+        params = TexelParams(
+            init.pd.to(dt),
+            init.ps.to(dt),
+            init.sigma.to(dt),
+            rc.sigma_min,
+            rc.sigma_max,
+            shared_specular=cfg.fit.specular == "shared",
+            ps_max=rc.ps_max,
+        ).to(device)
         history = refit(level, params, objective_factory(cfg, inputs, init), cfg)
         with torch.no_grad():
             pd, ps, sigma = (x.detach() for x in params.values())
             predicted = level.predict(pd, ps, sigma).cpu()
     log(f"refinement ({cfg.fit.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
     return FitResult(
-        pd=pd.cpu(), ps=ps.cpu(), sigma=sigma.cpu(), predicted=predicted, fit_mask=seen.fit_mask,
-        eval_mask=seen.eval_mask, counts=seen.counts, coverage=init.coverage, estimated=init.defined,
-        init_counts={"pd_closed_form": int(init.pd_from_diffuse.sum()), "spec_closed_form": int(init.spec_closed_form.sum()),
-                     "spec_known": int(init.known.sum())},
-        history=history, level=level.name, model_reason=level.reason, diffuse=seen.diffuse,
-        model_numbers=level.model_numbers, photon=level.report())
+        pd=pd.cpu(),
+        ps=ps.cpu(),
+        sigma=sigma.cpu(),
+        predicted=predicted,
+        fit_mask=seen.fit_mask,
+        eval_mask=seen.eval_mask,
+        counts=seen.counts,
+        coverage=init.coverage,
+        estimated=init.defined,
+        init_counts={
+            "pd_closed_form": int(init.pd_from_diffuse.sum()),
+            "spec_closed_form": int(init.spec_closed_form.sum()),
+            "spec_known": int(init.known.sum()),
+        },
+        history=history,
+        level=level.name,
+        model_reason=level.reason,
+        diffuse=seen.diffuse,
+        model_numbers=level.model_numbers,
+        photon=level.report(),
+    )

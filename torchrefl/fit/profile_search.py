@@ -27,8 +27,15 @@ def sigma_grid(sigma_min: float, sigma_max: float, count: int) -> torch.Tensor:
     return torch.exp(torch.linspace(math.log(sigma_min), math.log(sigma_max), count, dtype=torch.float64))
 
 
-def profile_search(terms: LocalTerms, intensity: torch.Tensor, mask: torch.Tensor, sigmas: torch.Tensor,
-                   ps_channels: int = 3, shared: bool = False, ps_max: float = float("inf")):
+def profile_search(
+    terms: LocalTerms,
+    intensity: torch.Tensor,
+    mask: torch.Tensor,
+    sigmas: torch.Tensor,
+    ps_channels: int = 3,
+    shared: bool = False,
+    ps_max: float = float("inf"),
+):
     """Best (pd (T, 3), ps (T, C), sigma (T,), error (T,)) over the sigma grid.
 
     intensity (P, T, 3); mask (P, T) fitted observations. shared=True picks one sigma and one Ps
@@ -38,7 +45,7 @@ def profile_search(terms: LocalTerms, intensity: torch.Tensor, mask: torch.Tenso
     w = mask.to(dt)[..., None]
     A = terms.diffuse * w
     i = intensity * w
-    S_AA = (A * A).sum(0).clamp_min(1e-30)                    # (T, 3)
+    S_AA = (A * A).sum(0).clamp_min(1e-30)  # (T, 3)
     S_Ai = (A * i).sum(0)
     S_ii = (i * i).sum(0)
     uu = S_ii - S_Ai * S_Ai / S_AA
@@ -49,9 +56,9 @@ def profile_search(terms: LocalTerms, intensity: torch.Tensor, mask: torch.Tenso
         uv = (E * i).sum(0) - S_AE * S_Ai / S_AA
         vv = ((E * E).sum(0) - S_AE * S_AE / S_AA).clamp_min(0)
         if shared:
-            red = lambda x: x.sum(0, keepdim=True)              # (1, 3)
+            red = lambda x: x.sum(0, keepdim=True)  # (1, 3)
         else:
-            red = lambda x: x                                    # (T, 3)
+            red = lambda x: x  # (T, 3)
         g_uv, g_vv = red(uv), red(vv)
         if ps_channels == 1:
             g_uv, g_vv = g_uv.sum(-1, keepdim=True), g_vv.sum(-1, keepdim=True)
@@ -59,7 +66,7 @@ def profile_search(terms: LocalTerms, intensity: torch.Tensor, mask: torch.Tenso
         ps = torch.where(g_vv > 0, ps, torch.zeros_like(ps))
         ps_full = ps.expand(uv.shape[0], 3) if ps.shape[-1] == 1 or shared else ps
         ps_full = ps_full.expand(uv.shape[0], 3)
-        err = (uu - 2 * ps_full * uv + ps_full * ps_full * vv).sum(-1)   # (T,)
+        err = (uu - 2 * ps_full * uv + ps_full * ps_full * vv).sum(-1)  # (T,)
         pd = ((S_Ai - ps_full * S_AE) / S_AA).clamp_min(0)
         sig = torch.full((uv.shape[0],), s, dtype=dt)
         ps_out = ps.expand(uv.shape[0], ps.shape[-1]).clone()

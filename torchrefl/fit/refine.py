@@ -17,9 +17,9 @@ from typing import Callable, Optional
 
 import torch
 
-from torchrefl.errors import FitError
 from torchrefl.core.params import TexelParams
 from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.errors import FitError
 
 _LOG_EPS = 1e-3
 
@@ -68,8 +68,10 @@ class Objective:
         self._w = self.weight.to(self.intensity.dtype)[..., None]
         self._count = float(self.weight.sum()) * self.intensity.shape[-1]
         if self._count == 0:
-            raise FitError("nothing to fit: the objective's observation mask selects no observation (the capture's "
-                           "loader and fit.fit_observations.require_fit_observations say which filter removed them)")
+            raise FitError(
+                "nothing to fit: the objective's observation mask selects no observation (the capture's "
+                "loader and fit.fit_observations.require_fit_observations say which filter removed them)"
+            )
 
     def __call__(self, params: TexelParams) -> torch.Tensor:
         pd, ps, sigma = params.values()
@@ -82,7 +84,7 @@ class Objective:
             m = prior.mask
             d_ps = torch.log(ps[m] + _LOG_EPS) - torch.log(prior.ps[m] + _LOG_EPS)
             d_sg = torch.log(sigma[m] / prior.sigma[m])
-            total = total + prior.weight * ((d_ps ** 2).sum(-1) + d_sg ** 2).mean()
+            total = total + prior.weight * ((d_ps**2).sum(-1) + d_sg**2).mean()
         if self.smoothness > 0 and self.neighbours is not None and len(self.neighbours):
             i, j = self.neighbours[:, 0], self.neighbours[:, 1]
             lp = torch.log(ps + _LOG_EPS)
@@ -90,12 +92,19 @@ class Objective:
             # index_select: a deterministic backward (see transport.photon_level.indirect_radiance)
             dp = lp.index_select(0, i) - lp.index_select(0, j)
             ds = ls.index_select(0, i) - ls.index_select(0, j)
-            total = total + self.smoothness * ((dp ** 2).sum(-1) + ds ** 2).mean()
+            total = total + self.smoothness * ((dp**2).sum(-1) + ds**2).mean()
         return total
 
 
-def refine(params: TexelParams, objective: Objective, optimizer: str = "lbfgs", iterations: int = 60,
-           learning_rate: float = 0.05, progress=None, train=None) -> list[float]:
+def refine(
+    params: TexelParams,
+    objective: Objective,
+    optimizer: str = "lbfgs",
+    iterations: int = 60,
+    learning_rate: float = 0.05,
+    progress=None,
+    train=None,
+) -> list[float]:
     """Minimise the objective in place; returns the loss history (one value per iteration).
 
     train: the raw tensors to optimise (default all of params); the others stay fixed.
@@ -118,9 +127,16 @@ def _minimise(params, objective, optimizer, iterations, learning_rate, progress,
             history.append(float(objective(params)))
         return history
     if optimizer == "lbfgs":
-        opt = torch.optim.LBFGS(train, lr=1.0, max_iter=iterations, max_eval=int(iterations * 1.5),
-                                history_size=20, tolerance_grad=1e-10, tolerance_change=1e-12,
-                                line_search_fn="strong_wolfe")
+        opt = torch.optim.LBFGS(
+            train,
+            lr=1.0,
+            max_iter=iterations,
+            max_eval=int(iterations * 1.5),
+            history_size=20,
+            tolerance_grad=1e-10,
+            tolerance_change=1e-12,
+            line_search_fn="strong_wolfe",
+        )
 
         def closure():
             opt.zero_grad()

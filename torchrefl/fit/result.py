@@ -14,7 +14,7 @@ class DiffuseModel:
     model: str = "lambert"
     k: float = 1.0
     fitted: bool = False
-    note: dict = field(default_factory=dict)       # the exponent fit's own numbers (minnaert, fitted)
+    note: dict = field(default_factory=dict)  # the exponent fit's own numbers (minnaert, fitted)
 
     def as_dict(self) -> dict:
         out = {"model": self.model, "k": self.k}
@@ -27,19 +27,19 @@ class DiffuseModel:
 class FitResult:
     """Per-texel estimate (T texels) and what the fit of a capture with P lights saw and did."""
 
-    pd: torch.Tensor                 # (T, 3)
-    ps: torch.Tensor                 # (T, C), C in {1, 3}
-    sigma: torch.Tensor              # (T,)
-    predicted: torch.Tensor          # (P, T, 3) the model's images at the estimate
-    fit_mask: torch.Tensor           # (P, T) observations fitted
-    eval_mask: torch.Tensor          # (P, T) held-out observations evaluated
-    counts: dict                     # T_diff, T_spec, T_none: (T,) observations per class
-    coverage: torch.Tensor           # (T,) how each texel was determined (report.maps codes)
-    estimated: torch.Tensor          # (T,) bool: texels with an estimate
-    init_counts: dict                # pd_closed_form, spec_closed_form, spec_known: texel counts of the start
-    history: list                    # loss per evaluation
-    level: str                       # the transport level used
-    model_reason: str                # why that level, and what it precomputed
+    pd: torch.Tensor  # (T, 3)
+    ps: torch.Tensor  # (T, C), C in {1, 3}
+    sigma: torch.Tensor  # (T,)
+    predicted: torch.Tensor  # (P, T, 3) the model's images at the estimate
+    fit_mask: torch.Tensor  # (P, T) observations fitted
+    eval_mask: torch.Tensor  # (P, T) held-out observations evaluated
+    counts: dict  # T_diff, T_spec, T_none: (T,) observations per class
+    coverage: torch.Tensor  # (T,) how each texel was determined (report.maps codes)
+    estimated: torch.Tensor  # (T,) bool: texels with an estimate
+    init_counts: dict  # pd_closed_form, spec_closed_form, spec_known: texel counts of the start
+    history: list  # loss per evaluation
+    level: str  # the transport level used
+    model_reason: str  # why that level, and what it precomputed
     diffuse: DiffuseModel
-    model_numbers: dict = field(default_factory=dict)   # auto's measured interreflection
-    photon: dict | None = None       # the photon level's per-refresh image differences and cache statistics
+    model_numbers: dict = field(default_factory=dict)  # auto's measured interreflection
+    photon: dict | None = None  # the photon level's per-refresh image differences and cache statistics

@@ -88,6 +88,7 @@ class RangeGeometry:
 
 # ----------------------------------------------------------------------------- checks
 
+
 def _check_range(r, valid, name_r: str = "r", name_valid: str = "valid") -> None:
     if not isinstance(r, torch.Tensor):
         raise GeometryError(f"argument '{name_r}': expected a torch.Tensor (H, W), got {type(r).__name__}")
@@ -101,7 +102,8 @@ def _check_range(r, valid, name_r: str = "r", name_valid: str = "valid") -> None
         raise GeometryError(f"argument '{name_valid}': expected dtype torch.bool, got {valid.dtype}")
     if tuple(valid.shape) != tuple(r.shape):
         raise GeometryError(
-            f"argument '{name_valid}': shape {tuple(valid.shape)} does not match '{name_r}' {tuple(r.shape)}")
+            f"argument '{name_valid}': shape {tuple(valid.shape)} does not match '{name_r}' {tuple(r.shape)}"
+        )
     if valid.device != r.device:
         raise GeometryError(f"argument '{name_valid}': on {valid.device}, '{name_r}' on {r.device}")
     if not bool(valid.any()):
@@ -109,8 +111,10 @@ def _check_range(r, valid, name_r: str = "r", name_valid: str = "valid") -> None
     bad = valid & ~torch.isfinite(r)
     if bool(bad.any()):
         k = int(bad.sum())
-        raise GeometryError(f"argument '{name_r}': {k} pixels inside the valid mask are NaN or inf "
-                            f"(expected finite ranges where '{name_valid}' is True)")
+        raise GeometryError(
+            f"argument '{name_r}': {k} pixels inside the valid mask are NaN or inf "
+            f"(expected finite ranges where '{name_valid}' is True)"
+        )
 
 
 def _check_odd(value, name: str, minimum: int = 1) -> int:
@@ -160,6 +164,7 @@ def _check_like(x, ref: torch.Tensor, name: str) -> None:
 
 # ----------------------------------------------------------------------------- helpers
 
+
 def _pad(x: torch.Tensor, h: int, wrap: bool, fill: float) -> torch.Tensor:
     """(H, W) -> (H + 2h, W + 2h): rows padded with `fill`, columns circular (wrap) or `fill`."""
     if wrap:
@@ -208,8 +213,10 @@ def _evaluate(coef: torch.Tensor, u: torch.Tensor, v: torch.Tensor):
 
 # ----------------------------------------------------------------------------- median
 
-def median_filter_range(r: torch.Tensor, valid: torch.Tensor, size: int = 5, *, wrap: bool = False,
-                        symmetric: bool = True) -> torch.Tensor:
+
+def median_filter_range(
+    r: torch.Tensor, valid: torch.Tensor, size: int = 5, *, wrap: bool = False, symmetric: bool = True
+) -> torch.Tensor:
     """Median over the valid pixels of each size x size window (step 1 of section 2.3).
 
     r: (H, W) float32/float64 range, mm; valid: (H, W) bool. Invalid neighbours (and pixels
@@ -248,8 +255,18 @@ def median_filter_range(r: torch.Tensor, valid: torch.Tensor, size: int = 5, *, 
 
 # ----------------------------------------------------------------------------- quadratic fit
 
-def fit_quadratic_yokoya_levine(r: torch.Tensor, valid: torch.Tensor, ds: float, dt: float, window: int = 5, *,
-                                wrap: bool = False, adaptive: bool = True, noise_tolerance: float = 0.0) -> QuadraticFit:
+
+def fit_quadratic_yokoya_levine(
+    r: torch.Tensor,
+    valid: torch.Tensor,
+    ds: float,
+    dt: float,
+    window: int = 5,
+    *,
+    wrap: bool = False,
+    adaptive: bool = True,
+    noise_tolerance: float = 0.0,
+) -> QuadraticFit:
     """Yokoya-Levine adaptive local quadratic fit (eq. 2.5-2.8), evaluated at each pixel.
 
     r: (H, W) float32/float64 range, mm; valid: (H, W) bool; ds: column step, radians;
@@ -300,31 +317,33 @@ def fit_quadratic_yokoya_levine(r: torch.Tensor, valid: torch.Tensor, ds: float,
     if H < k or W < k:
         raise GeometryError(f"argument 'r': shape {(H, W)} is smaller than the {k} x {k} fitting window")
     if wrap and abs(W * ds - 2 * math.pi) > 0.01 * ds:
-        raise GeometryError(f"argument 'wrap': wrap=True needs W * ds = 2 pi (a full turn), got "
-                            f"W * ds = {W * ds:.6g} rad for W = {W}, ds = {ds:.6g}")
+        raise GeometryError(
+            f"argument 'wrap': wrap=True needs W * ds = 2 pi (a full turn), got "
+            f"W * ds = {W * ds:.6g} rad for W = {W}, ds = {ds:.6g}"
+        )
     h = k // 2
     dtype, device = r.dtype, r.device
     nan = float("nan")
     r0 = torch.where(valid, r, torch.zeros_like(r))  # invalid values never enter any product
 
     A, uu, vv = _design(k, dtype, device)
-    P = torch.linalg.pinv(A)                       # (6, k*k)
-    M = torch.eye(k * k, dtype=dtype, device=device) - A @ P   # residual projector
+    P = torch.linalg.pinv(A)  # (6, k*k)
+    M = torch.eye(k * k, dtype=dtype, device=device) - A @ P  # residual projector
 
     # every window centred on every pixel (centres outside the image are never fully valid)
-    patches = _windows(_pad(r0, h, wrap, 0.0), k)                       # (k*k, H, W)
+    patches = _windows(_pad(r0, h, wrap, 0.0), k)  # (k*k, H, W)
     full = _windows(_pad(valid.to(dtype), h, wrap, 0.0), k).amin(0) > 0.5  # (H, W)
     centre = patches[(k * k) // 2]
     rel = patches - centre
-    coef = torch.einsum("pk,khw->phw", P, rel)                          # (6, H, W)
-    res = torch.einsum("jk,khw->jhw", M, rel).square().sum(0)           # (H, W)
+    coef = torch.einsum("pk,khw->phw", P, rel)  # (6, H, W)
+    res = torch.einsum("jk,khw->jhw", M, rel).square().sum(0)  # (H, W)
     inf = torch.tensor(float("inf"), dtype=dtype, device=device)
     res = torch.where(full, res, inf)
 
     # candidate windows of each pixel: centre = pixel - offset
     offsets = _offsets(k, adaptive)
     res_pad = _pad(res, h, wrap, float("inf"))
-    cand = torch.stack([res_pad[h - dv:h - dv + H, h - du:h - du + W] for dv, du in offsets])  # (K, H, W)
+    cand = torch.stack([res_pad[h - dv : h - dv + H, h - du : h - du + W] for dv, du in offsets])  # (K, H, W)
     best_res, best = cand.min(dim=0)
     if noise_tolerance > 0 and adaptive and bool((full & (res > 0)).any()):
         # accept the most centred window whose residual is within the noise of the best one;
@@ -334,14 +353,14 @@ def fit_quadratic_yokoya_levine(r: torch.Tensor, valid: torch.Tensor, ds: float,
         accept = cand <= (best_res + noise_tolerance * (k * k - 6) * sigma2)[None]
         best = accept.to(torch.uint8).argmax(dim=0)
         best_res = torch.where(torch.isfinite(best_res), cand.gather(0, best[None])[0], best_res)
-    off = torch.tensor(offsets, dtype=torch.long, device=device)       # (K, 2) (dv, du)
-    dv_b, du_b = off[best, 0], off[best, 1]                            # (H, W)
+    off = torch.tensor(offsets, dtype=torch.long, device=device)  # (K, 2) (dv, du)
+    dv_b, du_b = off[best, 0], off[best, 1]  # (H, W)
     rows = torch.arange(H, device=device)[:, None]
     cols = torch.arange(W, device=device)[None, :]
     crow = (rows - dv_b).clamp(0, H - 1)
     ccol = cols - du_b
     ccol = ccol % W if wrap else ccol.clamp(0, W - 1)
-    cf = coef[:, crow, ccol]                                           # (6, H, W)
+    cf = coef[:, crow, ccol]  # (6, H, W)
     value, d_u, d_v = _evaluate(cf, du_b.to(dtype), dv_b.to(dtype))
     value = value + centre[crow, ccol]
 
@@ -356,7 +375,7 @@ def fit_quadratic_yokoya_levine(r: torch.Tensor, valid: torch.Tensor, ds: float,
     if bool(need.any()):
         idx = need.flatten().nonzero().squeeze(1)
         for start in range(0, idx.numel(), _FALLBACK_CHUNK):
-            chunk = idx[start:start + _FALLBACK_CHUNK]
+            chunk = idx[start : start + _FALLBACK_CHUNK]
             got = _fallback_fit(r0, valid, chunk, offsets, A, uu, vv, k, wrap)
             fit_ok, fv, fu, fvv, fres = got
             rr, cc = chunk // W, chunk % W
@@ -366,8 +385,7 @@ def fit_quadratic_yokoya_levine(r: torch.Tensor, valid: torch.Tensor, ds: float,
             residual[rr, cc] = torch.where(fit_ok, fres, nan)
             fallback[rr, cc] = fit_ok
     fit_valid = ok | fallback
-    return QuadraticFit(r_hat=r_hat, r_s=r_u / ds, r_t=r_v / dt, residual=residual, valid=fit_valid,
-                        fallback=fallback)
+    return QuadraticFit(r_hat=r_hat, r_s=r_u / ds, r_t=r_v / dt, residual=residual, valid=fit_valid, fallback=fallback)
 
 
 def _fallback_fit(r0, valid, pix, offsets, A, uu, vv, k, wrap):
@@ -380,13 +398,13 @@ def _fallback_fit(r0, valid, pix, offsets, A, uu, vv, k, wrap):
     dtype, device = r0.dtype, r0.device
     N = pix.numel()
     prow, pcol = pix // W, pix % W
-    off = torch.tensor(offsets, dtype=torch.long, device=device)      # (K, 2)
+    off = torch.tensor(offsets, dtype=torch.long, device=device)  # (K, 2)
     K = off.shape[0]
-    crow = prow[:, None] - off[None, :, 0]                             # (N, K)
+    crow = prow[:, None] - off[None, :, 0]  # (N, K)
     ccol = pcol[:, None] - off[None, :, 1]
     ki = torch.arange(-h, h + 1, device=device)
-    wr = crow[..., None, None] + ki[:, None]                           # (N, K, k, 1)
-    wc = ccol[..., None, None] + ki[None, :]                           # (N, K, 1, k)
+    wr = crow[..., None, None] + ki[:, None]  # (N, K, k, 1)
+    wc = ccol[..., None, None] + ki[None, :]  # (N, K, 1, k)
     inside = (wr >= 0) & (wr < H)
     if wrap:
         wc = wc % W
@@ -395,28 +413,28 @@ def _fallback_fit(r0, valid, pix, offsets, A, uu, vv, k, wrap):
     wr_c, wc_c = wr.clamp(0, H - 1), wc.clamp(0, W - 1)
     wr_c, wc_c = torch.broadcast_tensors(wr_c, wc_c)
     inside = inside.expand_as(wr_c)
-    w = (valid[wr_c, wc_c] & inside).reshape(N, K, k * k)              # (N, K, k*k)
+    w = (valid[wr_c, wc_c] & inside).reshape(N, K, k * k)  # (N, K, k*k)
     z = r0[wr_c, wc_c].reshape(N, K, k * k)
-    z = z - r0[prow, pcol][:, None, None]                               # relative to the pixel's own range
+    z = z - r0[prow, pcol][:, None, None]  # relative to the pixel's own range
     wf = w.to(dtype)
     # weighted normal equations G c = A^T W z, G = A^T W A (6 x 6 per candidate window)
     outer = (A[:, :, None] * A[:, None, :]).reshape(k * k, 36)
     G = (wf @ outer).reshape(N, K, 6, 6)
-    lam = torch.linalg.eigvalsh(G)                                     # ascending
+    lam = torch.linalg.eigvalsh(G)  # ascending
     cond = (lam[..., -1] / lam[..., 0].clamp_min(torch.finfo(dtype).tiny)).sqrt()  # of sqrt(W) A
     count = w.sum(-1)
     usable = (count >= FALLBACK_MIN_POINTS) & (lam[..., 0] > 0) & (cond < FALLBACK_MAX_CONDITION)
     eye = torch.eye(6, dtype=dtype, device=device)
     G = torch.where(usable[..., None, None], G, eye)
-    coef = torch.linalg.solve(G, (z * wf) @ A)                         # (N, K, 6)
-    fitted = coef @ A.T                                                # (N, K, k*k)
-    res = ((z - fitted) * wf).square().sum(-1)                          # (N, K)
+    coef = torch.linalg.solve(G, (z * wf) @ A)  # (N, K, 6)
+    fitted = coef @ A.T  # (N, K, k*k)
+    res = ((z - fitted) * wf).square().sum(-1)  # (N, K)
     # most valid pixels first, then smallest residual
     big = res.max().clamp_min(1.0) * 10 + 1
     score = torch.where(usable, -count.to(dtype) * big + res, torch.full_like(res, float("inf")))
     best = score.argmin(dim=1)
     ok = torch.isfinite(score.gather(1, best[:, None]).squeeze(1))
-    cb = coef[torch.arange(N, device=device), best].T                   # (6, N)
+    cb = coef[torch.arange(N, device=device), best].T  # (6, N)
     dv_b = off[best, 0].to(dtype)
     du_b = off[best, 1].to(dtype)
     value, d_u, d_v = _evaluate(cb, du_b, dv_b)
@@ -426,6 +444,7 @@ def _fallback_fit(r0, valid, pix, offsets, A, uu, vv, k, wrap):
 
 # ----------------------------------------------------------------------------- geometry
 
+
 def cylindrical_points(r: torch.Tensor, s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     """Eq. 2.1: S(s, t) = (-r sin s, -t, -r cos s).
 
@@ -433,8 +452,10 @@ def cylindrical_points(r: torch.Tensor, s: torch.Tensor, t: torch.Tensor) -> tor
     Returns (H, W, 3) of r's dtype, mm (NaN where r is NaN).
     """
     if not isinstance(r, torch.Tensor) or r.ndim != 2 or r.dtype not in (torch.float32, torch.float64):
-        raise GeometryError(f"argument 'r': expected a float32/float64 torch.Tensor (H, W), got "
-                            f"{getattr(r, 'dtype', type(r).__name__)} {tuple(getattr(r, 'shape', ()))}")
+        raise GeometryError(
+            f"argument 'r': expected a float32/float64 torch.Tensor (H, W), got "
+            f"{getattr(r, 'dtype', type(r).__name__)} {tuple(getattr(r, 'shape', ()))}"
+        )
     H, W = r.shape
     s = _check_axis(s, W, "s", r)
     t = _check_axis(t, H, "t", r)
@@ -442,8 +463,9 @@ def cylindrical_points(r: torch.Tensor, s: torch.Tensor, t: torch.Tensor) -> tor
     return torch.stack([-r * sin, (-t)[:, None].expand(H, W), -r * cos], dim=-1)
 
 
-def cylindrical_normals(r: torch.Tensor, r_s: torch.Tensor, r_t: torch.Tensor, s: torch.Tensor,
-                        t: torch.Tensor) -> torch.Tensor:
+def cylindrical_normals(
+    r: torch.Tensor, r_s: torch.Tensor, r_t: torch.Tensor, s: torch.Tensor, t: torch.Tensor
+) -> torch.Tensor:
     """Unit outward normals N = S_t x S_s / |S_t x S_s| (eq. 2.3; eq. 2.4 as printed is garbled,
     see the module docstring):
 
@@ -455,8 +477,10 @@ def cylindrical_normals(r: torch.Tensor, r_s: torch.Tensor, r_t: torch.Tensor, s
     NaN where an input is NaN or the normal is undefined (r = r_s = 0).
     """
     if not isinstance(r, torch.Tensor) or r.ndim != 2 or r.dtype not in (torch.float32, torch.float64):
-        raise GeometryError(f"argument 'r': expected a float32/float64 torch.Tensor (H, W), got "
-                            f"{getattr(r, 'dtype', type(r).__name__)} {tuple(getattr(r, 'shape', ()))}")
+        raise GeometryError(
+            f"argument 'r': expected a float32/float64 torch.Tensor (H, W), got "
+            f"{getattr(r, 'dtype', type(r).__name__)} {tuple(getattr(r, 'shape', ()))}"
+        )
     _check_like(r_s, r, "r_s")
     _check_like(r_t, r, "r_t")
     H, W = r.shape
@@ -470,9 +494,20 @@ def cylindrical_normals(r: torch.Tensor, r_s: torch.Tensor, r_t: torch.Tensor, s
 
 # ----------------------------------------------------------------------------- the chain
 
-def preprocess_range_image(r: torch.Tensor, valid: torch.Tensor, *, s0: float, ds: float, t0: float, dt: float,
-                           median_size: int = 5, window: int = 5, wrap: bool = False,
-                           noise_tolerance: float = 0.0) -> RangeGeometry:
+
+def preprocess_range_image(
+    r: torch.Tensor,
+    valid: torch.Tensor,
+    *,
+    s0: float,
+    ds: float,
+    t0: float,
+    dt: float,
+    median_size: int = 5,
+    window: int = 5,
+    wrap: bool = False,
+    noise_tolerance: float = 0.0,
+) -> RangeGeometry:
     """Section 2.3: median filter, Yokoya-Levine quadratic fit, points and outward normals.
 
     r: (H, W) float32/float64 range, mm (values at invalid pixels are ignored);
@@ -496,8 +531,10 @@ def preprocess_range_image(r: torch.Tensor, valid: torch.Tensor, *, s0: float, d
     s = float(s0) + ds * torch.arange(W, dtype=r.dtype, device=r.device)
     t = float(t0) + dt * torch.arange(H, dtype=r.dtype, device=r.device)
     if wrap and abs(W * ds - 2 * math.pi) > 0.01 * ds:
-        raise GeometryError(f"argument 'wrap': wrap=True needs W * ds = 2 pi (a full turn), got "
-                            f"W * ds = {W * ds:.6g} rad for W = {W}, ds = {ds:.6g}")
+        raise GeometryError(
+            f"argument 'wrap': wrap=True needs W * ds = 2 pi (a full turn), got "
+            f"W * ds = {W * ds:.6g} rad for W = {W}, ds = {ds:.6g}"
+        )
     rm = median_filter_range(r, valid, median_size, wrap=wrap)
     fit = fit_quadratic_yokoya_levine(rm, valid, ds, dt, window, wrap=wrap, noise_tolerance=noise_tolerance)
     points = cylindrical_points(fit.r_hat, s, t)

@@ -7,8 +7,9 @@ import numpy as np
 from torchrefl.errors import GeometryError
 
 
-def grid_triangulation(points: np.ndarray, valid: np.ndarray, wrap: bool = False,
-                       max_edge_ratio: float = 6.0) -> tuple[np.ndarray, np.ndarray]:
+def grid_triangulation(
+    points: np.ndarray, valid: np.ndarray, wrap: bool = False, max_edge_ratio: float = 6.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Two triangles per grid quad whose four corners are valid.
 
     points: (H, W, 3) float; valid: (H, W) bool. Quads spanning a depth discontinuity
@@ -31,13 +32,17 @@ def grid_triangulation(points: np.ndarray, valid: np.ndarray, wrap: bool = False
     a, b, c, d = a[ok], b[ok], c[ok], d[ok]
     if a.size == 0:
         return verts, np.zeros((0, 3), dtype=np.int64)
-    edges = np.stack([
-        np.linalg.norm(verts[a] - verts[b], axis=-1), np.linalg.norm(verts[a] - verts[c], axis=-1),
-        np.linalg.norm(verts[d] - verts[b], axis=-1), np.linalg.norm(verts[d] - verts[c], axis=-1),
-        np.linalg.norm(verts[a] - verts[d], axis=-1) / np.sqrt(2.0),
-    ])
+    edges = np.stack(
+        [
+            np.linalg.norm(verts[a] - verts[b], axis=-1),
+            np.linalg.norm(verts[a] - verts[c], axis=-1),
+            np.linalg.norm(verts[d] - verts[b], axis=-1),
+            np.linalg.norm(verts[d] - verts[c], axis=-1),
+            np.linalg.norm(verts[a] - verts[d], axis=-1) / np.sqrt(2.0),
+        ]
+    )
     scale = np.median(edges[:4])
-    keep = (edges.max(axis=0) <= max_edge_ratio * max(scale, 1e-12))
+    keep = edges.max(axis=0) <= max_edge_ratio * max(scale, 1e-12)
     a, b, c, d = a[keep], b[keep], c[keep], d[keep]
     faces = np.concatenate([np.stack([a, c, b], -1), np.stack([b, c, d], -1)])
     return verts, faces.astype(np.int64)
@@ -57,7 +62,9 @@ def texel_areas(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.where(good, area, np.where(valid, fill, 0.0))
 
 
-def boundary_texels(faces: np.ndarray, grid_shape: tuple[int, int], texel_index: np.ndarray, width: int = 1) -> np.ndarray:
+def boundary_texels(
+    faces: np.ndarray, grid_shape: tuple[int, int], texel_index: np.ndarray, width: int = 1
+) -> np.ndarray:
     """(T,) bool: texels within `width` texels of the triangulated surface's boundary (the silhouette,
     holes, depth discontinuities that grid_triangulation left open).
 
@@ -94,8 +101,9 @@ def oriented_face_normals(vertices: np.ndarray, faces: np.ndarray, corner_normal
     return fn * np.where(side < 0, -1.0, 1.0)[:, None]
 
 
-def crease_texels(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, texel_index: np.ndarray,
-                  angle_deg: float | None) -> np.ndarray:
+def crease_texels(
+    vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, texel_index: np.ndarray, angle_deg: float | None
+) -> np.ndarray:
     """(T,) bool: texels on a crease, whose footprint spans two faces of the object (mixed pixels, like those at
     boundary_texels' edges): some mesh face around the texel's grid point is more than angle_deg from the
     texel's normal. On a 90-degree fold the texels whose grid point lies on the fold line meet faces of both
@@ -107,8 +115,9 @@ def crease_texels(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, 
     if angle_deg is None:
         return np.zeros(T, dtype=bool)
     if not 0.0 < float(angle_deg) < 180.0:
-        raise GeometryError(f"argument 'angle_deg' (geometry.crease_angle_deg): expected degrees in (0, 180), "
-                            f"got {angle_deg!r}")
+        raise GeometryError(
+            f"argument 'angle_deg' (geometry.crease_angle_deg): expected degrees in (0, 180), got {angle_deg!r}"
+        )
     faces = np.asarray(faces, dtype=np.int64)
     if not faces.size:
         return np.zeros(T, dtype=bool)
@@ -116,7 +125,7 @@ def crease_texels(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, 
     slot[np.asarray(texel_index, dtype=np.int64)] = np.arange(T)
     v = np.asarray(vertices, dtype=np.float64)
     n = np.asarray(normals, dtype=np.float64)
-    corner = slot[faces]                                          # (F, 3) texel of each corner, -1 if none
+    corner = slot[faces]  # (F, 3) texel of each corner, -1 if none
     fn = oriented_face_normals(v, faces, np.where(corner[..., None] >= 0, n[np.maximum(corner, 0)], 0.0))
     worst = np.ones(T)
     for c in range(3):

@@ -63,25 +63,35 @@ class SelectionResult:
 
     def to_json(self) -> dict:
         out = self.table()
-        out.update({
-            "chosen": [int(c) for c in self.chosen], "roles": list(self.roles),
-            "diffuse_curve": [float(x) for x in self.diffuse_curve],
-            "specular_curve": [float(x) for x in self.specular_curve],
-            "positions_mm": None if self.positions is None else np.asarray(self.positions)[self.chosen].tolist(),
-        })
+        out.update(
+            {
+                "chosen": [int(c) for c in self.chosen],
+                "roles": list(self.roles),
+                "diffuse_curve": [float(x) for x in self.diffuse_curve],
+                "specular_curve": [float(x) for x in self.specular_curve],
+                "positions_mm": None if self.positions is None else np.asarray(self.positions)[self.chosen].tolist(),
+            }
+        )
         return out
 
 
-def measurability(theta_h: np.ndarray, measurable: np.ndarray, theta_diffuse_deg: float = 60.0,
-                  theta_specular_deg: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
+def measurability(
+    theta_h: np.ndarray, measurable: np.ndarray, theta_diffuse_deg: float = 60.0, theta_specular_deg: float = 20.0
+) -> tuple[np.ndarray, np.ndarray]:
     """(P, T) bool diffuse-only (eq. 2.20) and strong-specular (eq. 2.21) masks."""
     diffuse = measurable & (theta_h > math.radians(theta_diffuse_deg))
     specular = measurable & (theta_h <= math.radians(theta_specular_deg))
     return diffuse, specular
 
 
-def greedy_select(diffuse: np.ndarray, specular: np.ndarray, seen: np.ndarray, stop_ratio: float = 0.8,
-                  max_lights: int = 20, num_lights: int | None = None) -> SelectionResult:
+def greedy_select(
+    diffuse: np.ndarray,
+    specular: np.ndarray,
+    seen: np.ndarray,
+    stop_ratio: float = 0.8,
+    max_lights: int = 20,
+    num_lights: int | None = None,
+) -> SelectionResult:
     """Greedy max-D / max-S selection over candidate masks (P, T) restricted to seen texels (T,)."""
     P = diffuse.shape[0]
     if num_lights is not None and not (1 <= num_lights <= P):
@@ -165,20 +175,23 @@ def plot_coverage(result: SelectionResult, path) -> None:
     plt.close(fig)
 
 
-def select_for_scan(geom, candidates: np.ndarray, selection_cfg, reflectance_cfg, shadow_offset: float) -> SelectionResult:
+def select_for_scan(
+    geom, candidates: np.ndarray, selection_cfg, reflectance_cfg, shadow_offset: float
+) -> SelectionResult:
     """Light selection for a cylindrical scan: candidate head-frame positions (P, 3) against the
     scan's Surface, with cast shadows from Embree (torchrefl.capture.cylindrical_scan.observation_geometry)."""
     import torch
 
-    from torchrefl.core.brdf import half_angle
     from torchrefl.capture.cylindrical_scan import observation_geometry
+    from torchrefl.core.brdf import half_angle
 
     og = observation_geometry(geom, candidates, shadow_offset=shadow_offset)
     n = geom.surface.normals.float()[None]
     th = half_angle(n, torch.from_numpy(og["light_dir"]), torch.from_numpy(og["view_dir"])[None]).numpy()
     measurable = og["seen"][None] & (og["cos_l"] > 0) & ~og["shadowed"]
     dmask, smask = measurability(th, measurable, reflectance_cfg.theta_diffuse_deg, reflectance_cfg.theta_specular_deg)
-    sel = greedy_select(dmask, smask, og["seen"], selection_cfg.stop_ratio, selection_cfg.max_lights,
-                        selection_cfg.num_lights)
+    sel = greedy_select(
+        dmask, smask, og["seen"], selection_cfg.stop_ratio, selection_cfg.max_lights, selection_cfg.num_lights
+    )
     sel.positions = np.asarray(candidates)
     return sel

@@ -34,8 +34,15 @@ def _rgb(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def write_parameter_maps(folder: Path, mask: np.ndarray, pd: np.ndarray, ps: np.ndarray, sigma: np.ndarray,
-                         coverage: np.ndarray, sigma_max: float) -> dict:
+def write_parameter_maps(
+    folder: Path,
+    mask: np.ndarray,
+    pd: np.ndarray,
+    ps: np.ndarray,
+    sigma: np.ndarray,
+    coverage: np.ndarray,
+    sigma_max: float,
+) -> dict:
     """Write pd/ps/sigma/coverage PNGs into folder; returns the display scales used."""
     folder.mkdir(parents=True, exist_ok=True)
     m = mask[..., None]

@@ -45,7 +45,7 @@ def ground_truth_errors(pd, ps, sigma, truth: dict, estimated: torch.Tensor, spe
     s = spec_observed & estimated
     rmse = lambda a, b: float(torch.sqrt(((a - b) ** 2).mean())) if a.numel() else None
     ps_grey, tps_grey = ps.mean(-1), tps.mean(-1)
-    glossy = s & (tps_grey > 1e-3)          # relative errors only where the truth has a specular lobe
+    glossy = s & (tps_grey > 1e-3)  # relative errors only where the truth has a specular lobe
     rel_ps = ((ps_grey - tps_grey).abs() / tps_grey.clamp_min(1e-12))[glossy]
     rel_sg = ((sigma - tsg).abs() / tsg.clamp_min(1e-12))[glossy]
     return {

@@ -7,15 +7,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchrefl.version import __version__
 from torchrefl.capture.base import Capture
 from torchrefl.config import Config
+from torchrefl.core.atomic_files import atomic_file, atomic_write_text
 from torchrefl.core.progress import Stages
 from torchrefl.fit.result import FitResult
 from torchrefl.planning.light_selection import SelectionResult
-from torchrefl.core.atomic_files import atomic_file, atomic_write_text
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference, strict_json
+from torchrefl.version import __version__
 
 
 def write_params(path: Path, cfg: Config, cap: Capture, res: FitResult) -> None:
@@ -25,13 +25,20 @@ def write_params(path: Path, cfg: Config, cap: Capture, res: FitResult) -> None:
     with atomic_file(path) as fh:
         np.savez_compressed(
             fh,
-            pd=grid(res.pd.float()), ps=grid(res.ps.float()), sigma=grid(res.sigma.float()),
+            pd=grid(res.pd.float()),
+            ps=grid(res.ps.float()),
+            sigma=grid(res.sigma.float()),
             mask=surface.to_grid(res.estimated.numpy(), fill=False),
-            brdf=np.array(cfg.reflectance.brdf), positions=grid(surface.positions.float()),
-            normals=grid(surface.normals.float()), coverage=grid(res.coverage),
-            n_diffuse=grid(res.counts["T_diff"].to(torch.int16)), n_specular=grid(res.counts["T_spec"].to(torch.int16)),
-            kappa=obs.kappa.numpy(), units=np.array(surface.units),
-            diffuse=np.array(res.diffuse.model), minnaert_k=np.array(res.diffuse.k),
+            brdf=np.array(cfg.reflectance.brdf),
+            positions=grid(surface.positions.float()),
+            normals=grid(surface.normals.float()),
+            coverage=grid(res.coverage),
+            n_diffuse=grid(res.counts["T_diff"].to(torch.int16)),
+            n_specular=grid(res.counts["T_spec"].to(torch.int16)),
+            kappa=obs.kappa.numpy(),
+            units=np.array(surface.units),
+            diffuse=np.array(res.diffuse.model),
+            minnaert_k=np.array(res.diffuse.k),
         )
 
 
@@ -46,15 +53,24 @@ def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionRe
         **({"photon": res.photon} if res.photon else {}),
         "brdf": cfg.reflectance.brdf,
         "diffuse": {**res.diffuse.as_dict(), **({"k_true": cap.truth["minnaert_k"]} if cap.truth else {})},
-        "capture": {"kind": cfg.capture.kind, **{k: v for k, v in cap.stats.items() if isinstance(v, (int, float, str))},
-                    "warnings": list(cap.warnings)},
-        "texels": cap.surface.num_texels, "lights": obs.num_lights,
+        "capture": {
+            "kind": cfg.capture.kind,
+            **{k: v for k, v in cap.stats.items() if isinstance(v, (int, float, str))},
+            "warnings": list(cap.warnings),
+        },
+        "texels": cap.surface.num_texels,
+        "lights": obs.num_lights,
         "holdout_lights": list(cfg.fit.holdout),
         "rerender": image_difference(res.predicted, obs.intensity, res.fit_mask),
         "coverage": {**res.init_counts, "estimated": int(res.estimated.sum())},
-        "fit": {"optimizer": cfg.fit.optimizer, "loss_first": res.history[0], "loss_last": res.history[-1],
-                "evaluations": len(res.history)},
-        "device": device, "dtype": cfg.dtype,
+        "fit": {
+            "optimizer": cfg.fit.optimizer,
+            "loss_first": res.history[0],
+            "loss_last": res.history[-1],
+            "evaluations": len(res.history),
+        },
+        "device": device,
+        "dtype": cfg.dtype,
     }
     if cfg.fit.holdout:
         metrics["holdout"] = image_difference(res.predicted, obs.intensity, res.eval_mask)
@@ -66,8 +82,9 @@ def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionRe
     return metrics
 
 
-def write_outputs(cfg: Config, out: Path, cap: Capture, res: FitResult, selection: SelectionResult | None,
-                  stages: Stages, device: str) -> dict:
+def write_outputs(
+    cfg: Config, out: Path, cap: Capture, res: FitResult, selection: SelectionResult | None, stages: Stages, device: str
+) -> dict:
     """Write params.npz, the maps and metrics.json into `out`; returns the metrics."""
     surface, obs = cap.surface, cap.obs
     grid = lambda x, fill=0.0: surface.to_grid(x, fill=fill)
@@ -76,14 +93,25 @@ def write_outputs(cfg: Config, out: Path, cap: Capture, res: FitResult, selectio
         metrics = metrics_of(cfg, cap, res, selection, device)
         maps = out / "maps"
         mask = surface.to_grid(res.estimated.numpy(), fill=False)
-        metrics["maps"] = write_parameter_maps(maps, mask, grid(res.pd.double().numpy()), grid(res.ps.double().numpy()),
-                                               grid(res.sigma.double().numpy()), grid(res.coverage.numpy()),
-                                               cfg.reflectance.sigma_max)
+        metrics["maps"] = write_parameter_maps(
+            maps,
+            mask,
+            grid(res.pd.double().numpy()),
+            grid(res.ps.double().numpy()),
+            grid(res.sigma.double().numpy()),
+            grid(res.coverage.numpy()),
+            cfg.reflectance.sigma_max,
+        )
         k = min(cfg.output.map_lights, obs.num_lights)
         for p in np.linspace(0, obs.num_lights - 1, k).round().astype(int) if k else []:
             shown = surface.to_grid(obs.valid[p].numpy(), fill=False)
-            write_light_maps(maps, f"light_{p:03d}", grid(obs.intensity[p].double().numpy()),
-                             grid(res.predicted[p].double().numpy()), shown)
+            write_light_maps(
+                maps,
+                f"light_{p:03d}",
+                grid(obs.intensity[p].double().numpy()),
+                grid(res.predicted[p].double().numpy()),
+                shown,
+            )
     metrics["timing_s"] = {k: round(v, 3) for k, v in stages.timing.items()}
     metrics["timing_s"]["total"] = round(stages.total(), 3)
     atomic_write_text(out / "metrics.json", strict_json(metrics))

@@ -16,8 +16,8 @@ import os
 import shutil
 from pathlib import Path
 
-from torchrefl.errors import OutputError
 from torchrefl.core.atomic_files import fsync_dir
+from torchrefl.errors import OutputError
 from torchrefl.report.run_marker import CONFIG, LOG, MARKER, write_marker
 
 STAGING = ".{name}.staging-{pid}"
@@ -94,18 +94,22 @@ class StagedRunFolder:
             return
         if not holds_a_run(t):
             sample = sorted(p.name for p in t.iterdir())[:3]
-            raise OutputError(f"output.dir {t} holds files that are not a torchrefl run (e.g. {sample}); "
-                              "choose another output.dir (a run never deletes files it did not write)")
+            raise OutputError(
+                f"output.dir {t} holds files that are not a torchrefl run (e.g. {sample}); "
+                "choose another output.dir (a run never deletes files it did not write)"
+            )
         if not overwrite:
-            raise OutputError(f"output.dir {t} holds an earlier run; give --overwrite to replace it "
-                              "(it is kept until the new run completes), or choose another output.dir")
+            raise OutputError(
+                f"output.dir {t} holds an earlier run; give --overwrite to replace it "
+                "(it is kept until the new run completes), or choose another output.dir"
+            )
 
     def _remove_stale_staging(self) -> None:
         """Remove the staging folders of killed runs into the same target; an earlier run moved aside by a run
         killed between its two renames (no atomic swap) is put back."""
         prefix = STAGING.format(name=self.target.name, pid="")
         for p in sorted(self.target.parent.glob(f"{prefix}*")) if self.target.parent.is_dir() else []:
-            pid, _, replaced = p.name[len(prefix):].partition(REPLACED)
+            pid, _, replaced = p.name[len(prefix) :].partition(REPLACED)
             if not pid.isdigit() or _pid_alive(int(pid)):
                 continue
             if replaced == "" and p.name.endswith(REPLACED) and not self.target.exists():
@@ -117,7 +121,7 @@ class StagedRunFolder:
         """Write the marker, then put the staging folder in the target's place (the earlier run removed after)."""
         write_marker(self.path)
         if self.target.is_dir() and any(self.target.iterdir()):
-            if not _exchange(self.path, self.target):           # no atomic swap: two renames
+            if not _exchange(self.path, self.target):  # no atomic swap: two renames
                 aside = self.path.with_name(self.path.name + REPLACED)
                 os.replace(self.target, aside)
                 os.replace(self.path, self.target)

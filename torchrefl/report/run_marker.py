@@ -13,9 +13,9 @@ from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from torchrefl.version import __version__
-from torchrefl.errors import RunFolderError
 from torchrefl.core.atomic_files import atomic_write_text, fsync_dir, sha256_of
+from torchrefl.errors import RunFolderError
+from torchrefl.version import __version__
 
 MARKER = "run_complete.json"
 MARKER_FORMAT = 1
@@ -51,8 +51,13 @@ def write_marker(folder) -> RunMarker:
     files = {name: RecordedFile((folder / name).stat().st_size, sha256_of(folder / name)) for name in run_files(folder)}
     if CONFIG not in files:
         raise RunFolderError(f"{folder / CONFIG}: missing; a run folder's marker records its config")
-    marker = RunMarker(MARKER_FORMAT, __version__, files[CONFIG].sha256,
-                       datetime.now(timezone.utc).isoformat(timespec="seconds"), files)
+    marker = RunMarker(
+        MARKER_FORMAT,
+        __version__,
+        files[CONFIG].sha256,
+        datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        files,
+    )
     atomic_write_text(folder / MARKER, json.dumps(asdict(marker), indent=1))
     fsync_dir(folder)
     return marker
@@ -62,11 +67,17 @@ def _parse_marker(path: Path) -> RunMarker:
     try:
         doc = json.loads(path.read_text())
         files = {str(k): RecordedFile(int(v["size"]), str(v["sha256"])) for k, v in doc["files"].items()}
-        marker = RunMarker(int(doc["format"]), str(doc["torchrefl_version"]), str(doc["config_sha256"]),
-                           str(doc["completed_utc"]), files)
+        marker = RunMarker(
+            int(doc["format"]),
+            str(doc["torchrefl_version"]),
+            str(doc["config_sha256"]),
+            str(doc["completed_utc"]),
+            files,
+        )
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise RunFolderError(f"{path}: damaged completeness marker ({type(exc).__name__}: {exc}); "
-                             "the folder cannot be trusted, rerun") from None
+        raise RunFolderError(
+            f"{path}: damaged completeness marker ({type(exc).__name__}: {exc}); the folder cannot be trusted, rerun"
+        ) from None
     if marker.format != MARKER_FORMAT:
         raise RunFolderError(f"{path}: marker format {marker.format}, expected {MARKER_FORMAT}")
     return marker
@@ -81,25 +92,34 @@ def verify_run_folder(folder, hashed: tuple[str, ...] = ()) -> RunMarker:
     if not path.is_file():
         raise RunFolderError(
             f"{folder}: no completeness marker {MARKER}: the run is incomplete (failed or killed before it "
-            "finished), mixes files of two runs, or was written before run folders had markers; rerun it")
+            "finished), mixes files of two runs, or was written before run folders had markers; rerun it"
+        )
     marker = _parse_marker(path)
     present = set(run_files(folder))
     missing = sorted(set(marker.files) - present)
     extra = sorted(present - set(marker.files))
     if missing:
-        raise RunFolderError(f"{folder}: incomplete run: {len(missing)} recorded file(s) missing, e.g. {missing[:3]} ({MARKER})")
+        raise RunFolderError(
+            f"{folder}: incomplete run: {len(missing)} recorded file(s) missing, e.g. {missing[:3]} ({MARKER})"
+        )
     if extra:
-        raise RunFolderError(f"{folder}: mixed folder: {len(extra)} file(s) the completed run did not write, "
-                             f"e.g. {extra[:3]} ({MARKER} records {len(marker.files)} files)")
+        raise RunFolderError(
+            f"{folder}: mixed folder: {len(extra)} file(s) the completed run did not write, "
+            f"e.g. {extra[:3]} ({MARKER} records {len(marker.files)} files)"
+        )
     for name, rec in marker.files.items():
         size = (folder / name).stat().st_size
         if size != rec.size:
-            raise RunFolderError(f"{folder / name}: {size} bytes, the run recorded {rec.size} ({MARKER}): "
-                                 "the file was changed or comes from another run")
+            raise RunFolderError(
+                f"{folder / name}: {size} bytes, the run recorded {rec.size} ({MARKER}): "
+                "the file was changed or comes from another run"
+            )
     for name in {CONFIG, *hashed} & set(marker.files):
         if sha256_of(folder / name) != marker.files[name].sha256:
-            raise RunFolderError(f"{folder / name}: content differs from the run's record ({MARKER}): "
-                                 "changed after the run or from another run")
+            raise RunFolderError(
+                f"{folder / name}: content differs from the run's record ({MARKER}): "
+                "changed after the run or from another run"
+            )
     if marker.config_sha256 != marker.files.get(CONFIG, RecordedFile(0, "")).sha256:
         raise RunFolderError(f"{path}: config_sha256 does not match the recorded {CONFIG}")
     return marker

@@ -82,8 +82,16 @@ class RunResult:
 
         return summary_table(self.metrics)
 
-    def render(self, *, light_position=None, light_direction=None, intensity=1.0, camera=None, view_dir=None,
-               dtype=torch.float64) -> np.ndarray:
+    def render(
+        self,
+        *,
+        light_position=None,
+        light_direction=None,
+        intensity=1.0,
+        camera=None,
+        view_dir=None,
+        dtype=torch.float64,
+    ) -> np.ndarray:
         """(H, W, 3) predicted sensor values (fractions of full range) of the estimated texels under one light.
 
         The light: light_position (3,) a point light (falloff 1 / C^2) or light_direction (3,) a directional
@@ -93,11 +101,15 @@ class RunResult:
         Texels outside `mask` or facing away from the light or the camera are 0.
         """
         if (light_position is None) == (light_direction is None):
-            raise CaptureError("RunResult.render: give exactly one of light_position=(x, y, z) (a point light) "
-                               "and light_direction=(x, y, z) (a directional light)")
+            raise CaptureError(
+                "RunResult.render: give exactly one of light_position=(x, y, z) (a point light) "
+                "and light_direction=(x, y, z) (a directional light)"
+            )
         if (camera is None) == (view_dir is None):
-            raise CaptureError("RunResult.render: give exactly one of camera=(x, y, z) (a pinhole camera) and "
-                               "view_dir=(x, y, z) or an (H, W, 3) array (an orthographic camera)")
+            raise CaptureError(
+                "RunResult.render: give exactly one of camera=(x, y, z) (a pinhole camera) and "
+                "view_dir=(x, y, z) or an (H, W, 3) array (an orthographic camera)"
+            )
         m = torch.from_numpy(self.mask)
         t = lambda a: torch.as_tensor(np.array(a, dtype=np.float64), dtype=dtype)
         x, n = t(self.positions)[m], t(self.normals)[m]
@@ -120,13 +132,23 @@ class RunResult:
             elif vd.shape == self.grid_shape + (3,):
                 v = brdf_mod.safe_normalize(t(vd)[m])
             else:
-                raise CaptureError(f"RunResult.render: view_dir has shape {vd.shape}, expected (3,) or {self.grid_shape + (3,)}")
+                raise CaptureError(
+                    f"RunResult.render: view_dir has shape {vd.shape}, expected (3,) or {self.grid_shape + (3,)}"
+                )
         # one light as Observations, through the fitter's own observation model (transport.local)
         T = len(x)
-        obs = Observations(intensity=torch.zeros(1, T, 3, dtype=dtype), valid=torch.ones(1, T, dtype=torch.bool),
-                           saturated=torch.zeros(1, T, dtype=torch.bool), shadowed=torch.zeros(1, T, dtype=torch.bool),
-                           light_dir=l[None], falloff=falloff[None], light_intensity=Y[None], view_dir=v,
-                           kappa=t(self.kappa), source=str(self.folder))
+        obs = Observations(
+            intensity=torch.zeros(1, T, 3, dtype=dtype),
+            valid=torch.ones(1, T, dtype=torch.bool),
+            saturated=torch.zeros(1, T, dtype=torch.bool),
+            shadowed=torch.zeros(1, T, dtype=torch.bool),
+            light_dir=l[None],
+            falloff=falloff[None],
+            light_intensity=Y[None],
+            view_dir=v,
+            kappa=t(self.kappa),
+            source=str(self.folder),
+        )
         values = render_reference(self.brdf, n, obs, t(self.pd)[m], t(self.ps)[m], t(self.sigma)[m], self.minnaert_k)[0]
         values = values * (brdf_mod.dot(n, v) > 0).to(dtype)[:, None]
         out = np.zeros(self.grid_shape + (3,))
@@ -157,8 +179,9 @@ class RunResult:
         fig.colorbar(im, ax=axes[2], shrink=0.8)
         if self.coverage is not None:
             colours = np.array([COVERAGE_COLOURS[k] for k in sorted(COVERAGE_COLOURS)]) / 255.0
-            axes[3].imshow(self.coverage, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5,
-                           interpolation="nearest")
+            axes[3].imshow(
+                self.coverage, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5, interpolation="nearest"
+            )
             axes[3].set_title("coverage: none / Pd / Pd+spec / Pd bound")
         else:
             axes[3].set_title("coverage: not in params.npz")
@@ -174,8 +197,9 @@ def _vector(name: str, value, allow_scalar: bool = False, unit: bool = False) ->
     if allow_scalar and a.ndim == 0:
         a = np.full(3, float(a))
     if a.shape != (3,) or not np.isfinite(a).all():
-        raise CaptureError(f"RunResult.render: {name}={value!r}, expected 3 finite numbers"
-                           + (" or one" if allow_scalar else ""))
+        raise CaptureError(
+            f"RunResult.render: {name}={value!r}, expected 3 finite numbers" + (" or one" if allow_scalar else "")
+        )
     if allow_scalar and (a <= 0).any():
         raise CaptureError(f"RunResult.render: {name}={value!r}, expected values > 0")
     if unit and not np.linalg.norm(a) > 0:
@@ -205,8 +229,10 @@ def _read_params(path: Path) -> dict:
     for key in ("pd", "ps", "sigma", "positions", "normals"):
         a = p[key]
         if not np.issubdtype(a.dtype, np.number) or not np.isfinite(a[mask]).all():
-            raise RunFolderError(f"{path}: '{key}' has NaN, infinite or non-numeric values at estimated texels "
-                                 "(expected finite numbers inside 'mask')")
+            raise RunFolderError(
+                f"{path}: '{key}' has NaN, infinite or non-numeric values at estimated texels "
+                "(expected finite numbers inside 'mask')"
+            )
     if not np.issubdtype(p["kappa"].dtype, np.number) or not (np.isfinite(p["kappa"]) & (p["kappa"] > 0)).all():
         raise RunFolderError(f"{path}: 'kappa' = {p['kappa'].tolist()}, expected 3 finite values > 0")
     return p
@@ -236,8 +262,10 @@ def _read_metrics(path: Path, brdf: str) -> dict:
     metrics = _read_mapping(path, json.loads, "JSON")
     for key, kind in METRICS_KEYS.items():
         if not isinstance(metrics.get(key), kind) or isinstance(metrics.get(key), bool):
-            raise RunFolderError(f"{path}: key '{key}' is {metrics.get(key)!r}, expected {kind.__name__} "
-                                 "(metrics.json of a torchrefl run)")
+            raise RunFolderError(
+                f"{path}: key '{key}' is {metrics.get(key)!r}, expected {kind.__name__} "
+                "(metrics.json of a torchrefl run)"
+            )
     timing = metrics["timing_s"]
     if "total" not in timing or not all(isinstance(v, (int, float)) for v in timing.values()):
         raise RunFolderError(f"{path}: key 'timing_s' must map stages (and 'total') to seconds, got {timing!r}")
@@ -263,7 +291,22 @@ def load_run(folder) -> RunResult:
     metrics = _read_metrics(folder / METRICS, brdf)
     config = _read_mapping(folder / CONFIG, yaml.safe_load, "YAML")
     optional = lambda k: p[k] if k in p else None
-    return RunResult(folder=folder, pd=p["pd"], ps=p["ps"], sigma=p["sigma"], mask=p["mask"], positions=p["positions"],
-                     normals=p["normals"], kappa=p["kappa"], brdf=brdf, units=str(p.get("units", "")),
-                     coverage=optional("coverage"), n_diffuse=optional("n_diffuse"), n_specular=optional("n_specular"),
-                     metrics=metrics, config=config, diffuse=diffuse, minnaert_k=minnaert_k)
+    return RunResult(
+        folder=folder,
+        pd=p["pd"],
+        ps=p["ps"],
+        sigma=p["sigma"],
+        mask=p["mask"],
+        positions=p["positions"],
+        normals=p["normals"],
+        kappa=p["kappa"],
+        brdf=brdf,
+        units=str(p.get("units", "")),
+        coverage=optional("coverage"),
+        n_diffuse=optional("n_diffuse"),
+        n_specular=optional("n_specular"),
+        metrics=metrics,
+        config=config,
+        diffuse=diffuse,
+        minnaert_k=minnaert_k,
+    )

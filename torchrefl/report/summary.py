@@ -9,11 +9,15 @@ def summary_table(metrics: dict) -> str:
     w = max(len(r[0]) for r in rows)
     lines += [f"  {a:<{w}}  {b:>8}" for a, b in rows]
     fmt = lambda d: ", ".join(f"{k} {v:.4g}" for k, v in d.items() if isinstance(v, float))
-    lines.append(f"  texels {metrics['texels']}, lights {metrics['lights']}, model {metrics['model']}, brdf {metrics['brdf']}")
+    lines.append(
+        f"  texels {metrics['texels']}, lights {metrics['lights']}, model {metrics['model']}, brdf {metrics['brdf']}"
+    )
     section = lambda key: metrics[key] if isinstance(metrics.get(key), dict) else {}
     d = section("diffuse")
     if d.get("model", "lambert") != "lambert" and isinstance(d.get("k"), (int, float)):
-        lines.append(f"  diffuse: {d['model']} k {d['k']:.4f} ({'fitted' if d.get('fitted') else 'reflectance.minnaert_k'})")
+        lines.append(
+            f"  diffuse: {d['model']} k {d['k']:.4f} ({'fitted' if d.get('fitted') else 'reflectance.minnaert_k'})"
+        )
     lines.append(f"  re-render (fitted): {fmt(metrics['rerender'])}")
     if section("holdout"):
         lines.append(f"  held-out lights:    {fmt(metrics['holdout'])}")
@@ -21,7 +25,9 @@ def summary_table(metrics: dict) -> str:
         lines.append(f"  ground truth:       {fmt(metrics['ground_truth'])}")
     s = section("selection")
     if all(isinstance(s.get(k), (int, float)) for k in ("lights_selected", "diffuse_coverage", "specular_coverage")):
-        lines.append(f"  selection: {s['lights_selected']} lights, diffuse {s['diffuse_coverage']:.1%}, specular {s['specular_coverage']:.1%}")
+        lines.append(
+            f"  selection: {s['lights_selected']} lights, diffuse {s['diffuse_coverage']:.1%}, specular {s['specular_coverage']:.1%}"
+        )
     for warning in section("capture").get("warnings") or []:
         lines.append(f"  WARNING: {warning}")
     return "\n".join(lines)

@@ -41,15 +41,30 @@ def _pair(text: str, what: str, n=(2, 3)) -> list[float]:
 def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--config", default=None, help="rig settings YAML (e.g. configs/rig.yaml); defaults otherwise")
-    common.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a rig setting, e.g. --set feed_mm_min=2000 --set light.output=spindle")
+    common.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a rig setting, e.g. --set feed_mm_min=2000 --set light.output=spindle",
+    )
     common.add_argument("--port", default=None, help="serial port URL (overrides the settings' port)")
-    common.add_argument("--dry-run", action="store_true",
-                        help="use a simulated GRBL 1.1 device on a pseudo-terminal (and a simulated camera)")
-    common.add_argument("--time-scale", type=float, default=0.01,
-                        help="dry run: simulated motion time / real motion time (default 0.01)")
-    p = argparse.ArgumentParser(prog="python -m torchrefl.rig", description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    common.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="use a simulated GRBL 1.1 device on a pseudo-terminal (and a simulated camera)",
+    )
+    common.add_argument(
+        "--time-scale",
+        type=float,
+        default=0.01,
+        help="dry run: simulated motion time / real motion time (default 0.01)",
+    )
+    p = argparse.ArgumentParser(
+        prog="python -m torchrefl.rig",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = p.add_subparsers(dest="cmd", required=True)
     sub.add_parser("probe", parents=[common], help="connect and report banner, state and settings")
     sub.add_parser("home", parents=[common], help="run the homing cycle ($H)")
@@ -65,18 +80,34 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument("--grid-positions", nargs="+", metavar="I,J", help="grid nodes (column,row)")
     what.add_argument("--all-grid", action="store_true", help="every node of the light grid")
     cap.add_argument("--out", required=True, help="capture folder (cylindrical_scan layout)")
-    cap.add_argument("--scene", default=None,
-                     help="dry run: fitting config whose synthetic object is rendered (default: built-in defaults)")
-    cap.add_argument("--scene-set", action="append", default=[], metavar="KEY=VALUE",
-                     help="dry run: override a key of the scene config, e.g. synthetic.rows=64")
+    cap.add_argument(
+        "--scene",
+        default=None,
+        help="dry run: fitting config whose synthetic object is rendered (default: built-in defaults)",
+    )
+    cap.add_argument(
+        "--scene-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="dry run: override a key of the scene config, e.g. synthetic.rows=64",
+    )
     return p
 
 
 def _client(settings: RigSettings) -> GrblClient:
     t = settings.timeouts
     link = SerialLink(settings.port, settings.baudrate)
-    return GrblClient(link, reply_s=t.reply_s, home_s=t.home_s or None, move_s=t.move_s, poll_s=t.poll_s,
-                      banner_s=t.banner_s, status_retries=t.status_retries, log=lambda m: print(f"  {m}"))
+    return GrblClient(
+        link,
+        reply_s=t.reply_s,
+        home_s=t.home_s or None,
+        move_s=t.move_s,
+        poll_s=t.poll_s,
+        banner_s=t.banner_s,
+        status_retries=t.status_retries,
+        log=lambda m: print(f"  {m}"),
+    )
 
 
 def _probe(client: GrblClient, settings: RigSettings, state: str) -> int:
@@ -125,8 +156,10 @@ def run(args, settings: RigSettings) -> int:
         if args.cmd == "capture":
             return _capture(args, settings, model, client, scan)
         axes = None
-        if args.cmd == "move":     # checked against the soft limits before the port is opened
-            pos = model.grid_position(*args.grid) if args.grid else np.array([args.mm[0], args.mm[1], settings.radial_mm])
+        if args.cmd == "move":  # checked against the soft limits before the port is opened
+            pos = (
+                model.grid_position(*args.grid) if args.grid else np.array([args.mm[0], args.mm[1], settings.radial_mm])
+            )
             axes = model.target(pos, what="move")
         stack.enter_context(client.link.open())
         banner = client.connect()
@@ -155,8 +188,10 @@ def _capture(args, settings, model, client, scan) -> int:
         camera = simulated_camera(scan)
     else:
         if not settings.camera.command:
-            raise TorchReflError("capture: camera.command is empty in the rig settings (set the trigger command "
-                                 "with {path}, or use --dry-run)")
+            raise TorchReflError(
+                "capture: camera.command is empty in the rig settings (set the trigger command "
+                "with {path}, or use --dry-run)"
+            )
         camera = ExternalCommandCamera(settings.camera.command, settings.camera.timeout_s)
     runner = CaptureRunner(client, model, camera, folder, settings, progress=print)
     try:
@@ -164,9 +199,11 @@ def _capture(args, settings, model, client, scan) -> int:
     finally:
         client.link.close()
     retried = summary.get("status_retries", 0)
-    print(f"capture complete: {summary['captured']} new, {summary['skipped']} already recorded, "
-          f"{len(folder.entries)} images in {folder.manifest}; travel {summary.get('path_mm', 0):.0f} mm"
-          + (f"; {retried} status queries retried" if retried else ""))
+    print(
+        f"capture complete: {summary['captured']} new, {summary['skipped']} already recorded, "
+        f"{len(folder.entries)} images in {folder.manifest}; travel {summary.get('path_mm', 0):.0f} mm"
+        + (f"; {retried} status queries retried" if retried else "")
+    )
     return 0
 
 

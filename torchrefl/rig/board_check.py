@@ -52,8 +52,9 @@ def machine_travel(board: dict, k: int) -> tuple[float, float]:
 def _flag(board: dict, key: int, meaning: str, want: int, why: str, ok=None) -> BoardCheck:
     found = int(board.get(key, -1))
     ok = (found == want) if ok is None else ok
-    return BoardCheck(f"${key}", meaning, str(found) if key in board else "missing", str(want), ok,
-                      f"send `${key}={want}` ({why})")
+    return BoardCheck(
+        f"${key}", meaning, str(found) if key in board else "missing", str(want), ok, f"send `${key}={want}` ({why})"
+    )
 
 
 def _axis(board: dict, name: str, ax, skipped: bool) -> BoardCheck:
@@ -61,19 +62,29 @@ def _axis(board: dict, name: str, ax, skipped: bool) -> BoardCheck:
     setting = f"${130 + k}"
     meaning = f"{ax.axis} max travel, holding {name}.min_mm..max_mm = [{ax.min_mm:g}, {ax.max_mm:g}]"
     if 130 + k not in board:
-        return BoardCheck(setting, meaning, "missing", "a setting", False if not skipped else None,
-                          f"the board has no {ax.axis} axis: set {name}.axis to X, Y or Z in the rig config")
+        return BoardCheck(
+            setting,
+            meaning,
+            "missing",
+            "a setting",
+            False if not skipped else None,
+            f"the board has no {ax.axis} axis: set {name}.axis to X, Y or Z in the rig config",
+        )
     lo, hi = machine_travel(board, k)
     pull, inverted = float(board[27]), int(board[23]) >> k & 1
     expected = f"[{lo:g}, {hi:g}] (from ${130 + k}, $23, $27) to contain [{ax.min_mm:g}, {ax.max_mm:g}]"
     need = (pull - ax.min_mm) if inverted else -ax.min_mm
     fixes = []
     if ax.min_mm < lo - 1e-9:
-        fixes.append(f"set {name}.min_mm >= {lo:g} in the rig config, or send `{setting}={need:g}` if the axis "
-                     f"really travels that far")
+        fixes.append(
+            f"set {name}.min_mm >= {lo:g} in the rig config, or send `{setting}={need:g}` if the axis "
+            f"really travels that far"
+        )
     if ax.max_mm > hi + 1e-9:
-        fixes.append(f"set {name}.max_mm <= {hi:g} in the rig config (the home switch and its ${27}={pull:g} mm "
-                     f"pull-off lie beyond)")
+        fixes.append(
+            f"set {name}.max_mm <= {hi:g} in the rig config (the home switch and its ${27}={pull:g} mm "
+            f"pull-off lie beyond)"
+        )
     ok = None if skipped else not fixes
     return BoardCheck(setting, meaning, f"{float(board[130 + k]):g}", expected, ok, " and ".join(fixes))
 
@@ -83,19 +94,34 @@ def check_board(board: dict, rig: RigSettings) -> list[BoardCheck]:
     skip = not rig.board.limit_switches
     checks = [_flag(board, 13, "report inches", 0, "the rig reads positions in mm")]
     homing = _flag(board, 22, "homing", 1, f"or, on a machine without limit switches, set {OVERRIDE}")
-    soft = _flag(board, 20, "soft limits", 1, "after `$22=1`; Grbl refuses `$20=1` without homing"
-                 if board.get(22) == 0 else "Grbl then refuses targets outside the travel with ALARM:2")
+    soft = _flag(
+        board,
+        20,
+        "soft limits",
+        1,
+        "after `$22=1`; Grbl refuses `$20=1` without homing"
+        if board.get(22) == 0
+        else "Grbl then refuses targets outside the travel with ALARM:2",
+    )
     if skip:
-        homing, soft = (BoardCheck(c.setting, c.meaning, c.found, f"{c.expected} unless {OVERRIDE}", None)
-                        for c in (homing, soft))
+        homing, soft = (
+            BoardCheck(c.setting, c.meaning, c.found, f"{c.expected} unless {OVERRIDE}", None) for c in (homing, soft)
+        )
     checks += [homing, soft]
     axes = [("lateral", rig.lateral), ("vertical", rig.vertical)]
     if rig.turntable.enabled:
         axes.append(("turntable", rig.turntable))
     checks += [_axis(board, name, ax, skip) for name, ax in axes]
     if rig.light.output == "spindle":
-        checks.append(_flag(board, 32, "laser mode", 0, "the light is on the spindle output, which laser mode "
-                                                          "switches only during motion"))
+        checks.append(
+            _flag(
+                board,
+                32,
+                "laser mode",
+                0,
+                "the light is on the spindle output, which laser mode switches only during motion",
+            )
+        )
     return checks
 
 
@@ -104,9 +130,10 @@ def require_board(board: dict, rig: RigSettings, port: str) -> list[BoardCheck]:
     checks = check_board(board, rig)
     failed = [c for c in checks if c.ok is False]
     if failed:
-        raise RigError(f"{port}: the board's settings do not fit the rig config, so the rig will not move it: "
-                       + "; ".join(f"{c.setting} ({c.meaning}) is {c.found}, expected {c.expected}: {c.fix}"
-                                   for c in failed))
+        raise RigError(
+            f"{port}: the board's settings do not fit the rig config, so the rig will not move it: "
+            + "; ".join(f"{c.setting} ({c.meaning}) is {c.found}, expected {c.expected}: {c.fix}" for c in failed)
+        )
     return checks
 
 
@@ -115,7 +142,9 @@ def check_connected_board(client, rig: RigSettings, note=print, board: dict | No
     limit-switch override, note a warning (every time)."""
     checks = require_board(client.read_settings() if board is None else board, rig, client.port)
     if not rig.board.limit_switches:
-        note(f"WARNING: {OVERRIDE} in the rig config: homing ($22), soft limits ($20) and the machine travel "
-             f"($130-$132) are NOT checked; machine coordinates start wherever the carriage stood at power-up and "
-             f"only the config's min_mm/max_mm keep the gantry off its ends")
+        note(
+            f"WARNING: {OVERRIDE} in the rig config: homing ($22), soft limits ($20) and the machine travel "
+            f"($130-$132) are NOT checked; machine coordinates start wherever the carriage stood at power-up and "
+            f"only the config's min_mm/max_mm keep the gantry off its ends"
+        )
     return checks

@@ -15,8 +15,8 @@ from torchrefl.rig.settings import RigSettings
 
 def synthetic_scene(config=None, overrides=()):
     """SyntheticScan of a fitting config (its `synthetic`, `selection.grid`, `seed`, `capture.kappa`)."""
-    from torchrefl.synthetic.scan import SyntheticScan
     from torchrefl.config import load_config
+    from torchrefl.synthetic.scan import SyntheticScan
 
     cfg = load_config(config, list(overrides))
     return SyntheticScan(cfg.synthetic, cfg.selection.grid, seed=cfg.seed, kappa=cfg.capture.kappa, threads=cfg.threads)
@@ -25,8 +25,14 @@ def synthetic_scene(config=None, overrides=()):
 def match_grid(settings: RigSettings, scan) -> RigSettings:
     """Rig settings whose light grid and radial distance are the synthetic scene's."""
     g = scan.grid
-    grid = dataclasses.replace(settings.grid, columns=g.columns, rows=g.rows, spacing_mm=g.spacing_mm,
-                               center_lateral_mm=g.center_lateral_mm, center_vertical_mm=g.center_vertical_mm)
+    grid = dataclasses.replace(
+        settings.grid,
+        columns=g.columns,
+        rows=g.rows,
+        spacing_mm=g.spacing_mm,
+        center_lateral_mm=g.center_lateral_mm,
+        center_vertical_mm=g.center_vertical_mm,
+    )
     return dataclasses.replace(settings, grid=grid, radial_mm=g.radial_mm)
 
 
@@ -38,8 +44,10 @@ def fake_device_for(settings: RigSettings, time_scale: float = 0.01) -> FakeGrbl
         if k is None:
             raise RigError(f"dry run: the fake GRBL has axes X, Y, Z only (got {ax.axis})")
         if ax.max_mm > 0:
-            raise RigError(f"dry run: {ax.axis} travel max_mm {ax.max_mm} > 0; GRBL's machine space after homing is "
-                           f"[-max travel, 0]")
+            raise RigError(
+                f"dry run: {ax.axis} travel max_mm {ax.max_mm} > 0; GRBL's machine space after homing is "
+                f"[-max travel, 0]"
+            )
         travel[130 + k] = float(max(-ax.min_mm + 1.0, 1.0))
     return FakeGrbl(travel, time_scale=time_scale)
 

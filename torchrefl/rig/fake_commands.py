@@ -10,8 +10,8 @@ from torchrefl.rig.fake_gcode import AXES, parse_block
 from torchrefl.rig.fake_motion import Move, block_limits
 from torchrefl.rig.fake_settings import setting_lines, store_setting
 
-LINE_MAX = 80              # Grbl's LINE_BUFFER_SIZE
-SYNCED_RE = re.compile(r"M0*[3-9]|G0*4(?![0-9])")        # Grbl waits for the end of motion
+LINE_MAX = 80  # Grbl's LINE_BUFFER_SIZE
+SYNCED_RE = re.compile(r"M0*[3-9]|G0*4(?![0-9])")  # Grbl waits for the end of motion
 MOTION_RE = re.compile(r"(^|[^0-9.])G0*[01](?![0-9.])")
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"
 
@@ -85,8 +85,10 @@ class LineCommands:
             return "ok"
         if cmd == "G":
             m = self._modal
-            self._send(f"[GC:{m['motion']} G54 G17 {m['units']} {m['distance']} G94 M5 "
-                       f"{'M8' if self.coolant else 'M9'} T0 F{m['feed'] or 0} S0]")
+            self._send(
+                f"[GC:{m['motion']} G54 G17 {m['units']} {m['distance']} G94 M5 "
+                f"{'M8' if self.coolant else 'M9'} T0 F{m['feed'] or 0} S0]"
+            )
             return "ok"
         if cmd == "X":
             if self.state == "Alarm":
@@ -142,7 +144,7 @@ class LineCommands:
             return block
         if block.target is not None:
             if self.settings[20] and self._outside_travel(block.target):
-                return "error:15"             # the jog is ignored; no alarm
+                return "error:15"  # the jog is ignored; no alarm
             self._plan(block.target, block.feed, jog=True)
         return "ok"
 
@@ -155,7 +157,7 @@ class LineCommands:
         if block.target is not None:
             if self.settings[20] and self._outside_travel(block.target):
                 self._alarm(2)
-                self._ok_after_reset = True   # Grbl sends this line's 'ok' after the reset
+                self._ok_after_reset = True  # Grbl sends this line's 'ok' after the reset
                 return None
             self._plan(block.target, block.feed)
         self._switch(block.outputs)

@@ -9,8 +9,16 @@ from dataclasses import dataclass, field
 
 AXES = "XYZ"
 WORD_RE = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
-OUTPUT_WORDS = {3: [("spindle", True)], 4: [("spindle", True)], 5: [("spindle", False)], 7: [("mist", True)],
-                8: [("coolant", True)], 9: [("coolant", False), ("mist", False)], 2: [], 30: []}
+OUTPUT_WORDS = {
+    3: [("spindle", True)],
+    4: [("spindle", True)],
+    5: [("spindle", False)],
+    7: [("mist", True)],
+    8: [("coolant", True)],
+    9: [("coolant", False), ("mist", False)],
+    2: [],
+    30: [],
+}
 JOG_GS = (20, 21, 53, 90, 91)
 
 

@@ -49,7 +49,7 @@ from torchrefl.rig.grbl_homing import homing_seconds
 
 __all__ = ["DEFAULT_SETTINGS", "FakeGrbl"]
 
-RX_CAPACITY = 127          # 128-byte ring buffer, one slot always free
+RX_CAPACITY = 127  # 128-byte ring buffer, one slot always free
 
 
 class FakeGrbl(LineCommands):
@@ -64,9 +64,19 @@ class FakeGrbl(LineCommands):
     seconds (time.monotonic; tests pass a manual clock to step the simulation).
     """
 
-    def __init__(self, settings: dict | None = None, *, time_scale: float = 1.0, home_time_s: float | None = None,
-                 carriage_mm=None, planner_blocks: int = 16, version: str = "1.1h", workdir=None,
-                 wco=(0.0, 0.0, 0.0), clock=time.monotonic):
+    def __init__(
+        self,
+        settings: dict | None = None,
+        *,
+        time_scale: float = 1.0,
+        home_time_s: float | None = None,
+        carriage_mm=None,
+        planner_blocks: int = 16,
+        version: str = "1.1h",
+        workdir=None,
+        wco=(0.0, 0.0, 0.0),
+        clock=time.monotonic,
+    ):
         self.settings = initial_settings(settings)
         self.time_scale = float(time_scale)
         self.home_time_s = None if home_time_s is None else float(home_time_s)
@@ -82,35 +92,35 @@ class FakeGrbl(LineCommands):
         self.wco = [float(v) for v in wco]
         # observable state (read by tests; guarded by self.lock)
         self.lock = threading.RLock()
-        self.received = bytearray()        # every byte that reached the device, real-time ones included
-        self.lines: list[str] = []         # every line the device processed, in order
-        self.overflow_bytes = 0            # bytes lost to a full receive buffer
+        self.received = bytearray()  # every byte that reached the device, real-time ones included
+        self.lines: list[str] = []  # every line the device processed, in order
+        self.overflow_bytes = 0  # bytes lost to a full receive buffer
         self.max_rx_used = 0
         self.outputs_log: list[tuple[str, bool]] = []  # (output, on) changes: 'coolant', 'mist', 'spindle'
         self.moves_started = 0
         self.power_ups = 0
         self.mpos = [0.0, 0.0, 0.0]
         self._offset = list(self._home_position()) if carriage_mm is None else [float(v) for v in carriage_mm]
-        self.state = "Idle"                # Idle, Alarm or Home; Run/Jog/Hold come from the motion
+        self.state = "Idle"  # Idle, Alarm or Home; Run/Jog/Hold come from the motion
         self.coolant = self.mist = self.spindle = False
         # internals
         self._rx = bytearray()
         self._planner: deque = deque()
         self._move: Move | None = None
-        self._hold: int | None = None      # None, 1 (braking) or 0 (held)
+        self._hold: int | None = None  # None, 1 (braking) or 0 (held)
         self._critical = False
-        self._homing_left = None           # simulated seconds of homing left
-        self._ok_after_reset = False       # a line's 'ok' that Grbl sends after Ctrl-X (soft-limit alarm)
+        self._homing_left = None  # simulated seconds of homing left
+        self._ok_after_reset = False  # a line's 'ok' that Grbl sends after Ctrl-X (soft-limit alarm)
         self._status_wanted = False
         self._reports = 0
         self._modal = initial_modal()
         self._silent = False
         self._silence_on = None
-        self._error_on: list = []          # [match, code, remaining skips]
-        self._move_faults: dict = {}       # move number (1-based) -> (kind, kwargs)
-        self._line_hooks: list = []        # [match, bytes] written before the reply to that line
-        self._garble_reports = 0           # status reports still to garble
-        self._drop_reports = 0             # status queries still to leave unanswered
+        self._error_on: list = []  # [match, code, remaining skips]
+        self._move_faults: dict = {}  # move number (1-based) -> (kind, kwargs)
+        self._line_hooks: list = []  # [match, bytes] written before the reply to that line
+        self._garble_reports = 0  # status reports still to garble
+        self._drop_reports = 0  # status queries still to leave unanswered
         self._back_at = None
         self._stop = threading.Event()
         self._thread = None
@@ -265,7 +275,7 @@ class FakeGrbl(LineCommands):
 
     def _power_up(self) -> None:
         self.power_ups += 1
-        self._offset = self.carriage        # the carriage stays; Grbl's position restarts at 0
+        self._offset = self.carriage  # the carriage stays; Grbl's position restarts at 0
         self.mpos = [0.0, 0.0, 0.0]
         self._clear_motion()
         self._outputs_off()
@@ -294,7 +304,7 @@ class FakeGrbl(LineCommands):
         if self._homing_left is not None:
             alarm = 6
         elif (self._move is not None or self._planner) and self._hold != 0:
-            alarm = 3             # reset while moving: position lost (a completed hold, Hold:0, is safe)
+            alarm = 3  # reset while moving: position lost (a completed hold, Hold:0, is safe)
         self._clear_motion()
         self._outputs_off()
         self._critical = False
@@ -304,7 +314,7 @@ class FakeGrbl(LineCommands):
             self._send(f"ALARM:{alarm}")
         elif self.state != "Alarm":
             self.state = "Idle"
-        if self._ok_after_reset:          # the line that raised a soft-limit alarm completes now
+        if self._ok_after_reset:  # the line that raised a soft-limit alarm completes now
             self._ok_after_reset = False
             self._send("ok")
         self._reports = 0
@@ -360,10 +370,10 @@ class FakeGrbl(LineCommands):
         elif b == ord("!"):
             self._feed_hold()
         elif b == ord("~"):
-            if self._hold == 0:           # a `~` while still braking (Hold:1) is ignored
+            if self._hold == 0:  # a `~` while still braking (Hold:1) is ignored
                 self._hold = None
         elif b >= 0x80:
-            pass                      # override commands: accepted, ignored
+            pass  # override commands: accepted, ignored
         elif len(self._rx) >= RX_CAPACITY:
             self.overflow_bytes += 1  # lost, as on the real UART
         else:
@@ -372,9 +382,9 @@ class FakeGrbl(LineCommands):
 
     def _feed_hold(self) -> None:
         if self.state != "Idle" or self._hold is not None:
-            return                        # Alarm, homing, or already holding
+            return  # Alarm, homing, or already holding
         moving = self._move is not None and not self._move.stopped
-        self._hold = 1 if moving else 0   # Idle too: Grbl enters Hold:0 at once
+        self._hold = 1 if moving else 0  # Idle too: Grbl enters Hold:0 at once
 
     def _report(self) -> None:
         if self._silent or self.state == "Home":
@@ -399,7 +409,7 @@ class FakeGrbl(LineCommands):
         if self._garble_reports:
             self._garble_reports -= 1
             k = text.rfind(".", 0, text.find("|", text.find("|") + 1))
-            text = text[:k] + ":" + text[k + 1:]
+            text = text[:k] + ":" + text[k + 1 :]
         self._send(text)
 
     def _position_field(self) -> str:
@@ -446,7 +456,7 @@ class FakeGrbl(LineCommands):
 
     def _hold_complete(self) -> None:
         if self._jogging():
-            self._move = None             # a feed hold cancels a jog: the rest of it is dropped
+            self._move = None  # a feed hold cancels a jog: the rest of it is dropped
             self._planner.clear()
             self._hold = None
         else:
@@ -469,10 +479,10 @@ class FakeGrbl(LineCommands):
         if self.home_time_s is not None:
             self._homing_left = self.home_time_s
         else:
-            mask = int(self.settings[23])      # the switch: at 0, or at -$13x when the axis homes negative
+            mask = int(self.settings[23])  # the switch: at 0, or at -$13x when the axis homes negative
             switch = [-float(self.settings[130 + k]) if mask >> k & 1 else 0.0 for k in range(len(AXES))]
             self._homing_left = homing_seconds([c - s for c, s in zip(self.carriage, switch)], self.settings)
-        return None                       # 'ok' when the cycle ends
+        return None  # 'ok' when the cycle ends
 
     def _finish_homing(self) -> None:
         self._homing_left = None

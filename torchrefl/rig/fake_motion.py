@@ -97,7 +97,7 @@ class Move:
                         self.progress = self.length
                     return dt
             elif self.speed_now < self.speed - EPS:
-                peak = min(self.speed, math.sqrt(a * left + 0.5 * self.speed_now ** 2))
+                peak = min(self.speed, math.sqrt(a * left + 0.5 * self.speed_now**2))
                 step = min(dt, (peak - self.speed_now) / a)
                 self._go(step, a)
                 dt -= step

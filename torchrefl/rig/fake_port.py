@@ -50,7 +50,7 @@ class PtyPort:
         try:
             os.write(self.master, data)
         except OSError:
-            pass            # full (BlockingIOError) or gone: the bytes are lost
+            pass  # full (BlockingIOError) or gone: the bytes are lost
 
     def read(self, wait_s: float) -> bytes:
         """What the client sent, waiting at most wait_s for the first byte (b'' when nothing)."""

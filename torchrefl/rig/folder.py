@@ -47,18 +47,20 @@ class CaptureFolder:
             for k, line in enumerate(lines):
                 if not line.strip():
                     continue
-                last = k == len(lines) - 1 or all(not x.strip() for x in lines[k + 1:])
+                last = k == len(lines) - 1 or all(not x.strip() for x in lines[k + 1 :])
                 try:
                     entry = json.loads(line.decode("utf-8"))
                     if not isinstance(entry, dict) or "image" not in entry or "index" not in entry:
                         raise ValueError("not a manifest entry")
                 except (ValueError, UnicodeDecodeError):
-                    if last:            # a write cut short by a crash: the image will be re-shot
+                    if last:  # a write cut short by a crash: the image will be re-shot
                         report["torn_lines"] += 1
                         rewrite = True
                         continue
-                    raise CaptureError(f"{self.manifest}: line {k + 1} is not a valid manifest entry "
-                                       f"({line[:80]!r}); fix or remove it by hand") from None
+                    raise CaptureError(
+                        f"{self.manifest}: line {k + 1} is not a valid manifest entry "
+                        f"({line[:80]!r}); fix or remove it by hand"
+                    ) from None
                 if not (self.root / entry["image"]).is_file():
                     report["entries_without_image"] += 1
                     rewrite = True
@@ -68,7 +70,9 @@ class CaptureFolder:
                 rewrite = True
         indices = [e["index"] for e in entries]
         if len(set(indices)) != len(indices):
-            raise CaptureError(f"{self.manifest}: repeated indices {sorted(i for i in set(indices) if indices.count(i) > 1)}")
+            raise CaptureError(
+                f"{self.manifest}: repeated indices {sorted(i for i in set(indices) if indices.count(i) > 1)}"
+            )
         if rewrite:
             atomic_write_text(self.manifest, "".join(json.dumps(e) + "\n" for e in entries))
         listed = {Path(e["image"]).name for e in entries}
@@ -128,8 +132,10 @@ class CaptureFolder:
             raise CaptureError(f"{path}: expected a mapping at the top level")
         if doc.get("lights") != MANIFEST:
             if doc.get("lights"):
-                raise CaptureError(f"{path}: key 'lights' already lists lights inline; the rig records its images "
-                                   f"in {MANIFEST} (use a fresh folder or remove the inline list)")
+                raise CaptureError(
+                    f"{path}: key 'lights' already lists lights inline; the rig records its images "
+                    f"in {MANIFEST} (use a fresh folder or remove the inline list)"
+                )
             doc["lights"] = MANIFEST
             atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
         return True

@@ -57,8 +57,8 @@ class _MalformedReport(RigError):
 
 @dataclass
 class _Deadline:
-    end: float      # time.monotonic() value
-    span: float     # the allowed seconds, for messages
+    end: float  # time.monotonic() value
+    span: float  # the allowed seconds, for messages
 
 
 class GrblClient:
@@ -72,24 +72,34 @@ class GrblClient:
     while homing; log: callable(str) for notes (garbage lines, [MSG:...] feedback, retries).
     """
 
-    def __init__(self, link: SerialLink, *, reply_s: float = 2.0, home_s: float | None = None,
-                 move_s: float = 120.0, poll_s: float = 0.05, banner_s: float = 2.5, status_retries: int = 3,
-                 progress_s: float = 10.0, log=None):
+    def __init__(
+        self,
+        link: SerialLink,
+        *,
+        reply_s: float = 2.0,
+        home_s: float | None = None,
+        move_s: float = 120.0,
+        poll_s: float = 0.05,
+        banner_s: float = 2.5,
+        status_retries: int = 3,
+        progress_s: float = 10.0,
+        log=None,
+    ):
         self.link = link
         self.reply_s, self.move_s = float(reply_s), float(move_s)
         self.home_s = None if not home_s else float(home_s)
         self.poll_s, self.banner_s = float(poll_s), float(banner_s)
         self.status_retries, self.progress_s = int(status_retries), float(progress_s)
-        self.status_retried = 0            # status queries sent again (malformed or missing report)
-        self.rebooted = False              # an unrequested banner came: outputs off, locked until homed
+        self.status_retried = 0  # status queries sent again (malformed or missing report)
+        self.rebooted = False  # an unrequested banner came: outputs off, locked until homed
         self.log = log or (lambda msg: None)
         self.banner: str | None = None
         self.version: str | None = None
         self.settings: dict[int, float] = {}
-        self.messages: list[str] = []      # [MSG:...] and other feedback, in arrival order
-        self.garbage: list[bytes] = []     # lines that were not ASCII or not GRBL grammar
+        self.messages: list[str] = []  # [MSG:...] and other feedback, in arrival order
+        self.garbage: list[bytes] = []  # lines that were not ASCII or not GRBL grammar
         self.last_status: Status | None = None
-        self.alarm: int | None = None      # last ALARM code seen and not yet cleared
+        self.alarm: int | None = None  # last ALARM code seen and not yet cleared
         self._wco: tuple | None = None
         self._expect_banner = False
 
@@ -145,7 +155,8 @@ class GrblClient:
             raise ControllerReset(
                 f"{self.port}: the controller reset unexpectedly ('{text}' arrived while waiting for a reply {what}): "
                 f"machine position is lost and Grbl switched its outputs (the light) off; it is locked until "
-                f"homed, so home the rig again ($H) before moving")
+                f"homed, so home the rig again ($H) before moving"
+            )
         if text.startswith("ALARM:"):
             code = text[6:]
             self.alarm = int(code) if code.isdigit() else None
@@ -156,7 +167,7 @@ class GrblClient:
             self.log(f"{self.port}: {text}")
             return None
         if text.startswith(">") and (text.endswith(":ok") or ":error:" in text):
-            self.messages.append(text)      # a start-up line ran (its ':ok' is not ours to count)
+            self.messages.append(text)  # a start-up line ran (its ':ok' is not ours to count)
             return None
         if text == "ok" or text.startswith("error:") or SETTING_RE.match(text) or text.startswith("$N"):
             return text
@@ -252,9 +263,12 @@ class GrblClient:
         got = False
         while not got:
             try:
-                got = BANNER_RE.match(self.next_reply(deadline, "after opening the port (expected the start-up banner)")) is not None
+                got = (
+                    BANNER_RE.match(self.next_reply(deadline, "after opening the port (expected the start-up banner)"))
+                    is not None
+                )
             except GrblAlarm:
-                continue    # ALARM:3 before the banner: the board was reset while moving
+                continue  # ALARM:3 before the banner: the board was reset while moving
             except NoReply:
                 break
         self._expect_banner = False
@@ -289,7 +303,7 @@ class GrblClient:
                 try:
                     line = self.next_reply(deadline, "to the soft reset Ctrl-X (expected the start-up banner)")
                 except GrblAlarm:
-                    continue        # ALARM:3 precedes the banner when a reset stops motion
+                    continue  # ALARM:3 precedes the banner when a reset stops motion
                 if BANNER_RE.match(line):
                     break
         finally:
@@ -310,14 +324,17 @@ class GrblClient:
             except (_MalformedReport, NoReply) as exc:
                 if attempt < self.status_retries:
                     self.status_retried += 1
-                    self.log(f"{self.port}: status query retried ({attempt + 1} of {self.status_retries}, "
-                             f"{self.status_retried} in this session): {exc}")
+                    self.log(
+                        f"{self.port}: status query retried ({attempt + 1} of {self.status_retries}, "
+                        f"{self.status_retried} in this session): {exc}"
+                    )
                     continue
                 self._stop_motion()
-                raise NoReply(f"no reply from {self.port} within {wait:.1f} s to the status query '?' "
-                              f"({self.status_retries + 1} queries, the last: {exc}); sent a feed hold '!' to stop "
-                              f"motion (the position is kept: check the machine, then `~` resumes or Ctrl-X resets)"
-                              ) from None
+                raise NoReply(
+                    f"no reply from {self.port} within {wait:.1f} s to the status query '?' "
+                    f"({self.status_retries + 1} queries, the last: {exc}); sent a feed hold '!' to stop "
+                    f"motion (the position is kept: check the machine, then `~` resumes or Ctrl-X resets)"
+                ) from None
             if st.state != "Alarm":
                 self.alarm = None
             return st
@@ -330,14 +347,14 @@ class GrblClient:
             st = self.last_status
             if st.mpos is not None:
                 return st
-            time.sleep(self.poll_s)       # WPos without a known WCO yet: ask again
+            time.sleep(self.poll_s)  # WPos without a known WCO yet: ask again
             self.realtime(b"?")
 
     def _stop_motion(self) -> None:
         try:
             self.realtime(b"!")
         except RigError:
-            pass                          # the port is gone: nothing can be sent
+            pass  # the port is gone: nothing can be sent
 
     def read_settings(self) -> dict[int, float]:
         """`$$` -> {setting number: value}, also kept in self.settings."""
@@ -373,8 +390,11 @@ class GrblClient:
         note = progress or self.log
         source = "timeouts.home_s" if self.home_s is not None else "computed from $130-$132, $24, $25, $27"
         note(f"{self.port}: homing ($H), at most {limit:.0f} s ({source})")
-        self.command("$H", timeout_s=limit,
-                     waiting=lambda t, span: note(f"{self.port}: homing... {t:.0f} s of at most {span:.0f} s"))
+        self.command(
+            "$H",
+            timeout_s=limit,
+            waiting=lambda t, span: note(f"{self.port}: homing... {t:.0f} s of at most {span:.0f} s"),
+        )
         self.alarm = None
         self.rebooted = False
         return self.wait_idle()
@@ -403,8 +423,10 @@ class GrblClient:
             if st.state == "Idle":
                 return st
             if st.state == "Alarm":
-                raise GrblAlarm(f"{self.port}: the controller is in the Alarm state ({st.raw}); "
-                                f"home ($H) or unlock ($X) it", self.alarm)
+                raise GrblAlarm(
+                    f"{self.port}: the controller is in the Alarm state ({st.raw}); home ($H) or unlock ($X) it",
+                    self.alarm,
+                )
             if time.monotonic() >= end:
                 raise RigError(f"{self.port}: not Idle within {limit:.1f} s (last status {st.raw})")
             time.sleep(self.poll_s)
@@ -427,8 +449,10 @@ class GrblClient:
             if not (st.state == "Hold" and st.substate != 0):
                 return st
             if time.monotonic() >= end:
-                raise RigError(f"{self.port}: the feed hold did not complete (Hold:0) within {limit:.1f} s {what} "
-                               f"(last status {st.raw})")
+                raise RigError(
+                    f"{self.port}: the feed hold did not complete (Hold:0) within {limit:.1f} s {what} "
+                    f"(last status {st.raw})"
+                )
             time.sleep(self.poll_s)
 
     def feed_hold(self) -> Status:

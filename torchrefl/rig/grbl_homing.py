@@ -11,11 +11,11 @@ Acceleration is left out (a fraction of a second per move; the margin covers it)
 
 from __future__ import annotations
 
-HOMING_CYCLES = ((2,), (0, 1))     # axis indices: Z first, then X and Y (HOMING_CYCLE_0, HOMING_CYCLE_1)
-SEARCH_SCALAR = 1.5                # HOMING_AXIS_SEARCH_SCALAR
-LOCATE_SCALAR = 5.0                # HOMING_AXIS_LOCATE_SCALAR
+HOMING_CYCLES = ((2,), (0, 1))  # axis indices: Z first, then X and Y (HOMING_CYCLE_0, HOMING_CYCLE_1)
+SEARCH_SCALAR = 1.5  # HOMING_AXIS_SEARCH_SCALAR
+LOCATE_SCALAR = 5.0  # HOMING_AXIS_LOCATE_SCALAR
 MOVES_PER_CYCLE = 4
-TIMEOUT_FACTOR = 1.25              # margin of the computed homing timeout over the longest cycle
+TIMEOUT_FACTOR = 1.25  # margin of the computed homing timeout over the longest cycle
 TIMEOUT_EXTRA_S = 5.0
 
 
@@ -37,6 +37,8 @@ def homing_timeout_s(settings: dict) -> float:
     """The longest a `$H` may take on these settings (every search at its full length, the locate at
     its longest), with a margin: TIMEOUT_FACTOR x that + TIMEOUT_EXTRA_S seconds."""
     locate = LOCATE_SCALAR * float(settings[27])
-    worst = sum(cycle_seconds(SEARCH_SCALAR * max(float(settings[130 + k]) for k in axes), settings, locate)
-                for axes in HOMING_CYCLES)
+    worst = sum(
+        cycle_seconds(SEARCH_SCALAR * max(float(settings[130 + k]) for k in axes), settings, locate)
+        for axes in HOMING_CYCLES
+    )
     return TIMEOUT_FACTOR * worst + TIMEOUT_EXTRA_S

@@ -65,6 +65,13 @@ def parse_status(raw: str, wco: tuple | None = None) -> tuple[Status, tuple | No
     for key in ("FS", "F"):
         if key in fields:
             feed = _floats(fields[key], key, raw)[0]
-    st = Status(state=state, substate=int(sub) if sub.isdigit() else None, mpos=mpos, wpos=wpos,
-                feed=feed, fields=fields, raw=raw)
+    st = Status(
+        state=state,
+        substate=int(sub) if sub.isdigit() else None,
+        mpos=mpos,
+        wpos=wpos,
+        feed=feed,
+        fields=fields,
+        raw=raw,
+    )
     return st, wco

@@ -6,7 +6,7 @@ from collections import deque
 
 from torchrefl.errors import RigError
 
-RX_BUFFER_SIZE = 128        # Grbl's serial receive buffer (a ring buffer: 127 bytes usable)
+RX_BUFFER_SIZE = 128  # Grbl's serial receive buffer (a ring buffer: 127 bytes usable)
 
 
 def stream_lines(client, lines, timeout_s: float | None = None, rx_size: int = RX_BUFFER_SIZE) -> int:
@@ -35,8 +35,10 @@ def stream_lines(client, lines, timeout_s: float | None = None, rx_size: int = R
         line = raw.strip()
         n = len(line) + 1
         if n > cap:
-            raise RigError(f"{client.port}: line {k + 1} ({line[:40]!r}...) has {n} bytes, more than GRBL's "
-                           f"{cap}-byte receive buffer")
+            raise RigError(
+                f"{client.port}: line {k + 1} ({line[:40]!r}...) has {n} bytes, more than GRBL's "
+                f"{cap}-byte receive buffer"
+            )
         while sent and used + n > cap:
             pop()
         if failure is not None:

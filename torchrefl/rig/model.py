@@ -28,8 +28,10 @@ class RigModel:
         """(3,) float64 head-frame position [lateral, vertical, radial] of grid column i, row j."""
         g = self.grid
         if not (0 <= int(i) < g.columns and 0 <= int(j) < g.rows):
-            raise RigError(f"grid index ({i}, {j}) outside the {g.columns} x {g.rows} light grid "
-                           f"(column 0..{g.columns - 1}, row 0..{g.rows - 1})")
+            raise RigError(
+                f"grid index ({i}, {j}) outside the {g.columns} x {g.rows} light grid "
+                f"(column 0..{g.columns - 1}, row 0..{g.rows - 1})"
+            )
         lat = g.center_lateral_mm + g.spacing_mm * (int(i) - (g.columns - 1) / 2.0)
         vert = g.center_vertical_mm + g.spacing_mm * ((g.rows - 1) / 2.0 - int(j))
         return np.array([lat, vert, self.s.radial_mm], dtype=np.float64)
@@ -72,10 +74,14 @@ class RigModel:
         if p.shape != (3,) or not np.isfinite(p).all():
             raise RigError(f"light position {position_mm!r}: expected 3 finite numbers [lateral, vertical, radial] mm")
         if abs(p[2] - self.s.radial_mm) > self.s.position_tolerance_mm:
-            raise RigError(f"light position {p.tolist()}: radial {p[2]} mm is not the gantry plane's radial_mm "
-                           f"{self.s.radial_mm} (the gantry moves laterally and vertically only)")
-        out = {self.s.lateral.axis: self._to_machine(self.s.lateral, p[0]),
-               self.s.vertical.axis: self._to_machine(self.s.vertical, p[1])}
+            raise RigError(
+                f"light position {p.tolist()}: radial {p[2]} mm is not the gantry plane's radial_mm "
+                f"{self.s.radial_mm} (the gantry moves laterally and vertically only)"
+            )
+        out = {
+            self.s.lateral.axis: self._to_machine(self.s.lateral, p[0]),
+            self.s.vertical.axis: self._to_machine(self.s.vertical, p[1]),
+        }
         if angle_deg is not None:
             if not self.s.turntable.enabled:
                 raise RigError("a turntable angle was given but the rig settings define no turntable axis")
@@ -96,14 +102,19 @@ class RigModel:
 
     def check_travel(self, axes: dict, what: str = "move") -> None:
         """RigError naming the axis and the limits when a target lies outside the configured travel."""
-        by_letter = {self.s.lateral.axis: ("lateral", self.s.lateral), self.s.vertical.axis: ("vertical", self.s.vertical)}
+        by_letter = {
+            self.s.lateral.axis: ("lateral", self.s.lateral),
+            self.s.vertical.axis: ("vertical", self.s.vertical),
+        }
         if self.s.turntable.enabled:
             by_letter[self.s.turntable.axis] = ("turntable", self.s.turntable)
         for letter, value in axes.items():
             name, ax = by_letter[letter]
             if not (ax.min_mm - 1e-9 <= value <= ax.max_mm + 1e-9):
-                raise RigError(f"{what}: {name} axis {letter} target {value:.3f} is outside the travel "
-                               f"[{ax.min_mm}, {ax.max_mm}] set by rig settings {name}.min_mm/max_mm; nothing was sent")
+                raise RigError(
+                    f"{what}: {name} axis {letter} target {value:.3f} is outside the travel "
+                    f"[{ax.min_mm}, {ax.max_mm}] set by rig settings {name}.min_mm/max_mm; nothing was sent"
+                )
 
     def target(self, position_mm, angle_deg: float | None = None, what: str = "move") -> dict:
         """Checked machine coordinates for a head-frame position: head_to_axes + check_travel."""

@@ -29,8 +29,10 @@ def targets_from_positions(model: RigModel, positions) -> list[Target]:
     """Targets for head-frame positions (P, 3) or (P, 2) (radial taken from the rig settings)."""
     arr = np.asarray(positions, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] not in (2, 3) or not np.isfinite(arr).all():
-        raise RigError(f"light positions of shape {arr.shape}: expected (P, 3) [lateral, vertical, radial] "
-                       f"or (P, 2) [lateral, vertical] finite numbers in mm")
+        raise RigError(
+            f"light positions of shape {arr.shape}: expected (P, 3) [lateral, vertical, radial] "
+            f"or (P, 2) [lateral, vertical] finite numbers in mm"
+        )
     if arr.shape[1] == 2:
         arr = np.concatenate([arr, np.full((len(arr), 1), model.s.radial_mm)], axis=1)
     return [Target(p.copy(), model.grid_index(p)) for p in arr]
@@ -56,7 +58,7 @@ def load_plan(path, model: RigModel) -> list[Target]:
     if not path.is_file():
         raise ConfigError(f"{path}: plan file not found")
     try:
-        doc = yaml.safe_load(path.read_text())    # YAML is a superset of JSON
+        doc = yaml.safe_load(path.read_text())  # YAML is a superset of JSON
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML/JSON: {exc}") from None
     try:
@@ -99,7 +101,7 @@ def order_points(points: np.ndarray, start=None) -> list[int]:
     if n <= 1:
         return list(range(n))
     s = pts[0] if start is None else np.asarray(start, dtype=np.float64)
-    nodes = np.concatenate([s[None], pts])              # node 0 = fixed start
+    nodes = np.concatenate([s[None], pts])  # node 0 = fixed start
     d = np.linalg.norm(nodes[:, None] - nodes[None], axis=-1)
     left = set(range(1, n + 1))
     route = [0]
@@ -111,21 +113,21 @@ def order_points(points: np.ndarray, start=None) -> list[int]:
     improved = True
     while improved:
         improved = False
-        for i in range(1, n):                                   # 2-opt: reverse route[i..k]
+        for i in range(1, n):  # 2-opt: reverse route[i..k]
             for k in range(i + 1, n + 1):
                 a, b = route[i - 1], route[i]
                 c = route[k]
                 after = d[b, route[k + 1]] - d[c, route[k + 1]] if k < n else 0.0
                 if d[a, c] - d[a, b] + after < -1e-9:
-                    route[i:k + 1] = route[i:k + 1][::-1]
+                    route[i : k + 1] = route[i : k + 1][::-1]
                     improved = True
-        for seg in (1, 2, 3):                                   # or-opt: move a run of 1-3 nodes elsewhere
+        for seg in (1, 2, 3):  # or-opt: move a run of 1-3 nodes elsewhere
             i = 1
             while i + seg - 1 <= n:
-                run = route[i:i + seg]
+                run = route[i : i + seg]
                 p, q = route[i - 1], (route[i + seg] if i + seg <= n else None)
                 gain = d[p, run[0]] + (d[run[-1], q] - d[p, q] if q is not None else 0.0)
-                rest = route[:i] + route[i + seg:]
+                rest = route[:i] + route[i + seg :]
                 done = False
                 for j in range(1, len(rest) + 1):
                     x, y = rest[j - 1], (rest[j] if j < len(rest) else None)

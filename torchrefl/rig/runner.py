@@ -32,8 +32,15 @@ class CaptureRunner:
 
     MAX_RECOVERIES = 5
 
-    def __init__(self, client: GrblClient, model: RigModel, camera: Camera, folder: CaptureFolder,
-                 settings: RigSettings, progress=print):
+    def __init__(
+        self,
+        client: GrblClient,
+        model: RigModel,
+        camera: Camera,
+        folder: CaptureFolder,
+        settings: RigSettings,
+        progress=print,
+    ):
         self.client, self.model, self.camera, self.folder = client, model, camera, folder
         self.s = settings
         self.progress = progress or (lambda msg: None)
@@ -49,8 +56,11 @@ class CaptureRunner:
         st = self.client.last_status
         if self.s.home_on_start or st.state == "Alarm":
             if st.state == "Alarm" and not self.s.home_on_start:
-                raise GrblAlarm(f"{self.client.port}: the controller is locked in the Alarm state ({st.raw}); home it "
-                                f"(home_on_start: true, or `python -m torchrefl.rig home`) before capturing", None)
+                raise GrblAlarm(
+                    f"{self.client.port}: the controller is locked in the Alarm state ({st.raw}); home it "
+                    f"(home_on_start: true, or `python -m torchrefl.rig home`) before capturing",
+                    None,
+                )
             self.client.home(progress=self.progress)
 
     def _light_off_quietly(self) -> str:
@@ -59,8 +69,10 @@ class CaptureRunner:
         if not c.link.is_open:
             return "light not switched off: the port is gone (GRBL switches its outputs off when it resets)"
         if c.rebooted:
-            return ("light not switched off by the rig: the controller rebooted, which switched its outputs off, "
-                    "and it stays locked (it would refuse M9) until homed")
+            return (
+                "light not switched off by the rig: the controller rebooted, which switched its outputs off, "
+                "and it stays locked (it would refuse M9) until homed"
+            )
         if c.alarm is not None:
             return "light not switched off by the rig: GRBL switched spindle and coolant off with the alarm"
         try:
@@ -79,9 +91,11 @@ class CaptureRunner:
         reached = m.axes_to_head(st.mpos)
         err = float(np.linalg.norm(reached - t.requested_mm))
         if err > self.s.position_tolerance_mm:
-            raise RigError(f"{c.port}: requested light position {t.requested_mm.tolist()} but the controller reports "
-                           f"{reached.tolist()} ({err:.3f} mm away, tolerance position_tolerance_mm = "
-                           f"{self.s.position_tolerance_mm}); status {st.raw}")
+            raise RigError(
+                f"{c.port}: requested light position {t.requested_mm.tolist()} but the controller reports "
+                f"{reached.tolist()} ({err:.3f} mm away, tolerance position_tolerance_mm = "
+                f"{self.s.position_tolerance_mm}); status {st.raw}"
+            )
         temp = self.folder.temp_path(index)
         self.folder.discard(temp)
         c.command(m.light_on_command())
@@ -139,13 +153,18 @@ class CaptureRunner:
         self.summary = {"total": len(targets), "captured": 0, "skipped": 0, "reconnects": 0, "rehomes": 0}
         self.summary["recovered"] = self.folder.recover()
         if self.folder.link_scan_yaml() is False:
-            self.progress(f"note: {self.folder.root}/scan.yaml not found; the scanner's scan.yaml and range.npy "
-                          f"must be added (with lights: manifest.jsonl) before fitting")
-        done = {tuple(round(float(v), 3) for v in e["requested_mm"]) for e in self.folder.entries
-                if e.get("requested_mm") is not None}
+            self.progress(
+                f"note: {self.folder.root}/scan.yaml not found; the scanner's scan.yaml and range.npy "
+                f"must be added (with lights: manifest.jsonl) before fitting"
+            )
+        done = {
+            tuple(round(float(v), 3) for v in e["requested_mm"])
+            for e in self.folder.entries
+            if e.get("requested_mm") is not None
+        }
         remaining = [t for t in targets if t.key not in done]
         self.summary["skipped"] = len(targets) - len(remaining)
-        for t in remaining:    # soft limits for the whole plan, before anything is sent
+        for t in remaining:  # soft limits for the whole plan, before anything is sent
             self.model.target(t.requested_mm, what=f"plan position {t.requested_mm.tolist()}")
         if not remaining:
             self.progress(f"nothing to do: all {len(targets)} positions are recorded in {self.folder.manifest}")
@@ -174,18 +193,25 @@ class CaptureRunner:
                 self.summary["captured"] += 1
                 n = self.summary["skipped"] + self.summary["captured"]
                 grid = f" grid {tuple(t.grid)}" if t.grid is not None else ""
-                self.progress(f"[{n}/{len(targets)}] {entry['image']}{grid} requested "
-                              f"{np.round(t.requested_mm, 3).tolist()} reached {np.round(entry['position_mm'], 3).tolist()} "
-                              f"(MPos {np.round(entry['mpos'], 3).tolist()})")
+                self.progress(
+                    f"[{n}/{len(targets)}] {entry['image']}{grid} requested "
+                    f"{np.round(t.requested_mm, 3).tolist()} reached {np.round(entry['position_mm'], 3).tolist()} "
+                    f"(MPos {np.round(entry['mpos'], 3).tolist()})"
+                )
         except BaseException as exc:
             notes.append(self._light_off_quietly())
             left = len(remaining) - self.summary["captured"]
             then = "it homes ($H) first, then shoots" if self.s.home_on_start else "it shoots"
-            self.progress(f"capture stopped after {self.summary['captured']} new images; the folder is consistent "
-                          f"({len(self.folder.entries)} recorded); {notes[-1]}; run the same command again to resume: "
-                          f"{then} the {left} positions not yet recorded"
-                          + (" (the controller rebooted: its position is lost until homed)"
-                             if isinstance(exc, ControllerReset) else ""))
+            self.progress(
+                f"capture stopped after {self.summary['captured']} new images; the folder is consistent "
+                f"({len(self.folder.entries)} recorded); {notes[-1]}; run the same command again to resume: "
+                f"{then} the {left} positions not yet recorded"
+                + (
+                    " (the controller rebooted: its position is lost until homed)"
+                    if isinstance(exc, ControllerReset)
+                    else ""
+                )
+            )
             raise
         finally:
             self.summary["status_retries"] = self.client.status_retried

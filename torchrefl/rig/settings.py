@@ -6,7 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-
 from torchrefl.config import _apply, _nest, opt, parse_override, read_yaml_mapping
 from torchrefl.errors import ConfigError
 
@@ -22,8 +21,9 @@ class AxisSettings:
 
     axis: str = opt("X", "GRBL axis letter driving this direction", choices=("X", "Y", "Z", "A"))
     origin_mm: float = opt(-250.0, "machine coordinate (MPos) at head-frame 0 on this axis, mm")
-    sign: float = opt(1.0, "+1 when the machine coordinate grows with the head-frame coordinate, -1 otherwise",
-                      choices=(1.0, -1.0))
+    sign: float = opt(
+        1.0, "+1 when the machine coordinate grows with the head-frame coordinate, -1 otherwise", choices=(1.0, -1.0)
+    )
     min_mm: float = opt(-495.0, "lowest machine coordinate a move may target, mm (soft limit)")
     max_mm: float = opt(-5.0, "highest machine coordinate a move may target, mm (soft limit)")
 
@@ -50,8 +50,11 @@ class GridSettings:
 class LightSettings:
     """Which GRBL output switches the light relay."""
 
-    output: str = opt("coolant", "coolant: M8 on / M9 off (flood pin); mist: M7 / M9; spindle: M3 S<power> / M5",
-                      choices=("coolant", "mist", "spindle"))
+    output: str = opt(
+        "coolant",
+        "coolant: M8 on / M9 off (flood pin); mist: M7 / M9; spindle: M3 S<power> / M5",
+        choices=("coolant", "mist", "spindle"),
+    )
     spindle_power: float = opt(1000.0, "S word sent with M3 when output is spindle (PWM duty = S / $30)")
     settle_s: float = opt(0.2, "wait after switching the light on before triggering, s")
 
@@ -60,9 +63,12 @@ class LightSettings:
 class BoardSettings:
     """What the rig requires of the Grbl board's `$$` settings, checked on every connect (docs/rig.md)."""
 
-    limit_switches: bool = opt(True, "true: the board must home ($22=1) with soft limits ($20=1) and a travel "
-                                     "($130-$132) containing every axis's min_mm..max_mm; false: a machine "
-                                     "without limit switches: those checks are skipped, with a warning each time")
+    limit_switches: bool = opt(
+        True,
+        "true: the board must home ($22=1) with soft limits ($20=1) and a travel "
+        "($130-$132) containing every axis's min_mm..max_mm; false: a machine "
+        "without limit switches: those checks are skipped, with a warning each time",
+    )
 
 
 @dataclass
@@ -70,18 +76,27 @@ class TimeoutSettings:
     reply_s: float = opt(2.0, "longest wait for GRBL's reply to a command or a '?' query, s")
     banner_s: float = opt(2.5, "wait for the start-up banner after opening the port before sending Ctrl-X, s")
     home_s: float = opt(0.0, "longest homing cycle, s; 0 = computed from the board's $130-$132, $24, $25, $27")
-    status_retries: int = opt(3, "times a '?' is sent again after a malformed or missing status report before "
-                                 "the rig stops motion (feed hold) and gives up")
+    status_retries: int = opt(
+        3,
+        "times a '?' is sent again after a malformed or missing status report before "
+        "the rig stops motion (feed hold) and gives up",
+    )
     move_s: float = opt(120.0, "longest wait for Idle after a move, s")
     poll_s: float = opt(0.05, "pause between '?' status polls, s")
-    reconnect_s: float = opt(0.0, "after the port vanishes mid-capture, keep trying to reopen it this long "
-                                  "(then re-home and continue); 0 = stop with a RigError")
+    reconnect_s: float = opt(
+        0.0,
+        "after the port vanishes mid-capture, keep trying to reopen it this long "
+        "(then re-home and continue); 0 = stop with a RigError",
+    )
 
 
 @dataclass
 class CameraSettings:
-    command: str = opt("", "external trigger command; {path} is replaced by the image file to write "
-                           "(e.g. a scanner's texture export); empty = no external camera")
+    command: str = opt(
+        "",
+        "external trigger command; {path} is replaced by the image file to write "
+        "(e.g. a scanner's texture export); empty = no external camera",
+    )
     timeout_s: float = opt(120.0, "longest time the camera command may run, s")
 
 
@@ -92,17 +107,28 @@ class RigSettings:
     port: str = opt("/dev/ttyUSB0", "serial port: device path, pty, or any pyserial URL (loop://, rfc2217://...)")
     baudrate: int = opt(115200, "serial speed (GRBL 1.1: 115200)")
     feed_mm_min: float = opt(3000.0, "feed rate of the G1 moves between light positions, mm/min")
-    radial_mm: float = opt(300.0, "radial distance of the light plane from the rotation axis, mm "
-                                  "(fixed: the gantry moves laterally and vertically only)")
+    radial_mm: float = opt(
+        300.0,
+        "radial distance of the light plane from the rotation axis, mm "
+        "(fixed: the gantry moves laterally and vertically only)",
+    )
     position_tolerance_mm: float = opt(0.05, "largest allowed distance between requested and reached position, mm")
     home_on_start: bool = opt(True, "run the homing cycle ($H) before a capture (needed after power-up)")
-    rehome_on_reset: bool = opt(False, "when the controller resets mid-capture, home again and continue "
-                                       "instead of stopping with a RigError")
+    rehome_on_reset: bool = opt(
+        False, "when the controller resets mid-capture, home again and continue instead of stopping with a RigError"
+    )
     lateral: AxisSettings = section(AxisSettings, "axis carrying the light laterally")
-    vertical: AxisSettings = section(AxisSettings, "axis carrying the light vertically",
-                                     axis="Y", origin_mm=-150.0, min_mm=-295.0, max_mm=-5.0)
-    turntable: TurntableSettings = section(TurntableSettings, "optional turntable axis (units: degrees)",
-                                           axis="Z", origin_mm=0.0, min_mm=-360.0, max_mm=360.0)
+    vertical: AxisSettings = section(
+        AxisSettings, "axis carrying the light vertically", axis="Y", origin_mm=-150.0, min_mm=-295.0, max_mm=-5.0
+    )
+    turntable: TurntableSettings = section(
+        TurntableSettings,
+        "optional turntable axis (units: degrees)",
+        axis="Z",
+        origin_mm=0.0,
+        min_mm=-360.0,
+        max_mm=360.0,
+    )
     grid: GridSettings = section(GridSettings, "light grid")
     light: LightSettings = section(LightSettings, "light switch")
     board: BoardSettings = section(BoardSettings, "Grbl settings the rig requires")
@@ -128,12 +154,21 @@ def _check(cfg: RigSettings, where: str) -> None:
             raise ConfigError(f"{where}: key 'timeouts.{key}' must be positive")
     if cfg.timeouts.home_s < 0 or cfg.timeouts.status_retries < 0:
         raise ConfigError(f"{where}: keys 'timeouts.home_s' and 'timeouts.status_retries' must be >= 0")
-    homes = [k for k, on in (("home_on_start", cfg.home_on_start), ("rehome_on_reset", cfg.rehome_on_reset),
-                             ("timeouts.reconnect_s", cfg.timeouts.reconnect_s > 0)) if on]
+    homes = [
+        k
+        for k, on in (
+            ("home_on_start", cfg.home_on_start),
+            ("rehome_on_reset", cfg.rehome_on_reset),
+            ("timeouts.reconnect_s", cfg.timeouts.reconnect_s > 0),
+        )
+        if on
+    ]
     if not cfg.board.limit_switches and homes:
-        raise ConfigError(f"{where}: board.limit_switches is false (no switches, so no homing) but {', '.join(homes)} "
-                          f"asks the rig to home: set home_on_start: false, rehome_on_reset: false, "
-                          f"timeouts.reconnect_s: 0")
+        raise ConfigError(
+            f"{where}: board.limit_switches is false (no switches, so no homing) but {', '.join(homes)} "
+            f"asks the rig to home: set home_on_start: false, rehome_on_reset: false, "
+            f"timeouts.reconnect_s: 0"
+        )
 
 
 def load_rig_settings(path=None, overrides=(), data: dict | None = None) -> RigSettings:

@@ -22,8 +22,9 @@ def synthetic_capture(cfg: Config, out: Path, stages: Stages, log: Log) -> tuple
     """Render cfg.synthetic into out/capture and load it; the light selection (None when disabled)."""
     loader = CylindricalScanLoader()
     with stages.stage("synthetic scan"):
-        scan = SyntheticScan(cfg.synthetic, cfg.selection.grid, seed=cfg.seed, kappa=cfg.capture.kappa,
-                             threads=cfg.threads)
+        scan = SyntheticScan(
+            cfg.synthetic, cfg.selection.grid, seed=cfg.seed, kappa=cfg.capture.kappa, threads=cfg.threads
+        )
         scan.saturation_level = cfg.capture.saturation_level
         folder = scan.write_geometry(out / "capture")
     log(f"synthetic {cfg.synthetic.object} written to {folder}")
@@ -39,9 +40,11 @@ def synthetic_capture(cfg: Config, out: Path, stages: Stages, log: Log) -> tuple
             plot_coverage(selection, out / "selection" / "coverage.png")
             (out / "selection" / "selection.json").write_text(json.dumps(selection.to_json(), indent=2))
         t = selection.table()
-        log(f"light selection: {t['lights_selected']} of {t['candidates']} lights ({t['lights_for_diffuse']} for diffuse); "
+        log(
+            f"light selection: {t['lights_selected']} of {t['candidates']} lights ({t['lights_for_diffuse']} for diffuse); "
             f"diffuse coverage {t['diffuse_coverage']:.1%} (all: {t['diffuse_coverage_all_candidates']:.1%}), "
-            f"specular {t['specular_coverage']:.1%} (all: {t['specular_coverage_all_candidates']:.1%})")
+            f"specular {t['specular_coverage']:.1%} (all: {t['specular_coverage_all_candidates']:.1%})"
+        )
     with stages.stage("render textures"):
         with bar(len(positions), "render", cfg.output.progress, unit="image") as pb:
             scan.write_textures(folder, positions, progress=pb)

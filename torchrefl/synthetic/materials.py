@@ -37,7 +37,7 @@ def region_materials(rows: int, columns: int, seed: int = 0, uniform: bool = Fal
         band_top = int(rng.integers(int(0.30 * H), int(0.40 * H)))
         band_h = int(rng.integers(int(0.10 * H), int(0.15 * H)))
         band_cols = slice(int(rng.integers(0, W // 4)), int(rng.integers(W // 2, W)))
-        region[band_top:band_top + band_h, band_cols] = 4
+        region[band_top : band_top + band_h, band_cols] = 4
     order = rng.permutation(len(_PALETTE)) if not uniform else np.arange(len(_PALETTE))
     pd_tab = np.array([_PALETTE[i][0] for i in order])
     ps_tab = np.array([_PALETTE[i][1] for i in order])
@@ -51,7 +51,12 @@ def region_materials(rows: int, columns: int, seed: int = 0, uniform: bool = Fal
         pd = pd * (1 + 0.15 * np.sin(2 * np.pi * 2 * xx + phase[0]) * np.cos(np.pi * yy))[..., None]
         ps = ps * (1 + 0.20 * np.sin(2 * np.pi * 3 * xx + phase[1]) * np.sin(np.pi * 1.5 * yy + phase[2]))[..., None]
         sigma = sigma * (1 + 0.15 * np.cos(2 * np.pi * xx + phase[2]) * np.cos(np.pi * 2 * yy))
-    return {"pd": pd.astype(np.float64), "ps": ps.astype(np.float64), "sigma": sigma.astype(np.float64), "region": region}
+    return {
+        "pd": pd.astype(np.float64),
+        "ps": ps.astype(np.float64),
+        "sigma": sigma.astype(np.float64),
+        "region": region,
+    }
 
 
 # ---------------------------------------------------------------------------- materials as functions of position
@@ -59,17 +64,19 @@ def region_materials(rows: int, columns: int, seed: int = 0, uniform: bool = Fal
 # these functions take per-point coordinates and return per-point parameters; truth.npz holds
 # them evaluated at the texel centres' scanner hits.
 
-PAPER_WHITE = ((0.8, 0.8, 0.8), (0.0, 0.0, 0.0), 0.1)      # Object E setup 1: white diffuse paper
+PAPER_WHITE = ((0.8, 0.8, 0.8), (0.0, 0.0, 0.0), 0.1)  # Object E setup 1: white diffuse paper
 PAPER_GLOSSY = ((0.55, 0.55, 0.55), (0.35, 0.35, 0.35), 0.08)  # Object E setup 2: glossy paper
 
 
 def uniform_material(count: int, material=PAPER_WHITE, region=None) -> dict:
     """{'pd': (N, 3), 'ps': (N, 3), 'sigma': (N,), 'region': (N,) int} of one material at `count` points."""
     pd, ps, sigma = material
-    return {"pd": np.tile(np.asarray(pd, dtype=np.float64), (count, 1)),
-            "ps": np.tile(np.asarray(ps, dtype=np.float64), (count, 1)),
-            "sigma": np.full(count, float(sigma)),
-            "region": np.zeros(count, dtype=np.int64) if region is None else np.asarray(region, dtype=np.int64)}
+    return {
+        "pd": np.tile(np.asarray(pd, dtype=np.float64), (count, 1)),
+        "ps": np.tile(np.asarray(ps, dtype=np.float64), (count, 1)),
+        "sigma": np.full(count, float(sigma)),
+        "region": np.zeros(count, dtype=np.int64) if region is None else np.asarray(region, dtype=np.int64),
+    }
 
 
 class BowlMaterials:
@@ -85,7 +92,7 @@ class BowlMaterials:
         rng = np.random.default_rng([seed, 0xB0])
         self.uniform = uniform
         self.cuts = np.sort(rng.uniform(0.0, 2 * np.pi, size=4))
-        self.band = np.sort(rng.uniform(0.45, 1.15, size=2))          # polar angle range (rad)
+        self.band = np.sort(rng.uniform(0.45, 1.15, size=2))  # polar angle range (rad)
         if self.band[1] - self.band[0] < 0.25:
             self.band[1] = self.band[0] + 0.25
         start = rng.uniform(0.0, 2 * np.pi)
@@ -101,7 +108,7 @@ class BowlMaterials:
         if self.uniform:
             region = np.zeros(N, dtype=np.int64)
         else:
-            sector = np.searchsorted(self.cuts, phi) % 4                # wraps: the last and first sector join
+            sector = np.searchsorted(self.cuts, phi) % 4  # wraps: the last and first sector join
             rel = np.mod(phi - self.band_phi[0], 2 * np.pi)
             in_band = (alpha >= self.band[0]) & (alpha < self.band[1]) & (rel < self.band_phi[1] - self.band_phi[0])
             region = np.where(in_band, 4, sector)
@@ -118,5 +125,9 @@ class BowlMaterials:
             pd = pd * (1 + inside * 0.15 * np.sin(2 * phi + ph[0]) * np.cos(2 * alpha))[:, None]
             ps = ps * (1 + inside * 0.20 * np.sin(3 * phi + ph[1]) * np.sin(3 * alpha + ph[2]))[:, None]
             sigma = sigma * (1 + inside * 0.15 * np.cos(phi + ph[2]) * np.cos(4 * alpha))
-        return {"pd": pd.astype(np.float64), "ps": ps.astype(np.float64), "sigma": sigma.astype(np.float64),
-                "region": region.astype(np.int64)}
+        return {
+            "pd": pd.astype(np.float64),
+            "ps": ps.astype(np.float64),
+            "sigma": sigma.astype(np.float64),
+            "region": region.astype(np.int64),
+        }

@@ -40,8 +40,8 @@ from typing import Callable
 import numpy as np
 import trimesh
 
-from torchrefl.synthetic.materials import PAPER_GLOSSY, PAPER_WHITE, BowlMaterials, uniform_material
 from torchrefl.errors import GeometryError
+from torchrefl.synthetic.materials import PAPER_GLOSSY, PAPER_WHITE, BowlMaterials, uniform_material
 
 MESH_OBJECTS = ("object_e", "object_e_glossy", "bowl", "vase")
 
@@ -90,12 +90,20 @@ def _box(origin, e1, e2, e3, lengths) -> trimesh.Trimesh:
     return m
 
 
-def object_e(glossy: bool = False, *, length: float = 120.0, width: float = 80.0, thickness: float = 3.0,
-             fold_front: float = 15.0, tilt_deg: float = 15.0, yaw_deg: float = 20.0) -> MeshObject:
+def object_e(
+    glossy: bool = False,
+    *,
+    length: float = 120.0,
+    width: float = 80.0,
+    thickness: float = 3.0,
+    fold_front: float = 15.0,
+    tilt_deg: float = 15.0,
+    yaw_deg: float = 20.0,
+) -> MeshObject:
     """Object E: two plates at 90 degrees (see the module doc); regions 0 (upper plate) and 1 (lower)."""
     bis_elev = np.radians(tilt_deg)
-    dA = np.array([0.0, np.sin(bis_elev + np.pi / 4), np.cos(bis_elev + np.pi / 4)])   # upper plate, from the fold
-    dB = np.array([0.0, np.sin(bis_elev - np.pi / 4), np.cos(bis_elev - np.pi / 4)])   # lower plate
+    dA = np.array([0.0, np.sin(bis_elev + np.pi / 4), np.cos(bis_elev + np.pi / 4)])  # upper plate, from the fold
+    dB = np.array([0.0, np.sin(bis_elev - np.pi / 4), np.cos(bis_elev - np.pi / 4)])  # lower plate
     ex = np.array([1.0, 0.0, 0.0])
     y_top = width * dA[1]
     y_bot = width * dB[1]
@@ -119,10 +127,24 @@ def object_e(glossy: bool = False, *, length: float = 120.0, width: float = 80.0
     def material(points, tri):
         return uniform_material(len(tri), mat, region=(np.asarray(tri) >= nA).astype(np.int64))
 
-    info = {"fold_start": R @ fold, "fold_dir": R @ ex, "plate_dirs": np.stack([R @ dA, R @ dB]),
-            "inside_normals": np.stack([R @ dB, R @ dA]), "length": length, "width": width, "thickness": thickness}
-    return MeshObject("object_e_glossy" if glossy else "object_e", verts, faces, normal, material,
-                      (float(verts[:, 1].min()), float(verts[:, 1].max())), info)
+    info = {
+        "fold_start": R @ fold,
+        "fold_dir": R @ ex,
+        "plate_dirs": np.stack([R @ dA, R @ dB]),
+        "inside_normals": np.stack([R @ dB, R @ dA]),
+        "length": length,
+        "width": width,
+        "thickness": thickness,
+    }
+    return MeshObject(
+        "object_e_glossy" if glossy else "object_e",
+        verts,
+        faces,
+        normal,
+        material,
+        (float(verts[:, 1].min()), float(verts[:, 1].max())),
+        info,
+    )
 
 
 def _grid_faces(rows: int, cols: int, start: int, flip: bool) -> np.ndarray:
@@ -136,19 +158,30 @@ def _grid_faces(rows: int, cols: int, start: int, flip: bool) -> np.ndarray:
     return f[:, ::-1] if flip else f
 
 
-def bowl(seed: int = 0, uniform: bool = False, *, radius: float = 45.0, wall: float = 4.0, centre_front: float = 62.0,
-         tilt_deg: float = 10.0, yaw_deg: float = 20.0, rings: int = 96, segments: int = 384) -> MeshObject:
+def bowl(
+    seed: int = 0,
+    uniform: bool = False,
+    *,
+    radius: float = 45.0,
+    wall: float = 4.0,
+    centre_front: float = 62.0,
+    tilt_deg: float = 10.0,
+    yaw_deg: float = 20.0,
+    rings: int = 96,
+    segments: int = 384,
+) -> MeshObject:
     """A hemispherical bowl on its side, looked into by the scanner (see the module doc)."""
     R = _rot_y(yaw_deg) @ _rot_x(-tilt_deg)
     centre = R @ np.array([0.0, 0.0, centre_front])
-    axis = R @ np.array([0.0, 0.0, 1.0])                     # opening direction
+    axis = R @ np.array([0.0, 0.0, 1.0])  # opening direction
     e1 = R @ np.array([1.0, 0.0, 0.0])
     e2 = R @ np.array([0.0, 1.0, 0.0])
     alpha = np.linspace(0.0, np.pi / 2, rings + 1)
     phi = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
     A, P = np.meshgrid(alpha, phi, indexing="ij")
-    unit = (np.sin(A)[..., None] * (np.cos(P)[..., None] * e1 + np.sin(P)[..., None] * e2)
-            - np.cos(A)[..., None] * axis).reshape(-1, 3)
+    unit = (
+        np.sin(A)[..., None] * (np.cos(P)[..., None] * e1 + np.sin(P)[..., None] * e2) - np.cos(A)[..., None] * axis
+    ).reshape(-1, 3)
     inner = centre + radius * unit
     outer = centre + (radius + wall) * unit
     nv = len(inner)
@@ -157,8 +190,12 @@ def bowl(seed: int = 0, uniform: bool = False, *, radius: float = 45.0, wall: fl
     rim_inner = rings * segments + np.arange(segments)
     rim_outer = nv + rim_inner
     nxt = np.roll(np.arange(segments), -1)
-    f_rim = np.concatenate([np.stack([rim_inner, rim_outer, rim_outer[nxt]], -1),
-                            np.stack([rim_inner, rim_outer[nxt], rim_inner[nxt]], -1)])
+    f_rim = np.concatenate(
+        [
+            np.stack([rim_inner, rim_outer, rim_outer[nxt]], -1),
+            np.stack([rim_inner, rim_outer[nxt], rim_inner[nxt]], -1),
+        ]
+    )
     verts = np.concatenate([inner, outer])
     faces = np.concatenate([f_in, f_out, f_rim])
     n_in, n_out = len(f_in), len(f_out)
@@ -183,7 +220,9 @@ def bowl(seed: int = 0, uniform: bool = False, *, radius: float = 45.0, wall: fl
         return mats(np.clip(a, 0.0, np.pi / 2), ph, part_of(tri))
 
     info = {"centre": centre, "axis": axis, "radius": radius, "wall": wall, "inner_faces": n_in}
-    return MeshObject("bowl", verts, faces, normal, material, (float(verts[:, 1].min()), float(verts[:, 1].max())), info)
+    return MeshObject(
+        "bowl", verts, faces, normal, material, (float(verts[:, 1].min()), float(verts[:, 1].max())), info
+    )
 
 
 class VaseProfile:
@@ -197,7 +236,7 @@ class VaseProfile:
     def __init__(self, core: float, groove_radius: float, flank_deg: float, shoulder_radius: float, half_height: float):
         self.core, self.rho, self.rho2, self.half_height = core, groove_radius, shoulder_radius, half_height
         a = np.radians(flank_deg)
-        self.rc = core + groove_radius                                   # neck arc centre radius
+        self.rc = core + groove_radius  # neck arc centre radius
         self.y_edge = groove_radius * np.sin(a)
         self.r_edge = self.rc - groove_radius * np.cos(a)
         # convex shoulder: centre inside the solid, tangent at the neck's edge; its normal turns from
@@ -209,29 +248,43 @@ class VaseProfile:
 
     def radius(self, y: np.ndarray) -> np.ndarray:
         ay = np.abs(y)
-        neck = self.rc - np.sqrt(np.maximum(self.rho ** 2 - ay ** 2, 0.0))
-        sh = self.c2[0] + np.sqrt(np.maximum(self.rho2 ** 2 - (ay - self.c2[1]) ** 2, 0.0))
+        neck = self.rc - np.sqrt(np.maximum(self.rho**2 - ay**2, 0.0))
+        sh = self.c2[0] + np.sqrt(np.maximum(self.rho2**2 - (ay - self.c2[1]) ** 2, 0.0))
         return np.where(ay <= self.y_edge, neck, np.where(ay <= self.c2[1], sh, self.r_max))
 
     def slope(self, y: np.ndarray) -> np.ndarray:
         """dr/dy."""
         ay = np.abs(y)
-        neck = ay / np.sqrt(np.maximum(self.rho ** 2 - ay ** 2, 1e-12))
+        neck = ay / np.sqrt(np.maximum(self.rho**2 - ay**2, 1e-12))
         dy = ay - self.c2[1]
-        sh = -dy / np.sqrt(np.maximum(self.rho2 ** 2 - dy ** 2, 1e-12))
+        sh = -dy / np.sqrt(np.maximum(self.rho2**2 - dy**2, 1e-12))
         return np.sign(y) * np.where(ay <= self.y_edge, neck, np.where(ay <= self.c2[1], sh, 0.0))
 
 
-def vase(*, core: float = 45.0, groove_radius: float = 40.0, flank_deg: float = 60.0, shoulder_radius: float = 20.0,
-         half_height: float = 56.0, step_mm: float = 0.25, segments: int = 1440) -> MeshObject:
+def vase(
+    *,
+    core: float = 45.0,
+    groove_radius: float = 40.0,
+    flank_deg: float = 60.0,
+    shoulder_radius: float = 20.0,
+    half_height: float = 56.0,
+    step_mm: float = 0.25,
+    segments: int = 1440,
+) -> MeshObject:
     """The vase (see the module doc): a solid of revolution about the world y axis with a concave neck.
     Parts: side (region of the texel maps), flat top and bottom ends. Normals are the exact surface's."""
     prof = VaseProfile(core, groove_radius, flank_deg, shoulder_radius, half_height)
     ys = np.linspace(-half_height, half_height, int(round(2 * half_height / step_mm)) + 1)
     rs = prof.radius(ys)
     phi = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
-    side = np.stack([rs[:, None] * np.sin(phi)[None, :], np.broadcast_to(ys[:, None], (len(ys), segments)),
-                     rs[:, None] * np.cos(phi)[None, :]], -1).reshape(-1, 3)
+    side = np.stack(
+        [
+            rs[:, None] * np.sin(phi)[None, :],
+            np.broadcast_to(ys[:, None], (len(ys), segments)),
+            rs[:, None] * np.cos(phi)[None, :],
+        ],
+        -1,
+    ).reshape(-1, 3)
     f_side = _grid_faces(len(ys) - 1, segments, 0, flip=False)
     nv = len(side)
     centres = np.array([[0.0, -half_height, 0.0], [0.0, half_height, 0.0]])
@@ -253,8 +306,15 @@ def vase(*, core: float = 45.0, groove_radius: float = 40.0, flank_deg: float = 
         ends = np.stack([np.zeros_like(y), np.sign(y), np.zeros_like(y)], -1)
         return np.where((tri >= n_side)[:, None], ends, n)
 
-    info = {"profile": prof, "core": core, "groove_radius": groove_radius, "y_edge": float(prof.y_edge),
-            "r_max": float(prof.r_max), "half_height": half_height, "side_faces": n_side}
+    info = {
+        "profile": prof,
+        "core": core,
+        "groove_radius": groove_radius,
+        "y_edge": float(prof.y_edge),
+        "r_max": float(prof.r_max),
+        "half_height": half_height,
+        "side_faces": n_side,
+    }
     return MeshObject("vase", verts, faces, normal, None, (-half_height, half_height), info)
 
 

@@ -34,13 +34,12 @@ import numpy as np
 import torch
 
 from torchrefl.core import brdf as brdf_mod
-from torchrefl.errors import GeometryError
+from torchrefl.core.lobe_sampling import LOBES, row_dot, sample_mixture
 from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
-from torchrefl.core.threads import thread_map
 from torchrefl.core.rqmc import grouped_points
-from torchrefl.core.lobe_sampling import LOBES, row_dot, sample_mixture
-
+from torchrefl.core.threads import thread_map
+from torchrefl.errors import GeometryError
 
 
 def _t(x) -> torch.Tensor:
@@ -75,12 +74,24 @@ class IndirectRenderer:
     brdf: a torchrefl.core.brdf model name; offset: origin offset along the normal (mm).
     """
 
-    def __init__(self, tracer: RayTracer, normal_fn: NormalFn, material_fn: MaterialFn, brdf: str, *,
-                 offset: float = 0.01, min_bounces: int = 2, max_bounces: int = 32, seed: int = 0,
-                 chunk_paths: int = 1 << 17):
+    def __init__(
+        self,
+        tracer: RayTracer,
+        normal_fn: NormalFn,
+        material_fn: MaterialFn,
+        brdf: str,
+        *,
+        offset: float = 0.01,
+        min_bounces: int = 2,
+        max_bounces: int = 32,
+        seed: int = 0,
+        chunk_paths: int = 1 << 17,
+    ):
         brdf_mod.check_brdf_name(brdf, "synthetic.brdf")
         if min_bounces < 1 or max_bounces < min_bounces:
-            raise GeometryError(f"IndirectRenderer min_bounces/max_bounces: need 1 <= min ({min_bounces}) <= max ({max_bounces})")
+            raise GeometryError(
+                f"IndirectRenderer min_bounces/max_bounces: need 1 <= min ({min_bounces}) <= max ({max_bounces})"
+            )
         self.tracer = tracer
         self.normal_fn = normal_fn
         self.material_fn = material_fn
@@ -104,8 +115,9 @@ class IndirectRenderer:
 
     # ------------------------------------------------------------------ paths
 
-    def trace(self, points, normals, view, pd, ps, sigma, n_paths: int, rng: np.random.Generator,
-              groups=None) -> PathVertices:
+    def trace(
+        self, points, normals, view, pd, ps, sigma, n_paths: int, rng: np.random.Generator, groups=None
+    ) -> PathVertices:
         """Paths from origins (M of them: points, normals, view (M, 3), pd, ps (M, 3), sigma (M,)),
         n_paths each; returns their vertices y_k, k >= 1. groups (M,): origins averaged into one value
         (a texel's sub-samples), in contiguous runs; None = every origin on its own."""
@@ -140,14 +152,22 @@ class IndirectRenderer:
             tri = hits.triangle[keep]
             ny = self.normal_fn(y, tri)
             wi = l[keep]
-            flip = row_dot(ny, wi) > 0           # back side of a surface: shade the side the ray arrived at
+            flip = row_dot(ny, wi) > 0  # back side of a surface: shade the side the ray arrived at
             ny = np.where(flip[:, None], -ny, ny)
             mat = self.material_fn(y, tri)
             T, idx = T[keep], idx[keep]
-            for k, a in (("origin", idx), ("points", y), ("normals", ny), ("wo", -wi), ("pd", mat["pd"]),
-                         ("ps", mat["ps"]), ("sigma", mat["sigma"]), ("throughput", T)):
+            for k, a in (
+                ("origin", idx),
+                ("points", y),
+                ("normals", ny),
+                ("wo", -wi),
+                ("pd", mat["pd"]),
+                ("ps", mat["ps"]),
+                ("sigma", mat["sigma"]),
+                ("throughput", T),
+            ):
                 out[k].append(a)
-            if depth + 1 >= self.min_bounces:      # Russian roulette before the next bounce
+            if depth + 1 >= self.min_bounces:  # Russian roulette before the next bounce
                 q = np.minimum(0.95, T.max(-1))
                 live = np.flatnonzero(rng.random(len(T)) < q)
                 T = T[live] / q[live, None]
@@ -157,9 +177,16 @@ class IndirectRenderer:
             if not len(x):
                 break
         cat = lambda k, shape: np.concatenate(out[k]) if out[k] else np.zeros(shape)
-        return PathVertices(cat("origin", (0,)).astype(np.int64), cat("points", (0, 3)), cat("normals", (0, 3)),
-                            cat("wo", (0, 3)), cat("pd", (0, 3)), cat("ps", (0, 3)), cat("sigma", (0,)),
-                            cat("throughput", (0, 3)))
+        return PathVertices(
+            cat("origin", (0,)).astype(np.int64),
+            cat("points", (0, 3)),
+            cat("normals", (0, 3)),
+            cat("wo", (0, 3)),
+            cat("pd", (0, 3)),
+            cat("ps", (0, 3)),
+            cat("sigma", (0,)),
+            cat("throughput", (0, 3)),
+        )
 
     def shade(self, verts: PathVertices, lights: np.ndarray, M: int) -> np.ndarray:
         """Next-event estimation: (P, M, 3) sum over each origin's path vertices of T g / C^2 * vis for
@@ -181,8 +208,9 @@ class IndirectRenderer:
                 out[p, :, c] = np.bincount(verts.origin[i], weights=value[:, c], minlength=M)
         return out
 
-    def render(self, points, normals, view, pd, ps, sigma, lights, n_paths: int, progress=None,
-               groups=None) -> np.ndarray:
+    def render(
+        self, points, normals, view, pd, ps, sigma, lights, n_paths: int, progress=None, groups=None
+    ) -> np.ndarray:
         """(P, M, 3) mean indirect g-term per origin and light: the sensor value is kappa * Y times it.
 
         points, normals, view: (M, 3); pd, ps: (M, 3); sigma: (M,); lights: (P, M, 3) world positions.
@@ -204,7 +232,7 @@ class IndirectRenderer:
             groups = np.asarray(groups)
             if groups.shape != (M,):
                 raise GeometryError(f"groups has shape {groups.shape}, expected ({M},): one group per origin")
-            first = np.r_[np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]]), M]   # where each run starts
+            first = np.r_[np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]]), M]  # where each run starts
             starts = sorted(set(first[np.searchsorted(first, np.arange(0, M, per))].tolist()) - {M})
         ends = starts[1:] + [M]
         done = [0]
@@ -212,8 +240,17 @@ class IndirectRenderer:
         def work(ci):
             a, b = starts[ci], ends[ci]
             rng = np.random.default_rng([self.seed, 0x61, ci])
-            verts = self.trace(points[a:b], normals[a:b], view[a:b], pd[a:b], ps[a:b], sigma[a:b], n_paths, rng,
-                               None if groups is None else groups[a:b])
+            verts = self.trace(
+                points[a:b],
+                normals[a:b],
+                view[a:b],
+                pd[a:b],
+                ps[a:b],
+                sigma[a:b],
+                n_paths,
+                rng,
+                None if groups is None else groups[a:b],
+            )
             out[:, a:b] = self.shade(verts, lights[:, a:b], b - a) / n_paths
             done[0] += b - a
             if progress is not None:

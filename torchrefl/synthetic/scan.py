@@ -31,54 +31,68 @@ import torch
 import trimesh
 import yaml
 
-from torchrefl.core import brdf as brdf_mod
 from torchrefl.capture.cylindrical_rig import CylindricalRig, light_grid_positions
 from torchrefl.capture.images import write_png
-from torchrefl.synthetic.path_tracer import IndirectRenderer
-from torchrefl.synthetic.materials import region_materials
-from torchrefl.synthetic.objects import MESH_OBJECTS, make_object
 from torchrefl.config import LightGridConfig, SyntheticConfig
-from torchrefl.errors import GeometryError
+from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
+from torchrefl.errors import GeometryError
+from torchrefl.synthetic.materials import region_materials
+from torchrefl.synthetic.objects import MESH_OBJECTS, make_object
+from torchrefl.synthetic.path_tracer import IndirectRenderer
 
 
 class SyntheticScan:
     """A synthetic ellipsoid, sphere or mesh object (synthetic.objects) on the cylindrical rig with
     ground-truth maps."""
 
-    def __init__(self, cfg: SyntheticConfig, grid: LightGridConfig | None = None, seed: int = 0,
-                 kappa=(math.pi,) * 3, threads: int = 2):
+    def __init__(
+        self,
+        cfg: SyntheticConfig,
+        grid: LightGridConfig | None = None,
+        seed: int = 0,
+        kappa=(math.pi,) * 3,
+        threads: int = 2,
+    ):
         self.cfg = cfg
         self.grid = grid or LightGridConfig()
         self.seed = seed
         self.kappa = np.asarray(kappa, dtype=np.float64)
         self.threads = threads
-        self.saturation_level = 0.995       # written to scan.yaml (synthetic runs: capture.saturation_level)
+        self.saturation_level = 0.995  # written to scan.yaml (synthetic runs: capture.saturation_level)
         self.object = make_object(cfg.object, seed, cfg.materials) if cfg.object in MESH_OBJECTS else None
         if self.object is None:
             a, b, c = cfg.size_mm if cfg.object == "ellipsoid" else [cfg.size_mm[0]] * 3
-        else:   # half extents of the mesh about the axis origin: they set the scanner's start distance
+        else:  # half extents of the mesh about the axis origin: they set the scanner's start distance
             a, b, c = np.abs(self.object.vertices).max(0)
         self.axes = np.array([a, b, c], dtype=np.float64)
         height = cfg.rows * cfg.height_step_mm
         self.rig = CylindricalRig(
-            rows=cfg.rows, columns=cfg.columns,
-            angle0=0.0, angle_step=math.radians(cfg.angle_step_deg),
-            height0=-height / 2.0 + cfg.height_step_mm / 2.0, height_step=cfg.height_step_mm,
-            camera_distance=cfg.camera_distance_mm, camera_height=0.0,
+            rows=cfg.rows,
+            columns=cfg.columns,
+            angle0=0.0,
+            angle_step=math.radians(cfg.angle_step_deg),
+            height0=-height / 2.0 + cfg.height_step_mm / 2.0,
+            height_step=cfg.height_step_mm,
+            camera_distance=cfg.camera_distance_mm,
+            camera_height=0.0,
         )
         if self.object is not None:
             lo, hi = self.object.extent_y
             if max(-lo, hi) >= height / 2.0:
                 raise GeometryError(
                     f"synthetic.object: {cfg.object} spans heights {lo:.1f}..{hi:.1f} mm, outside the scan height "
-                    f"+-{height / 2:.1f} mm (synthetic.rows x synthetic.height_step_mm)")
+                    f"+-{height / 2:.1f} mm (synthetic.rows x synthetic.height_step_mm)"
+                )
             self.mesh = trimesh.Trimesh(self.object.vertices, self.object.faces, process=False)
             self.tracer = RayTracer(self.object.vertices, self.object.faces, threads=threads)
             # objects without a material function (the vase) carry the texel-aligned region maps of the scan grid
-            self._maps = None if self.object.material is not None else region_materials(
-                cfg.rows, cfg.columns, seed=seed, uniform=cfg.materials == "uniform")
+            self._maps = (
+                None
+                if self.object.material is not None
+                else region_materials(cfg.rows, cfg.columns, seed=seed, uniform=cfg.materials == "uniform")
+            )
             self.truth = self._mesh_truth()
             self._samples = None
             self._gi = None
@@ -86,7 +100,8 @@ class SyntheticScan:
         if self.axes[1] >= height / 2.0:
             raise GeometryError(
                 f"synthetic.size_mm: object half-height {self.axes[1]} mm does not fit the scan height "
-                f"{height:.1f} mm (synthetic.rows x synthetic.height_step_mm)")
+                f"{height:.1f} mm (synthetic.rows x synthetic.height_step_mm)"
+            )
         mesh = trimesh.creation.icosphere(subdivisions=cfg.mesh_subdivisions)
         mesh.apply_scale(self.axes)
         self.mesh = mesh
@@ -109,7 +124,7 @@ class SyntheticScan:
         t = (-B - np.sqrt(np.where(hit, disc, 0))) / (2 * A)
         hit &= t > 0
         p = origins + t[:, None] * dirs
-        n = p / (self.axes ** 2)
+        n = p / (self.axes**2)
         n /= np.linalg.norm(n, axis=-1, keepdims=True)
         return p, n, hit
 
@@ -151,8 +166,13 @@ class SyntheticScan:
         if idx.size:
             m = self._material_at(p[idx], tri[idx])
             pd[idx], ps[idx], sigma[idx], region[idx] = m["pd"], m["ps"], m["sigma"], m["region"]
-        return {"pd": pd.reshape(H, W, 3), "ps": ps.reshape(H, W, 3), "sigma": sigma.reshape(H, W),
-                "region": region.reshape(H, W), "texel_hit": hit.reshape(H, W)}
+        return {
+            "pd": pd.reshape(H, W, 3),
+            "ps": ps.reshape(H, W, 3),
+            "sigma": sigma.reshape(H, W),
+            "region": region.reshape(H, W),
+            "texel_hit": hit.reshape(H, W),
+        }
 
     def range_image(self) -> np.ndarray:
         """(H, W) float64 range r(s, t) in mm, NaN where the scanner ray misses.
@@ -176,7 +196,7 @@ class SyntheticScan:
             r = r + rng.normal(0.0, cfg.range_noise_mm, size=r.shape)
         if cfg.range_bits:
             lo, hi = np.nanmin(r), np.nanmax(r)
-            levels = 2 ** cfg.range_bits - 1
+            levels = 2**cfg.range_bits - 1
             step = (hi - lo) / levels
             r = lo + np.round((r - lo) / step) * step
         return r
@@ -190,8 +210,8 @@ class SyntheticScan:
         offs = (np.arange(k) + 0.5) / k - 0.5
         du, dv = np.meshgrid(offs, offs)
         du, dv = du.ravel(), dv.ravel()
-        s = self.rig.angles()[:, None] + du[None, :] * self.rig.angle_step          # (W, S)
-        t = self.rig.heights()[:, None] + dv[None, :] * self.rig.height_step         # (H, S)
+        s = self.rig.angles()[:, None] + du[None, :] * self.rig.angle_step  # (W, S)
+        t = self.rig.heights()[:, None] + dv[None, :] * self.rig.height_step  # (H, S)
         H, W, Sn = self.rig.rows, self.rig.columns, du.size
         S_full = np.broadcast_to(s[None], (H, W, Sn)).ravel()
         T_full = np.broadcast_to(t[:, None, :], (H, W, Sn)).ravel()
@@ -212,8 +232,12 @@ class SyntheticScan:
         v /= np.linalg.norm(v, axis=-1, keepdims=True)
         u, w = CylindricalRig.head_axes(S_full[keep])
         self._samples = {
-            "points": p[keep], "normals": n[keep], "view": v, "texel": texel,
-            "u": u.astype(np.float32), "w": w.astype(np.float32),
+            "points": p[keep],
+            "normals": n[keep],
+            "view": v,
+            "texel": texel,
+            "u": u.astype(np.float32),
+            "w": w.astype(np.float32),
             "count": np.bincount(texel, minlength=H * W),
         }
         if self.object is not None:
@@ -230,7 +254,9 @@ class SyntheticScan:
     def candidate_positions(self) -> np.ndarray:
         """(P, 3) head-frame candidate light positions [lateral, vertical, radial] of the light grid."""
         g = self.grid
-        return light_grid_positions(g.columns, g.rows, g.spacing_mm, g.radial_mm, g.center_lateral_mm, g.center_vertical_mm)
+        return light_grid_positions(
+            g.columns, g.rows, g.spacing_mm, g.radial_mm, g.center_lateral_mm, g.center_vertical_mm
+        )
 
     # ------------------------------------------------------------------ rendering
 
@@ -267,7 +293,7 @@ class SyntheticScan:
     def _normal_at(self, points: np.ndarray, tri: np.ndarray) -> np.ndarray:
         if self.object is not None:
             return self.object.normal(points, tri)
-        n = points / (self.axes ** 2)
+        n = points / (self.axes**2)
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
     def _material_at(self, points: np.ndarray, tri: np.ndarray) -> dict:
@@ -285,8 +311,9 @@ class SyntheticScan:
     def indirect_renderer(self) -> IndirectRenderer:
         if self._gi is None:
             cfg = self.cfg
-            self._gi = IndirectRenderer(self.tracer, self._normal_at, self._material_at, cfg.brdf, offset=0.01,
-                                        seed=self.seed)
+            self._gi = IndirectRenderer(
+                self.tracer, self._normal_at, self._material_at, cfg.brdf, offset=0.01, seed=self.seed
+            )
         return self._gi
 
     def indirect_subsamples(self, head_positions, progress=None) -> np.ndarray:
@@ -299,9 +326,18 @@ class SyntheticScan:
         mat = {}
         for k in ("pd", "ps", "sigma"):
             mat[k] = smp[k] if k in smp else self.truth[k].reshape((H * W,) + self.truth[k].shape[2:])[smp["texel"]]
-        g = self.indirect_renderer().render(smp["points"], smp["normals"], smp["view"], mat["pd"], mat["ps"],
-                                            mat["sigma"], lights, cfg.indirect_samples, progress=progress,
-                                            groups=smp["texel"])
+        g = self.indirect_renderer().render(
+            smp["points"],
+            smp["normals"],
+            smp["view"],
+            mat["pd"],
+            mat["ps"],
+            mat["sigma"],
+            lights,
+            cfg.indirect_samples,
+            progress=progress,
+            groups=smp["texel"],
+        )
         return self.kappa * cfg.light_intensity * g
 
     def _direct_sum(self, head_position) -> np.ndarray:
@@ -325,8 +361,16 @@ class SyntheticScan:
             else:
                 flat = lambda key: self.truth[key].reshape((H * W,) + self.truth[key].shape[2:])[tex]
             with torch.no_grad():
-                g = brdf_mod.cosine_weighted_brdf(cfg.brdf, tt(n[idx]), tt(l[idx]), tt(smp["view"][idx]),
-                                                  tt(flat("pd")), tt(flat("ps")), tt(flat("sigma")), cfg.minnaert_k).numpy()
+                g = brdf_mod.cosine_weighted_brdf(
+                    cfg.brdf,
+                    tt(n[idx]),
+                    tt(l[idx]),
+                    tt(smp["view"][idx]),
+                    tt(flat("pd")),
+                    tt(flat("ps")),
+                    tt(flat("sigma")),
+                    cfg.minnaert_k,
+                ).numpy()
             value = self.kappa * cfg.light_intensity * g / (dist[idx, None] ** 2)
             for c in range(3):
                 img[:, c] = np.bincount(tex, weights=value[:, c], minlength=H * W)
@@ -342,7 +386,7 @@ class SyntheticScan:
         head = np.asarray(head_position, dtype=np.float64)
         key = int.from_bytes(hashlib.sha256(np.round(head, 6).tobytes()).digest()[:8], "little")
         rng = np.random.default_rng([self.seed, key])
-        levels = 2 ** cfg.texture_bits - 1
+        levels = 2**cfg.texture_bits - 1
         noisy = img * levels + rng.normal(0.0, cfg.noise_dn * levels / 255.0, size=img.shape)
         q = np.clip(np.round(noisy), 0, levels)
         return q.astype(np.uint8 if cfg.texture_bits == 8 else np.uint16)
@@ -364,8 +408,15 @@ class SyntheticScan:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         np.save(folder / "range.npy", self.range_image().astype(np.float32))
-        np.savez(folder / "truth.npz", pd=self.truth["pd"], ps=self.truth["ps"], sigma=self.truth["sigma"],
-                 region=self.truth["region"], brdf=self.cfg.brdf, minnaert_k=float(self.cfg.minnaert_k))
+        np.savez(
+            folder / "truth.npz",
+            pd=self.truth["pd"],
+            ps=self.truth["ps"],
+            sigma=self.truth["sigma"],
+            region=self.truth["region"],
+            brdf=self.cfg.brdf,
+            minnaert_k=float(self.cfg.minnaert_k),
+        )
         (folder / "scan.yaml").write_text(yaml.safe_dump(self.scan_yaml(), sort_keys=False))
         return folder
 

@@ -25,8 +25,13 @@ def mixed_faces(corner_normals: np.ndarray) -> np.ndarray:
     return (cos(0, 1) < MIXED_COS) | (cos(0, 2) < MIXED_COS) | (cos(1, 2) < MIXED_COS)
 
 
-def facing_corner(corner: np.ndarray, corner_normals: np.ndarray, direction: np.ndarray, score: np.ndarray,
-                  usable: np.ndarray | None = None) -> np.ndarray:
+def facing_corner(
+    corner: np.ndarray,
+    corner_normals: np.ndarray,
+    direction: np.ndarray,
+    score: np.ndarray,
+    usable: np.ndarray | None = None,
+) -> np.ndarray:
     """(n,) corner index (0-2) of each hit on a mixed face: `corner` (n,) where that corner's normal faces the
     ray, else the facing corner with the largest score (n, 3); unchanged where no usable corner faces it.
     corner_normals (n, 3, 3), direction (n, 3) the rays' directions, usable (n, 3) bool (None: all)."""

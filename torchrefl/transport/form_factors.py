@@ -39,12 +39,12 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
-from torchrefl.errors import ConfigError, GeometryError
-from torchrefl.core.surface import Surface
 from torchrefl.core.lobe_sampling import tangent_frame
 from torchrefl.core.rays import RayTracer
-from torchrefl.core.threads import thread_map
 from torchrefl.core.rqmc import sobol_base, toroidal_shift
+from torchrefl.core.surface import Surface
+from torchrefl.core.threads import thread_map
+from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
 
 #: hemisphere_form_factors returns a dense (Q, Q) tensor when Q * Q <= DENSE_MAX_ENTRIES
@@ -85,7 +85,7 @@ class Patches:
 
     def members(self, q: int) -> torch.Tensor:
         """(n_q,) int64 texel indices of patch q."""
-        return self.member_texels[int(self.member_offsets[q]):int(self.member_offsets[q + 1])]
+        return self.member_texels[int(self.member_offsets[q]) : int(self.member_offsets[q + 1])]
 
     def padded(self, *values: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """Per-texel values (T, ...) laid out per patch as (Q, K, ...) with K the largest patch,
@@ -128,14 +128,19 @@ def texel_patches(surface: Surface, patch_size: int, split_angle_deg: float = 18
     bw = -(-W // s)
     block_id = (row // s) * bw + (col // s)
     if not (isinstance(split_angle_deg, (int, float, np.number)) and 0.0 <= float(split_angle_deg) <= 180.0):
-        raise ConfigError(f"split_angle_deg must be a number in [0, 180] (degrees between texel normals that split "
-                          f"a patch), got {split_angle_deg!r}")
+        raise ConfigError(
+            f"split_angle_deg must be a number in [0, 180] (degrees between texel normals that split "
+            f"a patch), got {split_angle_deg!r}"
+        )
     n = surface.normals.detach().cpu().double()
-    part, parts = split_by_normal(block_id, n, math.cos(math.radians(float(split_angle_deg)))) if s > 1 else (
-        torch.zeros_like(block_id), 1)
+    part, parts = (
+        split_by_normal(block_id, n, math.cos(math.radians(float(split_angle_deg))))
+        if s > 1
+        else (torch.zeros_like(block_id), 1)
+    )
     key = block_id * parts + part
     uniq, texel_patch = torch.unique(key, sorted=True, return_inverse=True)
-    uniq = uniq // parts                                                # the block of each patch
+    uniq = uniq // parts  # the block of each patch
     Q = len(uniq)
     order = torch.argsort(texel_patch, stable=True)
     counts = torch.bincount(texel_patch, minlength=Q)
@@ -147,18 +152,30 @@ def texel_patches(surface: Surface, patch_size: int, split_angle_deg: float = 18
     areas = torch.zeros(Q, dtype=torch.float64).index_add_(0, texel_patch, a)
     if (areas <= 0).any():
         q = int(torch.nonzero(areas <= 0)[0])
-        raise GeometryError(f"surface from {surface.source}: field 'areas' sums to {float(areas[q]):.3g} <= 0 "
-                            f"over patch {q} (block {int(uniq[q]) // bw}, {int(uniq[q]) % bw}); expected positive texel areas")
+        raise GeometryError(
+            f"surface from {surface.source}: field 'areas' sums to {float(areas[q]):.3g} <= 0 "
+            f"over patch {q} (block {int(uniq[q]) // bw}, {int(uniq[q]) % bw}); expected positive texel areas"
+        )
     centres = torch.zeros(Q, 3, dtype=torch.float64).index_add_(0, texel_patch, x * a[:, None]) / areas[:, None]
     nsum = torch.zeros(Q, 3, dtype=torch.float64).index_add_(0, texel_patch, n * a[:, None])
     nlen = nsum.norm(dim=1)
     if (nlen <= 1e-9 * areas).any():
         q = int(torch.nonzero(nlen <= 1e-9 * areas)[0])
-        raise GeometryError(f"surface from {surface.source}: field 'normals' cancel over patch {q} (block "
-                            f"{int(uniq[q]) // bw}, {int(uniq[q]) % bw}): no mean normal; use a smaller patch_size")
+        raise GeometryError(
+            f"surface from {surface.source}: field 'normals' cancel over patch {q} (block "
+            f"{int(uniq[q]) // bw}, {int(uniq[q]) % bw}): no mean normal; use a smaller patch_size"
+        )
     block = torch.stack([uniq // bw, uniq % bw], dim=1)
-    return Patches(texel_patch=texel_patch, centres=centres, normals=nsum / nlen[:, None], areas=areas,
-                   member_offsets=offsets, member_texels=order, block=block, patch_size=s)
+    return Patches(
+        texel_patch=texel_patch,
+        centres=centres,
+        normals=nsum / nlen[:, None],
+        areas=areas,
+        member_offsets=offsets,
+        member_texels=order,
+        block=block,
+        patch_size=s,
+    )
 
 
 def split_by_normal(group: torch.Tensor, normals: torch.Tensor, cos_min: float) -> tuple[torch.Tensor, int]:
@@ -200,15 +217,19 @@ def face_patches(surface: Surface, patches: Patches) -> np.ndarray:
     H, W = surface.grid_shape
     V = len(surface.mesh_vertices)
     if V != H * W:
-        raise GeometryError(f"{where}: mesh_vertices has {V} vertices, expected H*W = {H * W} (one per grid point, "
-                            "as grid_triangulation builds it) to map faces to texels")
+        raise GeometryError(
+            f"{where}: mesh_vertices has {V} vertices, expected H*W = {H * W} (one per grid point, "
+            "as grid_triangulation builds it) to map faces to texels"
+        )
     faces = np.asarray(surface.mesh_faces)
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise GeometryError(f"{where}: mesh_faces has shape {faces.shape}, expected (F, 3)")
     texel_patch = patches.texel_patch.cpu().numpy()
     if len(texel_patch) != surface.num_texels:
-        raise GeometryError(f"patches.texel_patch has {len(texel_patch)} entries, expected {surface.num_texels} "
-                            "(one per texel of the surface)")
+        raise GeometryError(
+            f"patches.texel_patch has {len(texel_patch)} entries, expected {surface.num_texels} "
+            "(one per texel of the surface)"
+        )
     grid = np.full(H * W, -1, dtype=np.int64)
     grid[surface.texel_index.cpu().numpy()] = texel_patch
     first = faces[:, 0].astype(np.int64)
@@ -238,10 +259,21 @@ def _as_array(name: str, x, shape_text: str) -> np.ndarray:
     return a
 
 
-def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, weights, *, samples_per_patch: int,
-                            seed: int, offset: float, count_back_hits: bool = False, layout: str = "auto",
-                            progress: Optional[Callable[[int, int], None]] = None,
-                            corners: Optional[tuple[np.ndarray, np.ndarray]] = None) -> torch.Tensor:
+def hemisphere_form_factors(
+    tracer: RayTracer,
+    face_patch,
+    origins,
+    normals,
+    weights,
+    *,
+    samples_per_patch: int,
+    seed: int,
+    offset: float,
+    count_back_hits: bool = False,
+    layout: str = "auto",
+    progress: Optional[Callable[[int, int], None]] = None,
+    corners: Optional[tuple[np.ndarray, np.ndarray]] = None,
+) -> torch.Tensor:
     """Form factors F (Q, Q) float64 between Q patches by cosine-weighted hemisphere rays.
 
     tracer: RayTracer over the scene mesh (F faces). face_patch: (F,) int, patch of each face, -1 for
@@ -265,8 +297,11 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     the lower plate's row nearest the fold gathered 3 % too little light). Faces with all corners alike are
     unaffected, and so are faces whose corners' normals agree within about 25 degrees (fold_hits.MIXED_COS).
     """
-    if isinstance(samples_per_patch, bool) or not isinstance(samples_per_patch, (int, np.integer)) \
-            or samples_per_patch < 1:
+    if (
+        isinstance(samples_per_patch, bool)
+        or not isinstance(samples_per_patch, (int, np.integer))
+        or samples_per_patch < 1
+    ):
         raise ConfigError(f"samples_per_patch must be an integer >= 1, got {samples_per_patch!r}")
     if not (isinstance(offset, (int, float, np.floating)) and math.isfinite(offset) and offset >= 0):
         raise ConfigError(f"offset must be a finite number >= 0 (ray start distance along the normal), got {offset!r}")
@@ -287,8 +322,10 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         raise GeometryError("weights must be finite and >= 0 (0 marks padding)")
     row = w.sum(1)
     if (row <= 0).any():
-        raise GeometryError(f"weights of patch {int(np.flatnonzero(row <= 0)[0])} sum to 0: every patch needs "
-                            "at least one origin with positive weight")
+        raise GeometryError(
+            f"weights of patch {int(np.flatnonzero(row <= 0)[0])} sum to 0: every patch needs "
+            "at least one origin with positive weight"
+        )
     used = w > 0
     if not (np.isfinite(o[used]).all() and np.isfinite(nm[used]).all()):
         raise GeometryError("origins/normals contain NaN or inf values at entries with positive weight")
@@ -299,7 +336,9 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
         raise GeometryError(f"normals must be unit where weights > 0; normals[{q}, {k}] has length {nlen[q, k]:.4g}")
     fp = _as_array("face_patch", face_patch, "(F,)")
     if fp.shape != (tracer.num_triangles,):
-        raise GeometryError(f"face_patch has shape {fp.shape}, expected ({tracer.num_triangles},): one patch per mesh face")
+        raise GeometryError(
+            f"face_patch has shape {fp.shape}, expected ({tracer.num_triangles},): one patch per mesh face"
+        )
     if not np.issubdtype(fp.dtype, np.integer):
         raise GeometryError(f"face_patch must be integer patch indices, got dtype {fp.dtype}")
     fp = fp.astype(np.int64)
@@ -309,13 +348,15 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     if corners is not None:
         c_patch, c_normal = (np.asarray(x) for x in corners)
         if c_patch.shape != (len(fp), 3) or c_normal.shape != (len(fp), 3, 3):
-            raise GeometryError(f"corners have shapes {c_patch.shape} and {c_normal.shape}, expected ({len(fp)}, 3) "
-                                f"and ({len(fp)}, 3, 3): the patch and normal of each face's three corners")
+            raise GeometryError(
+                f"corners have shapes {c_patch.shape} and {c_normal.shape}, expected ({len(fp)}, 3) "
+                f"and ({len(fp)}, 3, 3): the patch and normal of each face's three corners"
+            )
         c_patch = c_patch.astype(np.int64)
         c_normal = c_normal.astype(np.float32)
         # the rule matters on mixed faces whose corners lie in different patches, and only those pay for it
         mixed = mixed_faces(c_normal) & ((c_patch[:, 0] != c_patch[:, 1]) | (c_patch[:, 0] != c_patch[:, 2]))
-        mixed = np.append(mixed, False)                 # index -1 (a miss) reads False: one pass over the rays
+        mixed = np.append(mixed, False)  # index -1 (a miss) reads False: one pass over the rays
         if not mixed.any():
             corners = None
 
@@ -328,7 +369,7 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
     cn = nm.reshape(-1, 3)[cand].astype(np.float64)
     cn /= np.linalg.norm(cn, axis=1, keepdims=True)
     ct, cb = tangent_frame(cn)
-    frames = np.stack([ct, cb, cn], 1).astype(np.float32)                     # (C, 3, 3): rows t, b, n
+    frames = np.stack([ct, cb, cn], 1).astype(np.float32)  # (C, 3, 3): rows t, b, n
     cstart = (o.reshape(-1, 3)[cand].astype(np.float64) + offset * cn).astype(np.float32)
     front = None if count_back_hits else _front_faces(tracer, fp, w, nm, Q).astype(np.float32)
 
@@ -363,8 +404,13 @@ def hemisphere_form_factors(tracer: RayTracer, face_patch, origins, normals, wei
             hit = np.flatnonzero(np.take(mixed, tri))
             if hit.size:
                 th, cn = tri[hit], c_normal[tri[hit]]
-                k = facing_corner(np.zeros(hit.size, dtype=np.int64), cn, d[hit],
-                                  -np.einsum("ni,nci->nc", d[hit], cn), usable=c_patch[th] >= 0)
+                k = facing_corner(
+                    np.zeros(hit.size, dtype=np.int64),
+                    cn,
+                    d[hit],
+                    -np.einsum("ni,nci->nc", d[hit], cn),
+                    usable=c_patch[th] >= 0,
+                )
                 dst[hit] = np.where(k > 0, c_patch[th, k], dst[hit])
         if front is not None:
             hit = np.flatnonzero(dst >= 0)
@@ -406,9 +452,16 @@ def _front_faces(tracer: RayTracer, fp: np.ndarray, w: np.ndarray, nm: np.ndarra
     return fn * sign[:, None]
 
 
-def form_factors_for_surface(surface: Surface, tracer: Optional[RayTracer] = None, patch_size: int = 1,
-                             samples_per_patch: int = 256, seed: int = 0, offset: Optional[float] = None,
-                             split_angle_deg: float = 180.0, **kwargs) -> tuple[Patches, torch.Tensor]:
+def form_factors_for_surface(
+    surface: Surface,
+    tracer: Optional[RayTracer] = None,
+    patch_size: int = 1,
+    samples_per_patch: int = 256,
+    seed: int = 0,
+    offset: Optional[float] = None,
+    split_angle_deg: float = 180.0,
+    **kwargs,
+) -> tuple[Patches, torch.Tensor]:
     """Patches of the surface (texel_patches with split_angle_deg) and their form factors
     (hemisphere_form_factors).
 
@@ -419,31 +472,48 @@ def form_factors_for_surface(surface: Surface, tracer: Optional[RayTracer] = Non
     count_back_hits).
     """
     if not surface.has_mesh:
-        raise GeometryError(f"surface from {surface.source}: mesh_vertices/mesh_faces are None; form factors "
-                            "need the triangle mesh")
+        raise GeometryError(
+            f"surface from {surface.source}: mesh_vertices/mesh_faces are None; form factors need the triangle mesh"
+        )
     patches = texel_patches(surface, patch_size, split_angle_deg)
     fpatch = face_patches(surface, patches)
     if tracer is None:
         tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces)
     if offset is None:
         offset = 1e-3 * math.sqrt(float(surface.areas.detach().double().median()))
-    pos, nrm, area, mask = patches.padded(surface.positions.detach().cpu().double(),
-                                          surface.normals.detach().cpu().double(),
-                                          surface.areas.detach().cpu().double())
-    F = hemisphere_form_factors(tracer, fpatch, pos, nrm, area * mask, samples_per_patch=samples_per_patch,
-                                seed=seed, offset=float(offset), corners=face_corners(surface, patches), **kwargs)
+    pos, nrm, area, mask = patches.padded(
+        surface.positions.detach().cpu().double(),
+        surface.normals.detach().cpu().double(),
+        surface.areas.detach().cpu().double(),
+    )
+    F = hemisphere_form_factors(
+        tracer,
+        fpatch,
+        pos,
+        nrm,
+        area * mask,
+        samples_per_patch=samples_per_patch,
+        seed=seed,
+        offset=float(offset),
+        corners=face_corners(surface, patches),
+        **kwargs,
+    )
     return patches, F
 
 
 def sampling_error(F: torch.Tensor, samples_per_patch: int) -> torch.Tensor:
     """Binomial standard error sqrt(F (1 - F) / N) of each entry (same layout as F; 0 where F is 0): the error
     of independent rays, which hemisphere_form_factors' stratified rays stay below (module docstring)."""
-    if isinstance(samples_per_patch, bool) or not isinstance(samples_per_patch, (int, np.integer)) \
-            or samples_per_patch < 1:
+    if (
+        isinstance(samples_per_patch, bool)
+        or not isinstance(samples_per_patch, (int, np.integer))
+        or samples_per_patch < 1
+    ):
         raise ConfigError(f"samples_per_patch must be an integer >= 1, got {samples_per_patch!r}")
     if F.is_sparse:
         F = F.coalesce()
         v = F.values()
-        return torch.sparse_coo_tensor(F.indices(), torch.sqrt(v * (1 - v) / samples_per_patch), F.shape,
-                                       check_invariants=False).coalesce()
+        return torch.sparse_coo_tensor(
+            F.indices(), torch.sqrt(v * (1 - v) / samples_per_patch), F.shape, check_invariants=False
+        ).coalesce()
     return torch.sqrt(F * (1 - F) / samples_per_patch)

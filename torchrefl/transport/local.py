@@ -73,10 +73,18 @@ def predict(terms: LocalTerms, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.
     return pd.unsqueeze(0) * terms.diffuse + ps.unsqueeze(0) * (lobe[..., None] * terms.specular)
 
 
-def render_reference(brdf_name: str, normals, obs: Observations, pd, ps, sigma, diffuse_exponent: float = 1.0) -> torch.Tensor:
+def render_reference(
+    brdf_name: str, normals, obs: Observations, pd, ps, sigma, diffuse_exponent: float = 1.0
+) -> torch.Tensor:
     """(P, T, 3) the same prediction straight from brdf.cosine_weighted_brdf (slow, obvious)."""
     g = brdf_mod.cosine_weighted_brdf(
-        brdf_name, normals.unsqueeze(0), obs.light_dir, obs.view_dirs_full(),
-        pd.unsqueeze(0), ps.unsqueeze(0), sigma.unsqueeze(0), diffuse_exponent,
+        brdf_name,
+        normals.unsqueeze(0),
+        obs.light_dir,
+        obs.view_dirs_full(),
+        pd.unsqueeze(0),
+        ps.unsqueeze(0),
+        sigma.unsqueeze(0),
+        diffuse_exponent,
     )
     return light_scale(obs) * g

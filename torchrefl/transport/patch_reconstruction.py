@@ -26,11 +26,20 @@ from torchrefl.core.lobe_sampling import tangent_frame
 from torchrefl.core.texel_grid import grid_flat
 from torchrefl.errors import ConfigError
 
-RIDGE = 1e-6          # slope regulariser: RIDGE x (sum of the weights) x pitch^2 on each slope component
+RIDGE = 1e-6  # slope regulariser: RIDGE x (sum of the weights) x pitch^2 on each slope component
 
 
-def linear_reconstruction(texel_index, grid_shape: tuple[int, int], positions, normals, texel_patch,
-                          patch_centres, patch_normals, patch_size: int, max_angle_deg: float = 30.0) -> torch.Tensor:
+def linear_reconstruction(
+    texel_index,
+    grid_shape: tuple[int, int],
+    positions,
+    normals,
+    texel_patch,
+    patch_centres,
+    patch_normals,
+    patch_size: int,
+    max_angle_deg: float = 30.0,
+) -> torch.Tensor:
     """Sparse (T, Q) float64 operator: texel values = R @ patch values (module docstring).
 
     texel_index (T,) flat grid index of each texel on the (H, W) grid; positions, normals (T, 3); texel_patch
@@ -67,37 +76,38 @@ def linear_reconstruction(texel_index, grid_shape: tuple[int, int], positions, n
             for j in range(most):
                 has = ok & (j < count[nb])
                 cand.append(np.where(has, order[np.minimum(start[nb] + j, Q - 1)], -1))
-    cand = np.stack(cand, 1) if cand else np.full((T, 0), -1, dtype=np.int64)   # (T, 9 most)
+    cand = np.stack(cand, 1) if cand else np.full((T, 0), -1, dtype=np.int64)  # (T, 9 most)
     cand = np.concatenate([tp[:, None], np.where(cand == tp[:, None], -1, cand)], 1)
     valid = cand >= 0
     q = np.maximum(cand, 0)
     valid &= np.einsum("tmi,ti->tm", cn[q], n) >= math.cos(math.radians(max_angle_deg))
     valid[:, 0] = True
-    d = c[q] - x[:, None, :]                                                   # (T, M, 3)
+    d = c[q] - x[:, None, :]  # (T, M, 3)
     pitch = np.sqrt(np.median(_pitch2(d, valid)))
-    w = np.exp(-(d * d).sum(-1) / (2.0 * pitch * pitch)) * valid               # (T, M)
-    t1, t2 = tangent_frame(n / np.linalg.norm(n, axis=1, keepdims=True))    # the texel's tangent plane
-    A = np.stack([np.ones_like(w), np.einsum("tmi,ti->tm", d, t1), np.einsum("tmi,ti->tm", d, t2)], -1)   # (T, M, 3)
-    AtW = A.transpose(0, 2, 1) * w[:, None, :]                                 # (T, 3, M)
-    M = AtW @ A                                                                # (T, 3, 3)
+    w = np.exp(-(d * d).sum(-1) / (2.0 * pitch * pitch)) * valid  # (T, M)
+    t1, t2 = tangent_frame(n / np.linalg.norm(n, axis=1, keepdims=True))  # the texel's tangent plane
+    A = np.stack([np.ones_like(w), np.einsum("tmi,ti->tm", d, t1), np.einsum("tmi,ti->tm", d, t2)], -1)  # (T, M, 3)
+    AtW = A.transpose(0, 2, 1) * w[:, None, :]  # (T, 3, M)
+    M = AtW @ A  # (T, 3, 3)
     ridge = RIDGE * pitch * pitch * M[:, 0, 0]
     M[:, 1, 1] += ridge
     M[:, 2, 2] += ridge
-    e1 = np.linalg.solve(M, np.broadcast_to(np.array([1.0, 0.0, 0.0]), (T, 3))[..., None])[..., 0]   # (T, 3)
-    coef = np.einsum("ti,tim->tm", e1, AtW)                                    # (T, M): texel value = sum coef H_q
+    e1 = np.linalg.solve(M, np.broadcast_to(np.array([1.0, 0.0, 0.0]), (T, 3))[..., None])[..., 0]  # (T, 3)
+    coef = np.einsum("ti,tim->tm", e1, AtW)  # (T, M): texel value = sum coef H_q
     keep = valid & (coef != 0)
     rows = np.broadcast_to(np.arange(T)[:, None], cand.shape)[keep]
     vals = coef[keep]
     # rows sum to one up to round-off; make it exact so a constant field stays constant
     vals = vals / np.bincount(rows, weights=vals, minlength=T)[rows]
-    return torch.sparse_coo_tensor(torch.from_numpy(np.stack([rows, q[keep]])), torch.from_numpy(vals), (T, Q),
-                                   check_invariants=False).coalesce()
+    return torch.sparse_coo_tensor(
+        torch.from_numpy(np.stack([rows, q[keep]])), torch.from_numpy(vals), (T, Q), check_invariants=False
+    ).coalesce()
 
 
 def _pitch2(d: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Squared distance from each texel to its nearest other valid patch centroid (the patch pitch)."""
     d2 = np.where(valid, (d * d).sum(-1), np.inf)
-    d2[:, 0] = np.inf                                                          # not its own patch
+    d2[:, 0] = np.inf  # not its own patch
     near = d2.min(1)
     near = near[np.isfinite(near) & (near > 0)]
     return near if near.size else np.ones(1)

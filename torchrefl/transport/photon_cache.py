@@ -56,14 +56,14 @@ import numpy as np
 import torch
 
 from torchrefl.core import brdf as brdf_mod
-from torchrefl.errors import ConfigError
 from torchrefl.core.lobe_sampling import column_dot
 from torchrefl.core.texel_grid import TexelGrid
 from torchrefl.core.threads import thread_map
+from torchrefl.errors import ConfigError
 from torchrefl.transport.photon_trace import PhotonHits
 
-THETA_BIN = 0.004         # radians; merged photons differ in theta_h by less than this, or by
-BIN_PER_SIGMA = 0.25      # less than this fraction of the receiving texel's current roughness where that is wider
+THETA_BIN = 0.004  # radians; merged photons differ in theta_h by less than this, or by
+BIN_PER_SIGMA = 0.25  # less than this fraction of the receiving texel's current roughness where that is wider
 LOBE_CUTOFF = 1e-7
 
 
@@ -84,8 +84,10 @@ class LightSources:
 def texel_light_positions(surface, obs) -> np.ndarray:
     """(P, T, 3) position of light p as texel t saw it: x_t + l_pt / sqrt(falloff_pt)."""
     if obs.light_positions is None:
-        raise ConfigError(f"fit.model: 'photon' needs point lights, but the capture {obs.source} has directional "
-                          "lights: use fit.model=local")
+        raise ConfigError(
+            f"fit.model: 'photon' needs point lights, but the capture {obs.source} has directional "
+            "lights: use fit.model=local"
+        )
     dist = 1.0 / torch.sqrt(obs.falloff.double().clamp_min(1e-300))
     return (surface.positions.double()[None] + obs.light_dir.double() * dist[..., None]).numpy()
 
@@ -119,11 +121,13 @@ def light_sources(surface, obs, max_maps: int, order: int = 3) -> LightSources:
     L = texel_light_positions(surface, obs)
     P, T, _ = L.shape
     intensity = obs.light_intensity.double().numpy()
-    centre = np.median(L, axis=1)                                       # (P, 3)
+    centre = np.median(L, axis=1)  # (P, 3)
     spread = float(np.abs(L - centre[:, None]).max()) if T else 0.0
     scale = float(np.abs(surface.positions.double().numpy()).max()) + 1.0
     if spread <= 1e-6 * scale or max_maps <= 1:
-        return LightSources(centre[:, None] if spread <= 1e-6 * scale else L.mean(1)[:, None], np.ones((1, T)), intensity)
+        return LightSources(
+            centre[:, None] if spread <= 1e-6 * scale else L.mean(1)[:, None], np.ones((1, T)), intensity
+        )
     W = surface.grid_shape[1]
     col = (surface.texel_index.numpy() % W).astype(np.float64)
     cmin, cmax = col.min(), col.max()
@@ -160,9 +164,16 @@ class PhotonCache:
 
     def to(self, dtype: torch.dtype, device=None) -> "PhotonCache":
         mv = lambda x: x.to(device=device, dtype=dtype if x.is_floating_point() else x.dtype)
-        return PhotonCache(self.brdf, mv(self.irradiance), mv(self.entry_obs), mv(self.entry_theta_h),
-                           mv(self.entry_weight), dict(self.stats), None if self.linear is None else mv(self.linear),
-                           None if self.smoother is None else mv(self.smoother))
+        return PhotonCache(
+            self.brdf,
+            mv(self.irradiance),
+            mv(self.entry_obs),
+            mv(self.entry_theta_h),
+            mv(self.entry_weight),
+            dict(self.stats),
+            None if self.linear is None else mv(self.linear),
+            None if self.smoother is None else mv(self.smoother),
+        )
 
     def irradiance_at(self, pd: torch.Tensor) -> torch.Tensor:
         """(P, T, 3) H(Pd) for texel Pd (T, 3)."""
@@ -181,8 +192,14 @@ def _grid_parts(grid: tuple) -> tuple:
     return grid[0], grid[1], (grid[2] if len(grid) > 2 else None)
 
 
-def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: tuple[int, int], sigma: float,
-                   normals: torch.Tensor | None = None, normal_sigma: float = 0.0) -> torch.Tensor:
+def smooth_on_grid(
+    values: torch.Tensor,
+    texel_index: torch.Tensor,
+    grid_shape: tuple[int, int],
+    sigma: float,
+    normals: torch.Tensor | None = None,
+    normal_sigma: float = 0.0,
+) -> torch.Tensor:
     """Normalised Gaussian smoothing (std `sigma` texels) of per-texel values (..., T, C) over the grid;
     with normals (T, 3) and normal_sigma > 0 each neighbour's weight also has the factor
     exp(-|n - n'|^2 / (2 normal_sigma^2)) (joint bilateral filter guided by the normals).
@@ -195,16 +212,23 @@ def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: 
 
     H, W = grid_shape
     lead, (T, C) = values.shape[:-2], values.shape[-2:]
-    flat = values.reshape(-1, T, C).permute(0, 2, 1).reshape(-1, T)            # (B*C, T)
+    flat = values.reshape(-1, T, C).permute(0, 2, 1).reshape(-1, T)  # (B*C, T)
     grid = torch.zeros(flat.shape[0] + 1, H * W, dtype=values.dtype)
     grid[:-1, texel_index] = flat
-    grid[-1, texel_index] = 1.0                                                  # the valid mask
+    grid[-1, texel_index] = 1.0  # the valid mask
     k = 2 * int(math.ceil(3 * sigma)) + 1
     if normals is not None and normal_sigma > 0:
         guide = torch.zeros(3, H * W, dtype=values.dtype)
         guide[:, texel_index] = normals.to(values.dtype).t()
-        blurred = joint_bilateral_blur(grid.reshape(1, -1, H, W), guide.reshape(1, 3, H, W), (k, k), float(normal_sigma),
-                                       (sigma, sigma), border_type="constant", color_distance_type="l2")
+        blurred = joint_bilateral_blur(
+            grid.reshape(1, -1, H, W),
+            guide.reshape(1, 3, H, W),
+            (k, k),
+            float(normal_sigma),
+            (sigma, sigma),
+            border_type="constant",
+            color_distance_type="l2",
+        )
     else:
         blurred = gaussian_blur2d(grid.reshape(1, -1, H, W), (k, k), (sigma, sigma), border_type="constant")
     blurred = blurred.reshape(-1, H * W)[:, texel_index]
@@ -212,14 +236,17 @@ def smooth_on_grid(values: torch.Tensor, texel_index: torch.Tensor, grid_shape: 
     return out.reshape(-1, C, T).permute(0, 2, 1).reshape(*lead, T, C)
 
 
-def _grid_neighbours(texel_index, grid_shape: tuple[int, int], sigma: float, radius: int, normals=None,
-                     normal_sigma: float = 0.0):
+def _grid_neighbours(
+    texel_index, grid_shape: tuple[int, int], sigma: float, radius: int, normals=None, normal_sigma: float = 0.0
+):
     """The kernel shared by spread_on_grid and smoothing_matrix: a function of t_from (M,) that yields, per grid
     offset within `radius`, (t_to (M,), weight (M,)): the texel at that offset (-1 outside the grid or the
     texel set) and exp(-|offset|^2 / (2 sigma^2)) times, with normals (T, 3) and normal_sigma > 0,
     exp(-|n - n'|^2 / (2 normal_sigma^2)) (kornia's joint bilateral weights with the normals as guide)."""
     grid = TexelGrid(texel_index, grid_shape)
-    nrm = None if normals is None or normal_sigma <= 0 else np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
+    nrm = (
+        None if normals is None or normal_sigma <= 0 else np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
+    )
     offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
 
     def kernel(t_from: np.ndarray):
@@ -230,14 +257,15 @@ def _grid_neighbours(texel_index, grid_shape: tuple[int, int], sigma: float, rad
             w = np.where(to >= 0, math.exp(-(dy * dy + dx * dx) / (2.0 * sigma * sigma)), 0.0)
             if n_from is not None:
                 d = n_from - np.take(nrm, np.maximum(to, 0), axis=1)
-                w *= np.exp(-column_dot(d, d) / (2.0 * normal_sigma ** 2))
+                w *= np.exp(-column_dot(d, d) / (2.0 * normal_sigma**2))
             yield to, w
 
     return kernel
 
 
-def smoothing_matrix(texel_index, grid_shape: tuple[int, int], sigma: float, normals=None,
-                     normal_sigma: float = 0.0) -> torch.Tensor:
+def smoothing_matrix(
+    texel_index, grid_shape: tuple[int, int], sigma: float, normals=None, normal_sigma: float = 0.0
+) -> torch.Tensor:
     """smooth_on_grid as a sparse (T, T) float64 operator (rows sum to one): for smoothing the same grid many
     times (the radiosity level's irradiance at every fit evaluation), where building the bilateral weights once
     pays. The kernel is smooth_on_grid's (radius ceil(3 sigma), normalised over the texels present)."""
@@ -252,8 +280,9 @@ def smoothing_matrix(texel_index, grid_shape: tuple[int, int], sigma: float, nor
         vals.append(np.take(w, keep))
     rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
     vals = vals / np.bincount(rows, weights=vals, minlength=T)[rows]
-    return torch.sparse_coo_tensor(torch.from_numpy(np.stack([rows, cols])), torch.from_numpy(vals), (T, T),
-                                   check_invariants=False).coalesce()
+    return torch.sparse_coo_tensor(
+        torch.from_numpy(np.stack([rows, cols])), torch.from_numpy(vals), (T, T), check_invariants=False
+    ).coalesce()
 
 
 def apply_on_grid(matrix: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
@@ -264,8 +293,15 @@ def apply_on_grid(matrix: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
     return out.reshape(T, -1, C).permute(1, 0, 2).reshape(*lead, T, C)
 
 
-def spread_on_grid(obs: np.ndarray, T: int, texel_index, grid_shape: tuple[int, int], sigma: float,
-                   normals=None, normal_sigma: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def spread_on_grid(
+    obs: np.ndarray,
+    T: int,
+    texel_index,
+    grid_shape: tuple[int, int],
+    sigma: float,
+    normals=None,
+    normal_sigma: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Spread point entries at flat observation indices obs = p T + t over the grid neighbours of t, with the
     kernel of smooth_on_grid (Gaussian of std `sigma` texels, truncated at radius max(1, round(sigma)) to bound the
     number of copies, times the normal test)
@@ -287,8 +323,15 @@ def spread_on_grid(obs: np.ndarray, T: int, texel_index, grid_shape: tuple[int, 
     return np.concatenate(out_obs), np.concatenate(out_src), np.concatenate(out_w)
 
 
-def merge_entries(e_obs: np.ndarray, theta_h: np.ndarray, weight: np.ndarray, sigma, T: int,
-                  theta_bin: float = THETA_BIN, bin_per_sigma: float = BIN_PER_SIGMA) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def merge_entries(
+    e_obs: np.ndarray,
+    theta_h: np.ndarray,
+    weight: np.ndarray,
+    sigma,
+    T: int,
+    theta_bin: float = THETA_BIN,
+    bin_per_sigma: float = BIN_PER_SIGMA,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Merge specular entries (flat observation e_obs = p T + t (M,), theta_h (M,), weight (3, M)) whose theta_h fall
     in the same bin of the same observation: bins max(theta_bin, bin_per_sigma * sigma_t) wide for the texel's
     roughness sigma (T,); merging entries whose theta_h differ by a fraction of the lobe's width changes
@@ -309,12 +352,30 @@ def merge_entries(e_obs: np.ndarray, theta_h: np.ndarray, weight: np.ndarray, si
     return np.take(e_obs, first), mean_theta, wsum
 
 
-def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, keep, brdf: str, sigma,
-                sigma_max: float, min_cos_light: float, dtype=torch.float64, theta_bin: float = THETA_BIN,
-                bin_per_sigma: float = BIN_PER_SIGMA, threads: int = 2, smoother: torch.Tensor | None = None,
-                smoothing: float = 0.0, grid=None, emitter_pd=None, smoothing_normal: float = 0.0,
-                specular_smoothing: float = 0.0, diffuse_paths: bool = True,
-                specular_paths_only: bool = False) -> PhotonCache:
+def build_cache(
+    hits: PhotonHits,
+    sources: LightSources,
+    areas,
+    normals,
+    view_dirs,
+    keep,
+    brdf: str,
+    sigma,
+    sigma_max: float,
+    min_cos_light: float,
+    dtype=torch.float64,
+    theta_bin: float = THETA_BIN,
+    bin_per_sigma: float = BIN_PER_SIGMA,
+    threads: int = 2,
+    smoother: torch.Tensor | None = None,
+    smoothing: float = 0.0,
+    grid=None,
+    emitter_pd=None,
+    smoothing_normal: float = 0.0,
+    specular_smoothing: float = 0.0,
+    diffuse_paths: bool = True,
+    specular_paths_only: bool = False,
+) -> PhotonCache:
     """Reduce photon hits to the cache.
 
     hits: from PhotonTracer.trace over sources.positions.reshape(-1, 3) (source s = p * K + k);
@@ -340,29 +401,47 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
     t = hits.texel
     # photons' flux per unit collection area, with the light-map weight of their texel, component-major (3, N)
     # (np.take and row-vector products: several times faster than fancy indexing and (N, 3) broadcasts)
-    scale = np.take(np.asarray(sources.weights, dtype=np.float64).reshape(-1), (hits.source % K) * T + t) / np.take(A, t)
-    flux = np.asarray(hits.power, dtype=np.float64).T * scale                                     # (3, N)
+    scale = np.take(np.asarray(sources.weights, dtype=np.float64).reshape(-1), (hits.source % K) * T + t) / np.take(
+        A, t
+    )
+    flux = np.asarray(hits.power, dtype=np.float64).T * scale  # (3, N)
     obs_idx = p * T + t
     if (not diffuse_paths or specular_paths_only) and hits.specular_path is None:
-        raise ValueError("build_cache: diffuse_paths=False or specular_paths_only needs hits.specular_path "
-                         "(PhotonTracer.trace records it)")
-    in_H = None if diffuse_paths else np.asarray(hits.specular_path, dtype=np.float64)      # (N,) 1 = counted in H
+        raise ValueError(
+            "build_cache: diffuse_paths=False or specular_paths_only needs hits.specular_path "
+            "(PhotonTracer.trace records it)"
+        )
+    in_H = None if diffuse_paths else np.asarray(hits.specular_path, dtype=np.float64)  # (N,) 1 = counted in H
     flux_H = flux if in_H is None else flux * in_H
     H = np.stack([np.bincount(obs_idx, weights=flux_H[c], minlength=P * T) for c in range(3)], -1)
     linear = None
     if emitter_pd is not None and hits.emitter is not None and hits.count:
-        lin = np.asarray(hits.diffuse_per_pd, dtype=np.float64).T * (scale if in_H is None else scale * in_H)  # per unit Pd
+        lin = np.asarray(hits.diffuse_per_pd, dtype=np.float64).T * (
+            scale if in_H is None else scale * in_H
+        )  # per unit Pd
         e = hits.emitter
         pd_ref = np.asarray(emitter_pd, dtype=np.float64)
         for c in range(3):
             H[:, c] -= np.bincount(obs_idx, weights=lin[c] * np.take(pd_ref[:, c], e), minlength=P * T)
         rows = np.concatenate([c * P * T + obs_idx for c in range(3)])
         cols = np.concatenate([c * T + e for c in range(3)])
-        linear = torch.sparse_coo_tensor(torch.from_numpy(np.stack([rows, cols])), torch.from_numpy(lin.reshape(-1)),
-                                         (3 * P * T, 3 * T), check_invariants=False).coalesce().to(dtype)
-    stats = {"stored_hits": hits.count, "rays": hits.rays, "back_side_hits": int(hits.back_hits),
-             "photons_emitted": int(hits.emitted.sum()),
-             "maps_per_light": K}
+        linear = (
+            torch.sparse_coo_tensor(
+                torch.from_numpy(np.stack([rows, cols])),
+                torch.from_numpy(lin.reshape(-1)),
+                (3 * P * T, 3 * T),
+                check_invariants=False,
+            )
+            .coalesce()
+            .to(dtype)
+        )
+    stats = {
+        "stored_hits": hits.count,
+        "rays": hits.rays,
+        "back_side_hits": int(hits.back_hits),
+        "photons_emitted": int(hits.emitted.sum()),
+        "maps_per_light": K,
+    }
     empty = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=dtype), torch.zeros(0, 3, dtype=dtype))
     lobe = brdf != "lambertian"
     keep_np = np.asarray(keep, dtype=bool).reshape(-1)
@@ -381,23 +460,25 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
         def block(sb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             """(alive selected hits, their theta_h, G / cos_i) for a block of selected hits (cache-sized)."""
             ts = np.take(t, sb)
-            n = np.take(normals_3, ts, axis=1)                                                      # (3, M)
+            n = np.take(normals_3, ts, axis=1)  # (3, M)
             v = np.take(v_3, np.take(obs_idx, sb) if per_light_view else ts, axis=1)
             wi = np.take(wi_3, sb, axis=1).astype(np.float64)
             cos_i, cos_v = column_dot(n, wi), column_dot(n, v)
             with torch.no_grad():
-                th = brdf_mod.half_angle(tt(n.T), tt(wi.T), tt(v.T)).numpy()     # (M, 3) views of the (3, M) arrays
-                geom = (brdf_mod.specular_geometry(brdf, tt(cos_i), tt(cos_v)) / tt(cos_i).clamp_min(min_cos_light)).numpy()
+                th = brdf_mod.half_angle(tt(n.T), tt(wi.T), tt(v.T)).numpy()  # (M, 3) views of the (3, M) arrays
+                geom = (
+                    brdf_mod.specular_geometry(brdf, tt(cos_i), tt(cos_v)) / tt(cos_i).clamp_min(min_cos_light)
+                ).numpy()
                 lobe_at = brdf_mod.specular_lobe(brdf, tt(th), tt(np.take(sigma_cap, ts))).numpy()
             alive = np.flatnonzero((cos_i > min_cos_light) & (cos_v > 0) & (lobe_at > LOBE_CUTOFF))
             return np.take(sb, alive), np.take(th, alive), np.take(geom, alive)
 
         # blocks of 2^17 hits keep the temporaries in cache; numpy releases the GIL, so two threads share them
-        blocks = [sel[i:i + (1 << 17)] for i in range(0, sel.size, 1 << 17)]
+        blocks = [sel[i : i + (1 << 17)] for i in range(0, sel.size, 1 << 17)]
         parts = thread_map(block, blocks, threads)
         sel = np.concatenate([x[0] for x in parts])
         theta_h = np.concatenate([x[1] for x in parts])
-        weight = np.take(flux, sel, axis=1) * np.concatenate([x[2] for x in parts])                 # (3, M)
+        weight = np.take(flux, sel, axis=1) * np.concatenate([x[2] for x in parts])  # (3, M)
         e_obs = np.take(obs_idx, sel)
         if specular_smoothing > 0 and grid is None:
             raise ConfigError("photon.specular_smoothing > 0 needs the texel grid (texel_index, grid_shape)")
@@ -407,7 +488,11 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
             theta_h, weight = np.take(theta_h, src), np.take(weight, src, axis=1) * k
         if e_obs.size:
             entry_obs, mean_theta, wsum = merge_entries(e_obs, theta_h, weight, sigma, T, theta_bin, bin_per_sigma)
-            empty = (torch.from_numpy(entry_obs), torch.from_numpy(mean_theta).to(dtype), torch.from_numpy(wsum).to(dtype))
+            empty = (
+                torch.from_numpy(entry_obs),
+                torch.from_numpy(mean_theta).to(dtype),
+                torch.from_numpy(wsum).to(dtype),
+            )
             stats["specular_photons"] = int(e_obs.size)
     stats["specular_entries"] = int(empty[0].numel())
     irradiance = torch.from_numpy(H.reshape(P, T, 3))
@@ -415,20 +500,29 @@ def build_cache(hits: PhotonHits, sources: LightSources, areas, normals, view_di
         if grid is None:
             raise ConfigError("photon.smoothing > 0 needs the texel grid (texel_index, grid_shape)")
         if smoothing_normal > 0 and _grid_parts(grid)[2] is None:
-            raise ConfigError("photon.smoothing_normal > 0 needs the texel normals in the grid (texel_index, grid_shape, normals)")
+            raise ConfigError(
+                "photon.smoothing_normal > 0 needs the texel normals in the grid (texel_index, grid_shape, normals)"
+            )
         index, shape, normals = _grid_parts(grid)
         if smoother is None:
-            smoother = smoothing_matrix(np.asarray(index), shape, smoothing,
-                                        None if normals is None else np.asarray(normals, dtype=np.float64), smoothing_normal)
+            smoother = smoothing_matrix(
+                np.asarray(index),
+                shape,
+                smoothing,
+                None if normals is None else np.asarray(normals, dtype=np.float64),
+                smoothing_normal,
+            )
         irradiance = apply_on_grid(smoother, irradiance)
     if linear is not None:
         stats["linear_entries"] = int(linear._nnz())
-    return PhotonCache(brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear,
-                       smoother=smoother if smoothing > 0 else None)
+    return PhotonCache(
+        brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoother=smoother if smoothing > 0 else None
+    )
 
 
-def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor, ps: torch.Tensor,
-                      sigma: torch.Tensor) -> torch.Tensor:
+def indirect_radiance(
+    cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor
+) -> torch.Tensor:
     """(P, T, 3) sensor value of the reflected indirect light for pd (T, 3), ps (T, C), sigma (T,);
     differentiable in all three."""
     H = cache.irradiance_at(pd)
@@ -439,13 +533,26 @@ def indirect_radiance(cache: PhotonCache, kappa: torch.Tensor, pd: torch.Tensor,
         # index_select, not sigma[t]: the backward of advanced indexing (index_put_ with accumulate) sums the
         # entries' gradients in a thread-dependent order on CPU, which made fits differ from run to run
         D = brdf_mod.specular_lobe(cache.brdf, cache.entry_theta_h, sigma.index_select(0, t))
-        S = torch.zeros(P * T, 3, dtype=H.dtype, device=H.device).index_add(0, cache.entry_obs, D[:, None] * cache.entry_weight)
+        S = torch.zeros(P * T, 3, dtype=H.dtype, device=H.device).index_add(
+            0, cache.entry_obs, D[:, None] * cache.entry_weight
+        )
         out = out + ps[None] * S.view(P, T, 3)
     return kappa * out
 
 
-def indirect_radiance_reference(hits: PhotonHits, sources: LightSources, areas, normals, view_dirs, brdf: str,
-                                kappa, pd, ps, sigma, min_cos_light: float) -> torch.Tensor:
+def indirect_radiance_reference(
+    hits: PhotonHits,
+    sources: LightSources,
+    areas,
+    normals,
+    view_dirs,
+    brdf: str,
+    kappa,
+    pd,
+    ps,
+    sigma,
+    min_cos_light: float,
+) -> torch.Tensor:
     """The same estimate straight from the stored photons and brdf.brdf (slow, obvious; tests only):
     kappa * sum_k f_t(wi_k, v_pt) Phi_k w_k / A_t, with the specular part dropped at n.wi <= min_cos_light
     and where the texel faces away from the camera (the diffuse part counts every stored photon: it reached
@@ -460,7 +567,7 @@ def indirect_radiance_reference(hits: PhotonHits, sources: LightSources, areas, 
         v = view_dirs[p, t] if view_dirs.dim() == 3 else view_dirs[t]
         wi = torch.as_tensor(hits.direction[i], dtype=pd.dtype)
         cos_i = float(n @ wi)
-        f = pd[t] / math.pi                         # every stored photon reached the surface
+        f = pd[t] / math.pi  # every stored photon reached the surface
         if cos_i > min_cos_light and float(n @ v) > 0:
             f = f + brdf_mod.brdf(brdf, n, wi, v, torch.zeros_like(pd[t]), ps3[t], sigma[t])
         out[p, t] += f * torch.as_tensor(hits.power[i] * sources.weights[k, t] / float(areas[t]), dtype=pd.dtype)

@@ -54,16 +54,22 @@ class PhotonRefresh:
         if getattr(self, "_smoother", None) is None:
             index, shape = self.grid[0], self.grid[1]
             normals = self.grid[2] if len(self.grid) > 2 else None
-            self._smoother = smoothing_matrix(np.asarray(index), shape, self.smoothing,
-                                              None if normals is None else np.asarray(normals, dtype=np.float64),
-                                              self.smoothing_normal)
+            self._smoother = smoothing_matrix(
+                np.asarray(index),
+                shape,
+                self.smoothing,
+                None if normals is None else np.asarray(normals, dtype=np.float64),
+                self.smoothing_normal,
+            )
         return self._smoother
 
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
         if self.emitter_source is not None:
             src = self.emitter_source.to(pd.device)
-            pd, ps, sigma = (x[src] if x.shape[0] == src.shape[0] else x for x in (pd, ps, sigma))   # a shared lobe stays
+            pd, ps, sigma = (
+                x[src] if x.shape[0] == src.shape[0] else x for x in (pd, ps, sigma)
+            )  # a shared lobe stays
         P, K = self.sources.positions.shape[:2]
         per_map = max(1, math.ceil(self.photons_per_light / K))
         mat = TexelMaterial.from_tensors(pd, ps, sigma)
@@ -75,16 +81,38 @@ class PhotonRefresh:
                 last[0] = done
 
             start = time.perf_counter()
-            hits = self.tracer.trace(self.sources.positions.reshape(-1, 3), np.repeat(self.sources.intensity, K, 0),
-                                     per_map, mat, seed=self.seed, refresh=refresh, progress=tick)
+            hits = self.tracer.trace(
+                self.sources.positions.reshape(-1, 3),
+                np.repeat(self.sources.intensity, K, 0),
+                per_map,
+                mat,
+                seed=self.seed,
+                refresh=refresh,
+                progress=tick,
+            )
             traced = time.perf_counter()
-        cache = build_cache(hits, self.sources, self.tracer.areas, self.tracer.normals, self.view_dirs, self.keep,
-                            self.tracer.brdf, sigma.detach().cpu().double().numpy(), self.sigma_max,
-                            self.min_cos_light, dtype=self.dtype, smoothing=self.smoothing, grid=self.grid,
-                            emitter_pd=mat.pd if self.linear_emitters else None, smoothing_normal=self.smoothing_normal,
-                            specular_smoothing=self.specular_smoothing, threads=self.tracer.tracer.threads,
-                            smoother=self.smoother(), diffuse_paths=self.radiosity_irradiance is None,
-                            specular_paths_only=self.specular_gather is not None)
+        cache = build_cache(
+            hits,
+            self.sources,
+            self.tracer.areas,
+            self.tracer.normals,
+            self.view_dirs,
+            self.keep,
+            self.tracer.brdf,
+            sigma.detach().cpu().double().numpy(),
+            self.sigma_max,
+            self.min_cos_light,
+            dtype=self.dtype,
+            smoothing=self.smoothing,
+            grid=self.grid,
+            emitter_pd=mat.pd if self.linear_emitters else None,
+            smoothing_normal=self.smoothing_normal,
+            specular_smoothing=self.specular_smoothing,
+            threads=self.tracer.tracer.threads,
+            smoother=self.smoother(),
+            diffuse_paths=self.radiosity_irradiance is None,
+            specular_paths_only=self.specular_gather is not None,
+        )
         if self.radiosity_irradiance is not None:
             pd_cpu = pd.detach().cpu().to(cache.irradiance.dtype)
             with torch.no_grad():
@@ -101,18 +129,20 @@ class PhotonRefresh:
         cache.stats["reduce_s"] = round(time.perf_counter() - traced, 3)
         return cache.to(self.dtype, self.device)
 
-
     def _add_gather(self, cache: PhotonCache, radiance, weights, sigma, refresh: int) -> PhotonCache:
         """The cache with the gathered specular entries of the all-diffuse paths appended (specular_gather), from
         the radiosity level's radiance (P, K, T, 3) and map weights (K, T)."""
         start = time.perf_counter()
         sig = sigma.detach().cpu().double().numpy()
         samples = self.specular_gather.directions(sig, refresh)
-        obs, theta, weight = self.specular_gather.entries(samples, radiance.double().numpy(), weights.double().numpy(), sig)
+        obs, theta, weight = self.specular_gather.entries(
+            samples, radiance.double().numpy(), weights.double().numpy(), sig
+        )
         dt = cache.entry_theta_h.dtype
         cache.entry_obs = torch.cat([cache.entry_obs, torch.from_numpy(obs)])
         cache.entry_theta_h = torch.cat([cache.entry_theta_h, torch.from_numpy(theta).to(dt)])
         cache.entry_weight = torch.cat([cache.entry_weight, torch.from_numpy(weight).to(dt)])
-        cache.stats.update(gather_rays=int(samples.rays), gather_entries=int(obs.size),
-                           gather_s=round(time.perf_counter() - start, 3))
+        cache.stats.update(
+            gather_rays=int(samples.rays), gather_entries=int(obs.size), gather_s=round(time.perf_counter() - start, 3)
+        )
         return cache

@@ -35,17 +35,24 @@ import numpy as np
 import torch
 
 from torchrefl.core import brdf as brdf_mod
-from torchrefl.errors import GeometryError
-from torchrefl.geometry.range_mesh import oriented_face_normals
+from torchrefl.core.lobe_sampling import (
+    LOBES,
+    column_dot,
+    lobe_constants,
+    lobe_over_pdf,
+    lobe_theta,
+    specular_probability,
+    tangent_frame,
+)
 from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
 from torchrefl.core.threads import thread_map
+from torchrefl.errors import GeometryError
+from torchrefl.geometry.range_mesh import oriented_face_normals
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
-from torchrefl.core.lobe_sampling import (LOBES, column_dot, lobe_constants, lobe_over_pdf, lobe_theta,
-                                               specular_probability, tangent_frame)
 
-CHUNK = 1 << 17          # photons per work unit
-COLLECT_COS = 0.9        # a face corner collects photons for its texel when their normals agree this well
+CHUNK = 1 << 17  # photons per work unit
+COLLECT_COS = 0.9  # a face corner collects photons for its texel when their normals agree this well
 
 
 def _take3(a: np.ndarray, index: np.ndarray) -> np.ndarray:
@@ -115,12 +122,23 @@ class PhotonTracer:
     bounces after the first hit; min_bounces: bounces before Russian roulette starts.
     """
 
-    def __init__(self, tracer: RayTracer, texel_index: np.ndarray, positions: np.ndarray, normals: np.ndarray,
-                 brdf: str, *,
-                 offset: float = 0.01, min_bounces: int = 1, max_bounces: int = 16):
+    def __init__(
+        self,
+        tracer: RayTracer,
+        texel_index: np.ndarray,
+        positions: np.ndarray,
+        normals: np.ndarray,
+        brdf: str,
+        *,
+        offset: float = 0.01,
+        min_bounces: int = 1,
+        max_bounces: int = 16,
+    ):
         brdf_mod.check_brdf_name(brdf, "reflectance.brdf")
         if min_bounces < 0 or max_bounces < max(1, min_bounces):
-            raise GeometryError(f"PhotonTracer min_bounces/max_bounces: need 0 <= min ({min_bounces}) <= max ({max_bounces}), max >= 1")
+            raise GeometryError(
+                f"PhotonTracer min_bounces/max_bounces: need 0 <= min ({min_bounces}) <= max ({max_bounces}), max >= 1"
+            )
         self.tracer = tracer
         self.brdf = brdf
         self.lobe = LOBES[brdf]
@@ -133,8 +151,10 @@ class PhotonTracer:
         V = len(tracer.vertices)
         texel_index = np.asarray(texel_index, dtype=np.int64)
         if texel_index.size and texel_index.max() >= V:
-            raise GeometryError(f"photon tracing: texel grid index {int(texel_index.max())} is not a mesh vertex "
-                                f"(the mesh has {V}); the mesh must be the texel grid's triangulation")
+            raise GeometryError(
+                f"photon tracing: texel grid index {int(texel_index.max())} is not a mesh vertex "
+                f"(the mesh has {V}); the mesh must be the texel grid's triangulation"
+            )
         self.vertex_texel = np.full(V, -1, dtype=np.int64)
         self.vertex_texel[texel_index] = np.arange(len(texel_index))
         faces = np.asarray(tracer.faces, dtype=np.int64)
@@ -143,19 +163,31 @@ class PhotonTracer:
         self.faces = faces
         self.frame_t, self.frame_b = tangent_frame(self.normals)
         verts = np.asarray(tracer.vertices, dtype=np.float64)
-        fa = 0.5 * np.linalg.norm(np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1)
+        fa = 0.5 * np.linalg.norm(
+            np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1
+        )
         self.face_normals = oriented_face_normals(verts, faces, self.normals[self.vertex_texel[faces]])
         # a corner of a face collects for its texel only where the face lies along the texel's surface
         # (normals within ~25 deg): faces that cut across a fold or a crease (their normal between the two
         # sides) still scatter photons but do not count in the fold texels' density, which would
         # otherwise average the crease strip's (higher) irradiance into the plates'
         corner_texel = self.vertex_texel[faces] if faces.size else np.zeros((0, 3), dtype=np.int64)
-        self.collects = (np.einsum("fi,fci->fc", self.face_normals, self.normals[corner_texel]) > COLLECT_COS
-                         if faces.size else np.zeros((0, 3), dtype=bool))
-        self.areas = np.bincount(corner_texel.ravel(), weights=(np.repeat(fa[:, None] / 3.0, 3, 1) * self.collects).ravel(),
-                                 minlength=len(texel_index)) if faces.size else np.zeros(len(texel_index))
+        self.collects = (
+            np.einsum("fi,fci->fc", self.face_normals, self.normals[corner_texel]) > COLLECT_COS
+            if faces.size
+            else np.zeros((0, 3), dtype=bool)
+        )
+        self.areas = (
+            np.bincount(
+                corner_texel.ravel(),
+                weights=(np.repeat(fa[:, None] / 3.0, 3, 1) * self.collects).ravel(),
+                minlength=len(texel_index),
+            )
+            if faces.size
+            else np.zeros(len(texel_index))
+        )
         # float32 copies for the hot path (Embree works in float32 anyway)
-        f32 = lambda x: np.ascontiguousarray(np.asarray(x).T, dtype=np.float32)      # (3, N): component-major
+        f32 = lambda x: np.ascontiguousarray(np.asarray(x).T, dtype=np.float32)  # (3, N): component-major
         self._pos3, self._n3 = f32(self.positions), f32(self.normals)
         self._t3, self._b3, self._fn3 = f32(self.frame_t), f32(self.frame_b), f32(self.face_normals)
         self._corner_texel = corner_texel.astype(np.int32).ravel()
@@ -169,14 +201,16 @@ class PhotonTracer:
         key = tuple(np.round(np.asarray(source, dtype=np.float64), 9))
         if key not in self._landing:
             L = np.broadcast_to(np.asarray(source, dtype=np.float64), self.positions.shape)
-            self._landing[key] = self.areas * point_light(self.positions, self.normals, L, self.tracer,
-                                                          offset=self.offset).irradiance()
+            self._landing[key] = (
+                self.areas * point_light(self.positions, self.normals, L, self.tracer, offset=self.offset).irradiance()
+            )
         return self._landing[key]
 
     # ------------------------------------------------------------------ pieces
 
-    def hit_texels(self, triangle: np.ndarray, u: np.ndarray, v: np.ndarray,
-                   direction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def hit_texels(
+        self, triangle: np.ndarray, u: np.ndarray, v: np.ndarray, direction: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(N,) int32 texel of each hit (the corner of the hit face with the largest barycentric weight, the
         first one on a tie) and (N,) bool whether the hit counts in that texel's density (self.collects).
         direction (3, N), the rays' directions: on a face that bridges a fold or crease the hit goes to the
@@ -187,10 +221,11 @@ class PhotonTracer:
         if direction is not None and triangle.size:
             m = np.flatnonzero(np.take(self._mixed_face, triangle))
             if m.size:
-                texels = self._corner_texel[triangle[m].astype(np.int64)[:, None] * 3 + np.arange(3)]   # (M, 3)
+                texels = self._corner_texel[triangle[m].astype(np.int64)[:, None] * 3 + np.arange(3)]  # (M, 3)
                 corner = corner.copy()
-                corner[m] = facing_corner(corner[m], self.normals[texels], np.asarray(direction)[:, m].T,
-                                          np.stack([w0[m], u[m], v[m]], 1))
+                corner[m] = facing_corner(
+                    corner[m], self.normals[texels], np.asarray(direction)[:, m].T, np.stack([w0[m], u[m], v[m]], 1)
+                )
         i = triangle.astype(np.int64) * 3 + corner
         return np.take(self._corner_texel, i), np.take(self._corner_collects, i)
 
@@ -204,8 +239,20 @@ class PhotonTracer:
             t[:, bad], b[:, bad] = tb[0].T, tb[1].T
         return t, b
 
-    def scatter(self, texel, y, wi, n, cos_i, own, power, tables: "ScatterTables", u: np.ndarray, roulette: bool,
-                path: np.ndarray | None = None):
+    def scatter(
+        self,
+        texel,
+        y,
+        wi,
+        n,
+        cos_i,
+        own,
+        power,
+        tables: "ScatterTables",
+        u: np.ndarray,
+        roulette: bool,
+        path: np.ndarray | None = None,
+    ):
         """One scattering of N photons at texels `texel` (N,) int32, positions y (3, N), arriving along -wi
         (3, N), about normals n (3, N) with cos_i = n.wi > 0, own (N,) bool or None (n is the texel's normal),
         flux power (3, N), uniforms u (4, N) float32 (u[2] picks the component, u[3] plays the roulette).
@@ -235,8 +282,16 @@ class PhotonTracer:
             d = nD + np.stack([r * np.cos(phi), r * np.sin(phi), z])
             d /= np.maximum(np.sqrt(column_dot(d, d)), np.float32(1e-12))
             pw = _take3(power, iD)
-            parts.append((_take3(y, iD) + self._offset32 * nD, d, pw * _take3(w_d, tD), pw * np.take(k_d, tD), tD,
-                          np.take(path, iD)))
+            parts.append(
+                (
+                    _take3(y, iD) + self._offset32 * nD,
+                    d,
+                    pw * _take3(w_d, tD),
+                    pw * np.take(k_d, tD),
+                    tD,
+                    np.take(path, iD),
+                )
+            )
         iS = np.flatnonzero(spec) if self.lobe is not None and spec.any() else np.zeros(0, np.int64)
         if iS.size:
             tS, nS, wiS = np.take(texel, iS), _take3(n, iS), _take3(wi, iS)
@@ -250,10 +305,12 @@ class PhotonTracer:
             vh = column_dot(wiS, h)
             wo = 2 * vh * h - wiS
             ci = np.take(cos_i, iS)
-            cos_o = 2 * vh * ct - ci                              # n.wo, since n.h = cos(theta)
+            cos_o = 2 * vh * ct - ci  # n.wo, since n.h = cos(theta)
             with torch.no_grad():
-                g_cos = (brdf_mod.specular_geometry(self.brdf, torch.from_numpy(ci), torch.from_numpy(cos_o))
-                         * torch.from_numpy(np.maximum(cos_o, 0))).numpy()
+                g_cos = (
+                    brdf_mod.specular_geometry(self.brdf, torch.from_numpy(ci), torch.from_numpy(cos_o))
+                    * torch.from_numpy(np.maximum(cos_o, 0))
+                ).numpy()
             ws = lobe_over_pdf(self.lobe, theta, ct, st, np.take(tables.ratio_scale, tS)) * (4 * np.abs(vh)) * g_cos
             # cos_i > 0 here; the floor only bounds the weight of photons grazing a face whose normal stood in
             ws /= np.maximum(ci, np.float32(1e-6)) * np.take(tables.q, tS)
@@ -267,8 +324,16 @@ class PhotonTracer:
             if live.size:
                 i, tl = np.take(iS, live), np.take(tS, live)
                 pw = _take3(power, i) * _take3(tables.ps, tl) * (np.take(ws, live) / np.take(s, live))
-                parts.append((_take3(y, i) + self._offset32 * _take3(nS, live), _take3(wo, live), pw, np.zeros_like(pw), tl,
-                              np.ones(live.size, dtype=bool)))
+                parts.append(
+                    (
+                        _take3(y, i) + self._offset32 * _take3(nS, live),
+                        _take3(wo, live),
+                        pw,
+                        np.zeros_like(pw),
+                        tl,
+                        np.ones(live.size, dtype=bool),
+                    )
+                )
         if len(parts) == 1:
             return parts[0]
         if not parts:
@@ -278,8 +343,15 @@ class PhotonTracer:
 
     # ------------------------------------------------------------------ paths
 
-    def trace_chunk(self, source: np.ndarray, intensity: np.ndarray, n: int, n_total: int, tables: "ScatterTables",
-                    rng: np.random.Generator) -> tuple[list, int]:
+    def trace_chunk(
+        self,
+        source: np.ndarray,
+        intensity: np.ndarray,
+        n: int,
+        n_total: int,
+        tables: "ScatterTables",
+        rng: np.random.Generator,
+    ) -> tuple[list, int]:
         """n photons of one source (out of n_total for that source); returns ([(texel, wi (3, M), power (3, M),
         emitter, diffuse_per_pd (3, M), collects, specular_path) per bounce], rays, back-side hits), float32 / int32
         arrays."""
@@ -299,8 +371,8 @@ class PhotonTracer:
         n_s = _take3(self._n3, texel)
         cos_i = column_dot(n_s, wi)
         own = None
-        origin = d = per_pd = emitter = None          # the rays of the previous bounce and their photons
-        path = np.zeros(len(texel), dtype=bool)       # no scattering yet: the first hit is the direct light
+        origin = d = per_pd = emitter = None  # the rays of the previous bounce and their photons
+        path = np.zeros(len(texel), dtype=bool)  # no scattering yet: the first hit is the direct light
         rays = back = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
@@ -319,7 +391,12 @@ class PhotonTracer:
                 texel, collects = self.hit_texels(prim, np.take(bu, k), np.take(bv, k), dk)
                 y = _take3(origin, k) + np.take(dist, k) * dk
                 wi = -dk
-                power, per_pd, emitter, path = _take3(power, k), _take3(per_pd, k), np.take(emitter, k), np.take(path, k)
+                power, per_pd, emitter, path = (
+                    _take3(power, k),
+                    _take3(per_pd, k),
+                    np.take(emitter, k),
+                    np.take(path, k),
+                )
                 stored.append((texel, wi, power, emitter, per_pd, collects, path))
                 # the texel's normal, or the hit face's where the texel normal faces away from wi (a photon
                 # arriving at a grazing angle on a curved or folded mesh: the smooth normal would absorb it)
@@ -333,14 +410,23 @@ class PhotonTracer:
             if depth == self.max_bounces:
                 break
             u = rng.random((4, len(texel)), dtype=np.float32)
-            origin, d, power, per_pd, emitter, path = self.scatter(texel, y, wi, n_s, cos_i, own, power, tables, u,
-                                                                   roulette=depth + 1 > self.min_bounces, path=path)
+            origin, d, power, per_pd, emitter, path = self.scatter(
+                texel, y, wi, n_s, cos_i, own, power, tables, u, roulette=depth + 1 > self.min_bounces, path=path
+            )
             if not d.shape[1]:
                 break
         return stored, rays, back
 
-    def trace(self, sources: np.ndarray, intensities: np.ndarray, photons_per_source: int, mat: TexelMaterial,
-              seed: int, refresh: int = 0, progress=None) -> PhotonHits:
+    def trace(
+        self,
+        sources: np.ndarray,
+        intensities: np.ndarray,
+        photons_per_source: int,
+        mat: TexelMaterial,
+        seed: int,
+        refresh: int = 0,
+        progress=None,
+    ) -> PhotonHits:
         """Trace photons_per_source photons from every source (S, 3) with intensities (S, 3)."""
         sources = np.asarray(sources, dtype=np.float64).reshape(-1, 3)
         intensities = np.asarray(intensities, dtype=np.float64).reshape(-1, 3)
@@ -348,7 +434,7 @@ class PhotonTracer:
         units = [(s, a, min(a + CHUNK, N)) for s in range(S) for a in range(0, N, CHUNK)]
         results: list = [None] * len(units)
         done = [0]
-        for s in range(S):                 # shadow rays of the landing densities, before the threads start
+        for s in range(S):  # shadow rays of the landing densities, before the threads start
             self.landing(sources[s])
         tables = ScatterTables.build(self.lobe, mat)
 
@@ -365,17 +451,35 @@ class PhotonTracer:
         back = sum(r[2] for r in results)
         batches = [(s, b) for (s, _, _), (stored, _, _) in zip(units, results) for b in stored]
         if not batches:
-            return PhotonHits(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
-                              np.zeros((0, 3), np.float32), np.full(S, N, dtype=np.int64), rays,
-                              np.zeros(0, np.int64), np.zeros((0, 3), np.float32), back_hits=back,
-                              specular_path=np.zeros(0, dtype=bool))
+            return PhotonHits(
+                np.zeros(0, np.int64),
+                np.zeros(0, np.int64),
+                np.zeros((0, 3), np.float32),
+                np.zeros((0, 3), np.float32),
+                np.full(S, N, dtype=np.int64),
+                rays,
+                np.zeros(0, np.int64),
+                np.zeros((0, 3), np.float32),
+                back_hits=back,
+                specular_path=np.zeros(0, dtype=bool),
+            )
         keep = np.flatnonzero(np.concatenate([b[5] for _, b in batches]))
         ints = lambda j: np.take(np.concatenate([b[j] for _, b in batches]), keep).astype(np.int64)
-        vecs = lambda j: np.take(np.concatenate([b[j] for _, b in batches], axis=1), keep, axis=1).T   # (N, 3) views
+        vecs = lambda j: np.take(np.concatenate([b[j] for _, b in batches], axis=1), keep, axis=1).T  # (N, 3) views
         source = np.take(np.concatenate([np.full(len(b[0]), s, dtype=np.int64) for s, b in batches]), keep)
         path = np.take(np.concatenate([b[6] for _, b in batches]), keep)
-        return PhotonHits(source, ints(0), vecs(1), vecs(2), np.full(S, N, dtype=np.int64), rays, ints(3), vecs(4),
-                          back_hits=back, specular_path=path)
+        return PhotonHits(
+            source,
+            ints(0),
+            vecs(1),
+            vecs(2),
+            np.full(S, N, dtype=np.int64),
+            rays,
+            ints(3),
+            vecs(4),
+            back_hits=back,
+            specular_path=path,
+        )
 
 
 @dataclass
@@ -404,7 +508,7 @@ class ScatterTables:
     @classmethod
     def build(cls, lobe: str | None, mat: TexelMaterial) -> "ScatterTables":
         f32 = lambda x: np.ascontiguousarray(x, dtype=np.float32)
-        q = np.ceil(specular_probability(lobe, mat.pd, mat.ps) * 2.0 ** 24) / 2.0 ** 24
+        q = np.ceil(specular_probability(lobe, mat.pd, mat.ps) * 2.0**24) / 2.0**24
         rest = 1.0 - q
         k = np.where(rest > 0, 1.0 / np.where(rest > 0, rest, 1.0), 0.0)
         w = mat.pd * k[:, None]
@@ -416,8 +520,16 @@ class ScatterTables:
 
         sigma = np.maximum(mat.sigma, brdf_mod.SIGMA_EPS)
         trunc, ratio = lobe_constants(lobe, sigma) if lobe is not None else (np.ones_like(sigma), np.zeros_like(sigma))
-        return cls(f32(q), f32(mat.ps.T), f32(mat.ps.max(-1)), f32(sigma), f32(trunc), f32(ratio),
-                   branch(np.minimum(0.95, top)), branch((top > 0).astype(np.float64)))
+        return cls(
+            f32(q),
+            f32(mat.ps.T),
+            f32(mat.ps.max(-1)),
+            f32(sigma),
+            f32(trunc),
+            f32(ratio),
+            branch(np.minimum(0.95, top)),
+            branch((top > 0).astype(np.float64)),
+        )
 
     def diffuse(self, roulette: bool) -> tuple:
         return self.diffuse_roulette if roulette else self.diffuse_first

@@ -56,10 +56,15 @@ def check_conditioning(rho: torch.Tensor, F: torch.Tensor, warn_margin: float = 
     if bound >= 1.0:
         raise FitError(
             f"radiosity: I - rho F is singular (max rho * sum_v F_uv = {bound:.6f} >= 1): reflectance 1 in closed "
-            "geometry keeps light forever (reflectances must stay below 1)")
+            "geometry keeps light forever (reflectances must stay below 1)"
+        )
     if bound > 1.0 - warn_margin:
-        warnings.warn(f"radiosity: I - rho F is near singular (max rho * sum_v F_uv = {bound:.6f}); the solution "
-                      "amplifies errors by up to 1 / (1 - bound)", NearSingularWarning, stacklevel=3)
+        warnings.warn(
+            f"radiosity: I - rho F is near singular (max rho * sum_v F_uv = {bound:.6f}); the solution "
+            "amplifies errors by up to 1 / (1 - bound)",
+            NearSingularWarning,
+            stacklevel=3,
+        )
     return bound
 
 
@@ -74,7 +79,7 @@ def _direct(rho, E, F, transpose=False):
     eye = torch.eye(Q, dtype=torch.float64, device=rho.device)
     out = []
     for c in range(C):
-        A = eye - rho[:, c:c + 1].to(torch.float64) * Fd
+        A = eye - rho[:, c : c + 1].to(torch.float64) * Fd
         if transpose:
             A = A.t()
         out.append(torch.linalg.solve(A.contiguous(), E[:, c, :].to(torch.float64).contiguous()))
@@ -101,9 +106,11 @@ def _iterate(rho, E, F, tol, max_iter, transpose=False):
         X = nxt
         if delta <= tol * scale:
             return X, it + 1
-    raise FitError(f"radiosity: the iterative solver did not reach tolerance {tol} in {max_iter} iterations "
-                   f"(last change {float(delta / scale):.3g}): Pd near 1 where texels face each other converges slowly; "
-                   "a larger radiosity.patch_size gives fewer patches, which the direct solver takes")
+    raise FitError(
+        f"radiosity: the iterative solver did not reach tolerance {tol} in {max_iter} iterations "
+        f"(last change {float(delta / scale):.3g}): Pd near 1 where texels face each other converges slowly; "
+        "a larger radiosity.patch_size gives fewer patches, which the direct solver takes"
+    )
 
 
 class _Solve(torch.autograd.Function):
@@ -134,22 +141,33 @@ class _Solve(torch.autograd.Function):
         return d_rho, d_E, None, None, None, None
 
 
-def solve_radiosity(rho: torch.Tensor, E: torch.Tensor, F: torch.Tensor, *, method: str = "auto",
-                    tol: float = 1e-9, max_iter: int = 1000, direct_max: int = 3000, check: bool = True) -> torch.Tensor:
+def solve_radiosity(
+    rho: torch.Tensor,
+    E: torch.Tensor,
+    F: torch.Tensor,
+    *,
+    method: str = "auto",
+    tol: float = 1e-9,
+    max_iter: int = 1000,
+    direct_max: int = 3000,
+    check: bool = True,
+) -> torch.Tensor:
     """Radiosity B (P, Q, C) for reflectance rho (Q, C), direct irradiance E (P, Q, C), form factors F (Q, Q).
 
     method: 'direct' (dense LU), 'iterative' (fixed point, sparse-friendly) or 'auto'
     (direct when Q <= direct_max). Differentiable in rho and E.
     """
     if rho.dim() != 2 or E.dim() != 3 or E.shape[1:] != rho.shape or F.shape != (rho.shape[0], rho.shape[0]):
-        raise FitError(f"radiosity: shapes rho {tuple(rho.shape)}, E {tuple(E.shape)}, F {tuple(F.shape)} do not "
-                       "match rho (Q, C), E (P, Q, C), F (Q, Q)")
+        raise FitError(
+            f"radiosity: shapes rho {tuple(rho.shape)}, E {tuple(E.shape)}, F {tuple(F.shape)} do not "
+            "match rho (Q, C), E (P, Q, C), F (Q, Q)"
+        )
     if method not in ("auto", "direct", "iterative"):
         raise FitError(f"radiosity: unknown solver '{method}', expected auto, direct or iterative")
     if check:
         check_conditioning(rho, F)
     if method == "auto":
         method = "direct" if rho.shape[0] <= direct_max else "iterative"
-    Et = E.permute(1, 2, 0)                                                   # (Q, C, P)
+    Et = E.permute(1, 2, 0)  # (Q, C, P)
     B = _Solve.apply(rho, Et, F, method, tol, max_iter)
     return B.permute(2, 0, 1)

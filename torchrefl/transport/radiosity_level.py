@@ -36,7 +36,6 @@ from torchrefl.core.point_light import point_light
 from torchrefl.transport.local import LocalTerms, predict
 from torchrefl.transport.radiosity import _matmul, solve_radiosity
 
-
 RHO_MAX = 0.99
 
 
@@ -97,9 +96,18 @@ def emitter_maps(sources, positions: torch.Tensor, normals: torch.Tensor, tracer
     return EmitterMaps(torch.from_numpy(E), torch.as_tensor(np.asarray(sources.weights, dtype=np.float64)))
 
 
-def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: PatchMap, F: torch.Tensor,
-                        maps: EmitterMaps | None = None, F_solve: torch.Tensor | None = None, per_map: bool = False,
-                        reconstruct: torch.Tensor | None = None, **solver) -> torch.Tensor:
+def indirect_irradiance(
+    terms: LocalTerms,
+    kappa,
+    pd: torch.Tensor,
+    patches: PatchMap,
+    F: torch.Tensor,
+    maps: EmitterMaps | None = None,
+    F_solve: torch.Tensor | None = None,
+    per_map: bool = False,
+    reconstruct: torch.Tensor | None = None,
+    **solver,
+) -> torch.Tensor:
     """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3); with maps, the
     emitters are lit from each map's source and H interpolates between maps (module doc). F_solve: other
     (cheaper, noisier) form factors of the same patches for the solve B = rho (E + F_solve B), F then only
@@ -108,17 +116,17 @@ def indirect_irradiance(terms: LocalTerms, kappa, pd: torch.Tensor, patches: Pat
     the light at each map's source (K = 1 without maps), before the interpolation. reconstruct: a sparse (T, Q)
     operator from the patches' H to the texels' (patch_reconstruction.linear_reconstruction); None = each texel
     takes its patch's H."""
-    rho = patches.mean(pd[None])[0].clamp(max=RHO_MAX)                 # (Q, 3)
+    rho = patches.mean(pd[None])[0].clamp(max=RHO_MAX)  # (Q, 3)
     if maps is None:
-        E = patches.mean(direct_irradiance(terms, kappa))              # (P, Q, 3)
+        E = patches.mean(direct_irradiance(terms, kappa))  # (P, Q, 3)
     else:
         P, K, T, C = maps.irradiance.shape
-        E = patches.mean(maps.irradiance.to(pd.dtype).reshape(P * K, T, C))   # (P K, Q, 3)
-    B = solve_radiosity(rho, E, F if F_solve is None else F_solve.to(F.dtype), **solver)   # (P or P K, Q, 3)
+        E = patches.mean(maps.irradiance.to(pd.dtype).reshape(P * K, T, C))  # (P K, Q, 3)
+    B = solve_radiosity(rho, E, F if F_solve is None else F_solve.to(F.dtype), **solver)  # (P or P K, Q, 3)
     R, Q, C = B.shape
-    H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, R * C))                        # (Q, R C)
+    H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, R * C))  # (Q, R C)
     if reconstruct is None:
-        H = patches.scatter(H.reshape(Q, R, C).permute(1, 0, 2))                            # (R, T, 3)
+        H = patches.scatter(H.reshape(Q, R, C).permute(1, 0, 2))  # (R, T, 3)
     else:
         H = _matmul(reconstruct.to(H.dtype), H)
         H = H.reshape(H.shape[0], R, C).permute(1, 0, 2)
@@ -134,15 +142,18 @@ def reflected_indirect(kappa, pd: torch.Tensor, H: torch.Tensor) -> torch.Tensor
     return (kappa / math.pi) * pd[None].to(H.dtype) * H
 
 
-def predict_radiosity(terms: LocalTerms, kappa, pd, ps, sigma, patches: PatchMap, F, maps: EmitterMaps | None = None,
-                      **solver) -> torch.Tensor:
+def predict_radiosity(
+    terms: LocalTerms, kappa, pd, ps, sigma, patches: PatchMap, F, maps: EmitterMaps | None = None, **solver
+) -> torch.Tensor:
     """(P, T, 3) local prediction plus the diffusely reflected interreflection."""
-    return predict(terms, pd, ps, sigma) + reflected_indirect(kappa, pd, indirect_irradiance(terms, kappa, pd, patches, F,
-                                                                                            maps, **solver))
+    return predict(terms, pd, ps, sigma) + reflected_indirect(
+        kappa, pd, indirect_irradiance(terms, kappa, pd, patches, F, maps, **solver)
+    )
 
 
-def inverse_radiosity(terms: LocalTerms, kappa, intensity: torch.Tensor, diffuse_mask: torch.Tensor,
-                      patches: PatchMap, F) -> tuple[torch.Tensor, torch.Tensor]:
+def inverse_radiosity(
+    terms: LocalTerms, kappa, intensity: torch.Tensor, diffuse_mask: torch.Tensor, patches: PatchMap, F
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Closed-form patch reflectance from eq. 4.7, per light, combined over lights.
 
     intensity (P, T, 3); diffuse_mask (P, T) observations that carry diffuse light only (T_diff).
@@ -153,11 +164,11 @@ def inverse_radiosity(terms: LocalTerms, kappa, intensity: torch.Tensor, diffuse
     """
     dtype = intensity.dtype
     w = diffuse_mask.to(dtype)[..., None]
-    B_meas = math.pi * intensity / kappa                               # (P, T, 3)
+    B_meas = math.pi * intensity / kappa  # (P, T, 3)
     num = patches.mean(B_meas * w)
-    cov = patches.mean(w.expand_as(B_meas).contiguous())               # fraction of the patch observed
+    cov = patches.mean(w.expand_as(B_meas).contiguous())  # fraction of the patch observed
     B_u = num / cov.clamp_min(1e-12)
-    seen = cov[..., 0] > 0.5                                           # (P, Q)
+    seen = cov[..., 0] > 0.5  # (P, Q)
     E = patches.mean(direct_irradiance(terms, kappa))
     P, Q, C = B_u.shape
     Bg = torch.where(seen[..., None], B_u, torch.zeros_like(B_u))

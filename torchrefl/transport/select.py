@@ -27,8 +27,14 @@ class LevelChoice:
     numbers: dict
 
 
-def choose_level(has_mesh: bool, F, indirect_dn: torch.Tensor | None, specular_dn: torch.Tensor | None,
-                 noise_floor_dn: float, photon_available: bool = True) -> LevelChoice:
+def choose_level(
+    has_mesh: bool,
+    F,
+    indirect_dn: torch.Tensor | None,
+    specular_dn: torch.Tensor | None,
+    noise_floor_dn: float,
+    photon_available: bool = True,
+) -> LevelChoice:
     """Apply the rules to precomputed quantities.
 
     F: form factors (Q, Q) or None; indirect_dn / specular_dn: predicted diffuse / specular
@@ -42,22 +48,34 @@ def choose_level(has_mesh: bool, F, indirect_dn: torch.Tensor | None, specular_d
     numbers.update(form_factor_nonzeros=nnz, max_form_factor_row_sum=float(rows.max()) if rows.numel() else 0.0)
     if nnz == 0:
         return LevelChoice("local", "no texel sees another (all form factors are zero)", numbers)
-    q = lambda x: float(torch.quantile(x.double().flatten()[: 10_000_000], 0.999)) if x.numel() else 0.0
+    q = lambda x: float(torch.quantile(x.double().flatten()[:10_000_000], 0.999)) if x.numel() else 0.0
     diff = q(indirect_dn)
     numbers["diffuse_interreflection_dn_p999"] = diff
     if diff < noise_floor_dn:
-        return LevelChoice("local", f"predicted diffuse interreflection {diff:.3g} DN (99.9th percentile) is below the "
-                                    f"noise floor {noise_floor_dn} DN", numbers)
+        return LevelChoice(
+            "local",
+            f"predicted diffuse interreflection {diff:.3g} DN (99.9th percentile) is below the "
+            f"noise floor {noise_floor_dn} DN",
+            numbers,
+        )
     spec = q(specular_dn)
     numbers["specular_interreflection_dn_p999"] = spec
     if spec < noise_floor_dn:
-        return LevelChoice("radiosity", f"diffuse interreflection up to {diff:.3g} DN, specular interreflection "
-                                        f"{spec:.3g} DN is below the noise floor {noise_floor_dn} DN", numbers)
+        return LevelChoice(
+            "radiosity",
+            f"diffuse interreflection up to {diff:.3g} DN, specular interreflection "
+            f"{spec:.3g} DN is below the noise floor {noise_floor_dn} DN",
+            numbers,
+        )
     if photon_available:
         return LevelChoice("photon", f"specular interreflection up to {spec:.3g} DN exceeds the noise floor", numbers)
-    return LevelChoice("radiosity", f"specular interreflection up to {spec:.3g} DN exceeds the noise floor "
-                                    f"{noise_floor_dn} DN and calls for the photon level, which is not "
-                                    "available here: falling back to radiosity", numbers)
+    return LevelChoice(
+        "radiosity",
+        f"specular interreflection up to {spec:.3g} DN exceeds the noise floor "
+        f"{noise_floor_dn} DN and calls for the photon level, which is not "
+        "available here: falling back to radiosity",
+        numbers,
+    )
 
 
 def specular_albedo_estimate(ps: torch.Tensor) -> torch.Tensor:

@@ -37,13 +37,13 @@ import numpy as np
 import torch
 
 from torchrefl.core import brdf as brdf_mod
-from torchrefl.errors import ConfigError
-from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.core.lobe_sampling import row_dot, sample_mixture
+from torchrefl.core.rqmc import sobol_base, toroidal_shift
+from torchrefl.errors import ConfigError
 from torchrefl.transport.photon_cache import BIN_PER_SIGMA, LOBE_CUTOFF, THETA_BIN
 from torchrefl.transport.photon_trace import PhotonTracer
 
-WIDEN = 1.25         # sampling roughness over the texel's roughness at the refresh
+WIDEN = 1.25  # sampling roughness over the texel's roughness at the refresh
 
 
 @dataclass
@@ -72,10 +72,21 @@ class SpecularGather:
     sigma_max: the fit's upper bound of sigma (caps the sampling roughness).
     """
 
-    def __init__(self, tracer: PhotonTracer, view_dirs, keep, brdf: str, samples: int, min_cos_light: float,
-                 sigma_max: float, seed: int = 0):
+    def __init__(
+        self,
+        tracer: PhotonTracer,
+        view_dirs,
+        keep,
+        brdf: str,
+        samples: int,
+        min_cos_light: float,
+        sigma_max: float,
+        seed: int = 0,
+    ):
         if int(samples) < 1:
-            raise ConfigError(f"photon.specular_gather: expected a positive number of directions per texel, got {samples}")
+            raise ConfigError(
+                f"photon.specular_gather: expected a positive number of directions per texel, got {samples}"
+            )
         if tracer.lobe is None:
             raise ConfigError(f"photon.specular_gather: reflectance.brdf '{brdf}' has no specular lobe to gather with")
         self.tracer = tracer
@@ -92,9 +103,14 @@ class SpecularGather:
         N = self.samples
         rng = np.random.default_rng([self.seed, 0x67, int(refresh)])
         base = sobol_base(N, 2, rng)
-        sig_all = np.minimum(WIDEN * np.maximum(np.asarray(sigma, dtype=np.float64), brdf_mod.SIGMA_EPS), self.sigma_max)
-        groups = ([(-1, self.keep.any(0), self.view)] if self.view.ndim == 2 else
-                  [(p, self.keep[p], self.view[p]) for p in range(self.keep.shape[0])])
+        sig_all = np.minimum(
+            WIDEN * np.maximum(np.asarray(sigma, dtype=np.float64), brdf_mod.SIGMA_EPS), self.sigma_max
+        )
+        groups = (
+            [(-1, self.keep.any(0), self.view)]
+            if self.view.ndim == 2
+            else [(p, self.keep[p], self.view[p]) for p in range(self.keep.shape[0])]
+        )
         parts, rays = [], 0
         for light, wanted, view in groups:
             texels = np.flatnonzero(wanted)
@@ -103,8 +119,9 @@ class SpecularGather:
             t = np.repeat(texels, N)
             u = toroidal_shift(base, rng.random((len(texels), 2)))
             n, v, sig = self.tracer.normals[t], view[t], sig_all[t]
-            l, pdf = sample_mixture(self.tracer.lobe, n, v, None, None, sig, np.column_stack([u, np.zeros(len(t))]),
-                                    q=np.ones(len(t)))
+            l, pdf = sample_mixture(
+                self.tracer.lobe, n, v, None, None, sig, np.column_stack([u, np.zeros(len(t))]), q=np.ones(len(t))
+            )
             cos_i, cos_v = row_dot(n, l), row_dot(n, v)
             ok = np.flatnonzero((cos_i > self.min_cos_light) & (cos_v > 0) & (pdf > 0))
             t, n, v, l, pdf, cos_i, cos_v = t[ok], n[ok], v[ok], l[ok], pdf[ok], cos_i[ok], cos_v[ok]
@@ -112,7 +129,7 @@ class SpecularGather:
             rays += len(t)
             front = hits.hit.copy()
             i = np.flatnonzero(front)
-            front[i] = row_dot(self.tracer.face_normals[hits.triangle[i]], l[i]) < 0     # the lit side faces the ray
+            front[i] = row_dot(self.tracer.face_normals[hits.triangle[i]], l[i]) < 0  # the lit side faces the ray
             i = np.flatnonzero(front)
             hit, _ = self.tracer.hit_texels(hits.triangle[i], hits.barycentric[i, 0], hits.barycentric[i, 1], l[i].T)
             t, n, v, l, pdf, cos_i, cos_v = t[i], n[i], v[i], l[i], pdf[i], cos_i[i], cos_v[i]
@@ -120,16 +137,31 @@ class SpecularGather:
                 tt = lambda x: torch.from_numpy(np.ascontiguousarray(x))
                 theta = brdf_mod.half_angle(tt(n), tt(l), tt(v)).numpy()
                 geom = brdf_mod.specular_geometry(self.brdf, tt(cos_i), tt(cos_v)).numpy()
-                alive = brdf_mod.specular_lobe(self.brdf, tt(theta), tt(np.minimum(3.0 * sig_all[t] / WIDEN, self.sigma_max))).numpy() > LOBE_CUTOFF
+                alive = (
+                    brdf_mod.specular_lobe(
+                        self.brdf, tt(theta), tt(np.minimum(3.0 * sig_all[t] / WIDEN, self.sigma_max))
+                    ).numpy()
+                    > LOBE_CUTOFF
+                )
             a = np.flatnonzero(alive)
-            parts.append((t[a], hit.astype(np.int64)[a], theta[a], geom[a] / (N * pdf[a]), np.full(a.size, light, dtype=np.int64)))
+            parts.append(
+                (
+                    t[a],
+                    hit.astype(np.int64)[a],
+                    theta[a],
+                    geom[a] / (N * pdf[a]),
+                    np.full(a.size, light, dtype=np.int64),
+                )
+            )
         if not parts:
             z = np.zeros(0)
             return GatherSamples(z.astype(np.int64), z.astype(np.int64), z, z, z.astype(np.int64), rays)
         cat = lambda j: np.concatenate([x[j] for x in parts])
         return GatherSamples(cat(0), cat(1), cat(2), cat(3), cat(4), rays)
 
-    def entries(self, samples: GatherSamples, radiance, map_weights, sigma) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def entries(
+        self, samples: GatherSamples, radiance, map_weights, sigma
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Specular entries (entry_obs (E,), theta_h (E,), weight (E, 3)) from the outgoing radiance
         (P, K, T, 3) of every texel with light p at map k's source, map_weights (K, T) (each texel's weights
         over the maps: photon_level.map_weights), and sigma (T,) (the merge bins' widths).
@@ -142,7 +174,7 @@ class SpecularGather:
         Wm = np.asarray(map_weights, dtype=np.float64)
         if Wm.shape != (K, T):
             raise ValueError(f"specular gather: map weights of shape {Wm.shape}, expected {(K, T)}")
-        order = np.argsort(-np.abs(Wm), axis=0, kind="stable")[:max(1, int((Wm != 0).sum(0).max(initial=0)))]
+        order = np.argsort(-np.abs(Wm), axis=0, kind="stable")[: max(1, int((Wm != 0).sum(0).max(initial=0)))]
         t, hit, w = samples.texel, samples.hit, samples.weight
         empty = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3))
         if not t.size:
@@ -162,15 +194,18 @@ class SpecularGather:
         a_s = [Wm[k, t] * w for k in k_s]
         obs, th, wt = [], [], []
         for p in range(P):
-            flat = R[p].reshape(K * T, 3).T                                          # (3, K T), component-major
+            flat = R[p].reshape(K * T, 3).T  # (3, K T), component-major
             L = np.zeros((3, t.size))
             for k, a in zip(k_s, a_s):
                 L += np.take(flat, k * T + hit, axis=1) * a
             vals = np.stack([np.bincount(group, weights=L[c], minlength=G) for c in range(3)], -1)
             m = L.mean(0)
             msum = np.bincount(group, weights=m, minlength=G)
-            theta = np.where(msum > 0, np.bincount(group, weights=m * samples.theta_h, minlength=G)
-                             / np.where(msum > 0, msum, 1.0), g_theta)
+            theta = np.where(
+                msum > 0,
+                np.bincount(group, weights=m * samples.theta_h, minlength=G) / np.where(msum > 0, msum, 1.0),
+                g_theta,
+            )
             gk = np.flatnonzero(self.keep[p, g_texel] & ((g_light < 0) | (g_light == p)) & (vals.max(-1) > 0))
             obs.append(p * T + g_texel[gk])
             th.append(theta[gk])

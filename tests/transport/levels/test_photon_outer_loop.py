@@ -3,12 +3,11 @@ renderer's camera paths, not the fitter's photons): the photon level removes the
 bias that a local fit keeps, with both schedules; the kept parameters are the best scored; same seed,
 same result."""
 
-
 import numpy as np
 import pytest
 import torch
-
 from conftest import fold_surface, point_light_observations
+
 from torchrefl.capture.base import Capture
 from torchrefl.config import Config
 from torchrefl.core.params import TexelParams
@@ -37,10 +36,19 @@ def scene():
     n_np = s.normals.numpy()
     plate = lambda y: np.where((y[:, 2] < -y[:, 0])[:, None], n_np[0], n_np[-1])
     mat = lambda y, tri: {"pd": np.full((len(y), 3), PD), "ps": np.zeros((len(y), 3)), "sigma": np.full(len(y), 0.1)}
-    r = IndirectRenderer(RayTracer(s.mesh_vertices, s.mesh_faces), lambda y, tri: plate(y), mat, "lambertian",
-                         offset=1e-3, seed=11)
-    g = r.render(s.positions.numpy(), n_np, obs.view_dir.numpy(), np.full((T, 3), PD), np.zeros((T, 3)),
-                 np.full(T, 0.1), np.broadcast_to(LIGHTS[:, None], (3, T, 3)), n_paths=512)
+    r = IndirectRenderer(
+        RayTracer(s.mesh_vertices, s.mesh_faces), lambda y, tri: plate(y), mat, "lambertian", offset=1e-3, seed=11
+    )
+    g = r.render(
+        s.positions.numpy(),
+        n_np,
+        obs.view_dir.numpy(),
+        np.full((T, 3), PD),
+        np.zeros((T, 3)),
+        np.full(T, 0.1),
+        np.broadcast_to(LIGHTS[:, None], (3, T, 3)),
+        n_paths=512,
+    )
     obs.intensity = predict(terms, pd, zeros, sigma) + obs.kappa * 2e4 * torch.as_tensor(g)
     return s, obs, terms
 
@@ -51,21 +59,23 @@ def photon_level(s, obs, schedule="joint", outer=2, seed=0, damping=0.0, iterati
     cfg.seed = seed
     cfg.reflectance.brdf = "lambertian"
     cfg.fit.iterations = iterations
-    for key, value in dict(photons_per_light=300_000, schedule=schedule, outer_iterations=outer, damping=damping,
-                           smoothing=1.0).items():
+    for key, value in dict(
+        photons_per_light=300_000, schedule=schedule, outer_iterations=outer, damping=damping, smoothing=1.0
+    ).items():
         setattr(cfg.photon, key, value)
     cfg.output.progress = False
     inputs, _ = level_inputs(cfg, Capture(s, obs), lambda *a: None)
-    level = PhotonLevel(inputs, RadiosityLevel(inputs))     # every path from photons: the radiosity level unused
+    level = PhotonLevel(inputs, RadiosityLevel(inputs))  # every path from photons: the radiosity level unused
     level.prepare()
     return level
 
 
 def fit(s, obs, terms, schedule, seed=0, outer=2):
     T = s.num_texels
-    start = (obs.intensity / terms.diffuse.clamp_min(1e-12))[0].clamp(0, 2)    # local closed form under light 0
-    params = TexelParams(start, torch.full((T, 3), 0.01, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64),
-                         0.01, 0.6)
+    start = (obs.intensity / terms.diffuse.clamp_min(1e-12))[0].clamp(0, 2)  # local closed form under light 0
+    params = TexelParams(
+        start, torch.full((T, 3), 0.01, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64), 0.01, 0.6
+    )
     make = lambda model, weight: Objective(predict=model, intensity=obs.intensity, weight=weight, loss="l2")
     level = photon_level(s, obs, schedule, outer, seed)
     refit(level, params, make, level.inputs.cfg)
@@ -85,13 +95,19 @@ def pd_error(pd, keep):
 def test_local_fit_keeps_the_interreflection_bias(scene):
     s, obs, terms = scene
     T = s.num_texels
-    params = TexelParams(torch.full((T, 3), 0.5, dtype=torch.float64), torch.full((T, 3), 0.01, dtype=torch.float64),
-                         torch.full((T,), 0.1, dtype=torch.float64), 0.01, 0.6)
-    objective = Objective(predict=lambda pd, ps, sg: predict(terms, pd, ps, sg), intensity=obs.intensity,
-                          weight=obs.valid, loss="l2")
+    params = TexelParams(
+        torch.full((T, 3), 0.5, dtype=torch.float64),
+        torch.full((T, 3), 0.01, dtype=torch.float64),
+        torch.full((T,), 0.1, dtype=torch.float64),
+        0.01,
+        0.6,
+    )
+    objective = Objective(
+        predict=lambda pd, ps, sg: predict(terms, pd, ps, sg), intensity=obs.intensity, weight=obs.valid, loss="l2"
+    )
     refine(params, objective, "lbfgs", 40)
     near = ~away_from_fold(s, 12)
-    assert float(params.pd().detach()[near, 0].mean()) > PD * 1.1       # the fold region looks brighter than it is
+    assert float(params.pd().detach()[near, 0].mean()) > PD * 1.1  # the fold region looks brighter than it is
 
 
 @pytest.mark.parametrize("schedule", ["joint", "seed"])
@@ -122,8 +138,14 @@ def test_damping_moves_pd_part_of_the_way_and_leaves_the_lobe(scene):
     make = lambda model, weight: Objective(predict=model, intensity=obs.intensity, weight=weight, loss="l2")
     ends = {}
     for d in (0.0, 0.5):
-        params = TexelParams(torch.full((T, 3), 0.9, dtype=torch.float64), torch.full((T, 3), 0.002, dtype=torch.float64),
-                             torch.full((T,), 0.1, dtype=torch.float64), 0.01, 0.6, init_floor=1e-4)
+        params = TexelParams(
+            torch.full((T, 3), 0.9, dtype=torch.float64),
+            torch.full((T, 3), 0.002, dtype=torch.float64),
+            torch.full((T,), 0.1, dtype=torch.float64),
+            0.01,
+            0.6,
+            init_floor=1e-4,
+        )
         level = photon_level(s, obs, "seed", outer=1, seed=1, damping=d, iterations=20)
         refit(level, params, make, level.inputs.cfg)
         ends[d] = (params, level.report())

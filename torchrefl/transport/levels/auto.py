@@ -19,12 +19,16 @@ def check_level(model: str, inputs: LevelInputs) -> None:
     """Refuse a level the capture or the reflectance model cannot support, naming the key."""
     surface, rc = inputs.surface, inputs.cfg.reflectance
     if model in ("radiosity", "photon") and not surface.has_mesh:
-        raise ConfigError(f"fit.model: '{model}' needs geometry with depth, but the capture {surface.source} has no "
-                          "mesh (photometric stereo): use fit.model=local")
+        raise ConfigError(
+            f"fit.model: '{model}' needs geometry with depth, but the capture {surface.source} has no "
+            "mesh (photometric stereo): use fit.model=local"
+        )
     if rc.diffuse != "lambert" and model != "local" and surface.has_mesh:
-        raise ConfigError(f"reflectance.diffuse: '{rc.diffuse}' is for local transport only, and fit.model '{model}' "
-                          f"may model the interreflection of {surface.source} (Lambertian): use fit.model=local or "
-                          "reflectance.diffuse=lambert")
+        raise ConfigError(
+            f"reflectance.diffuse: '{rc.diffuse}' is for local transport only, and fit.model '{model}' "
+            f"may model the interreflection of {surface.source} (Lambertian): use fit.model=local or "
+            "reflectance.diffuse=lambert"
+        )
 
 
 def named_level(inputs: LevelInputs) -> TransportLevel:
@@ -56,8 +60,9 @@ def choose(radiosity: RadiosityLevel, init) -> TransportLevel:
     """auto's choice at the closed-form start `init`, among local, the prepared radiosity level and photon."""
     inp = radiosity.inputs
     dtype = inp.obs.intensity.dtype
-    diff_dn, spec_dn = predicted_interreflection_dn(inp.terms, inp.obs.kappa, init.pd.to(dtype), init.ps.to(dtype),
-                                                    radiosity.indirect, inp.fit_mask)
+    diff_dn, spec_dn = predicted_interreflection_dn(
+        inp.terms, inp.obs.kappa, init.pd.to(dtype), init.ps.to(dtype), radiosity.indirect, inp.fit_mask
+    )
     choice = choose_level(True, radiosity.F, diff_dn, spec_dn, inp.cfg.fit.noise_floor_dn, photon_available=True)
     reason = f"auto chose {choice.level}: {choice.reason}"
     if choice.level == "local":

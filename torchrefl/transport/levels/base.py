@@ -42,9 +42,9 @@ class LevelInputs:
     surface: Surface
     obs: Observations
     terms: LocalTerms
-    classes: torch.Tensor          # (P, T) observation classes
-    fit_mask: torch.Tensor         # (P, T) fitted observations
-    eval_mask: torch.Tensor        # (P, T) held-out observations
+    classes: torch.Tensor  # (P, T) observation classes
+    fit_mask: torch.Tensor  # (P, T) fitted observations
+    eval_mask: torch.Tensor  # (P, T) held-out observations
     device: torch.device
     log: Callable[[str], None]
     initialise: Callable[[torch.Tensor], Any]
@@ -53,8 +53,11 @@ class LevelInputs:
         """(pd, ps, sigma) -> (P, T, 3) direct light on the fit's device."""
         terms = self.terms
         if self.device.type != "cpu":
-            terms = LocalTerms(terms.brdf, *(getattr(terms, k).to(self.device) for k in
-                                             ("theta_h", "cos_l", "cos_v", "diffuse", "specular")), terms.diffuse_exponent)
+            terms = LocalTerms(
+                terms.brdf,
+                *(getattr(terms, k).to(self.device) for k in ("theta_h", "cos_l", "cos_v", "diffuse", "specular")),
+                terms.diffuse_exponent,
+            )
         return lambda pd, ps, sigma: predict(terms, pd, ps, sigma)
 
 
@@ -77,7 +80,7 @@ class TransportLevel(ABC):
 
     def __init__(self, inputs: LevelInputs):
         self.inputs = inputs
-        self.model_numbers: dict = {}       # the measurements behind auto's choice (metrics.json model_numbers)
+        self.model_numbers: dict = {}  # the measurements behind auto's choice (metrics.json model_numbers)
 
     def prepare(self) -> None:
         """Precompute what the level needs for this capture (called once, before the start)."""

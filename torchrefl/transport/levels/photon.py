@@ -60,8 +60,14 @@ class PhotonLevel(TransportLevel):
         if self._reason is not None:
             return self._reason
         text = "fit.model is 'photon': direct light plus diffuse and specular interreflection by photon tracing"
-        return text + "; started from Method II" + (
-            "; all-diffuse paths from the radiosity solution" if self.hybrid else "") + " (" + self.radiosity.note + ")"
+        return (
+            text
+            + "; started from Method II"
+            + ("; all-diffuse paths from the radiosity solution" if self.hybrid else "")
+            + " ("
+            + self.radiosity.note
+            + ")"
+        )
 
     def use_emitters(self, source: torch.Tensor) -> None:
         self.emitter_source = source
@@ -77,28 +83,61 @@ class PhotonLevel(TransportLevel):
         pc, rc = cfg.photon, cfg.reflectance
         tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
         offset = 1e-3 * math.sqrt(float(surface.areas.double().median()))
-        ptracer = PhotonTracer(tracer, surface.texel_index.numpy(), surface.positions.double().numpy(),
-                               surface.normals.double().numpy(), rc.brdf, offset=offset,
-                               min_bounces=1, max_bounces=16)
+        ptracer = PhotonTracer(
+            tracer,
+            surface.texel_index.numpy(),
+            surface.positions.double().numpy(),
+            surface.normals.double().numpy(),
+            rc.brdf,
+            offset=offset,
+            min_bounces=1,
+            max_bounces=16,
+        )
         sources = light_sources(surface, obs, pc.light_maps)
         view = obs.view_dirs_full() if obs.view_dir.dim() == 3 else obs.view_dir
         keep = inp.fit_mask | inp.eval_mask
         gather = None
         if pc.specular_gather > 0:
-            gather = SpecularGather(ptracer, view.double().numpy(), keep.cpu().numpy(), rc.brdf, pc.specular_gather,
-                                    rc.min_cos_light, rc.sigma_max, seed=cfg.seed)
+            gather = SpecularGather(
+                ptracer,
+                view.double().numpy(),
+                keep.cpu().numpy(),
+                rc.brdf,
+                pc.specular_gather,
+                rc.min_cos_light,
+                rc.sigma_max,
+                seed=cfg.seed,
+            )
         self.refresher = PhotonRefresh(
-            ptracer, sources, view.double(), keep, pc.photons_per_light, rc.sigma_max, rc.min_cos_light, cfg.seed,
-            obs.intensity.dtype, inp.device, smoothing=pc.smoothing,
-            grid=(surface.texel_index, surface.grid_shape, surface.normals.double()), smoothing_normal=SMOOTHING_NORMAL,
+            ptracer,
+            sources,
+            view.double(),
+            keep,
+            pc.photons_per_light,
+            rc.sigma_max,
+            rc.min_cos_light,
+            cfg.seed,
+            obs.intensity.dtype,
+            inp.device,
+            smoothing=pc.smoothing,
+            grid=(surface.texel_index, surface.grid_shape, surface.normals.double()),
+            smoothing_normal=SMOOTHING_NORMAL,
             specular_smoothing=pc.specular_smoothing,
-            radiosity_irradiance=self.radiosity.indirect if self.hybrid else None, specular_gather=gather,
+            radiosity_irradiance=self.radiosity.indirect if self.hybrid else None,
+            specular_gather=gather,
             radiosity_radiance=self.radiosity.radiance if gather is not None else None,
-            emitter_source=self.emitter_source)
-        inp.log(f"photon level: {sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
-                f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}, "
-                + ("all-diffuse paths from the radiosity level, photons for the paths with a specular scattering"
-                   if self.hybrid else "every path from photons") + f", Pd damping {pc.damping:g} between refreshes")
+            emitter_source=self.emitter_source,
+        )
+        inp.log(
+            f"photon level: {sources.num_maps} photon map(s) per light, {pc.photons_per_light} photons "
+            f"per light and refresh, {pc.outer_iterations} outer iterations, schedule {pc.schedule}, "
+            + (
+                "all-diffuse paths from the radiosity level, photons for the paths with a specular scattering"
+                if self.hybrid
+                else "every path from photons"
+            )
+            + f", Pd damping {pc.damping:g} between refreshes"
+        )
 
     def predict(self, pd, ps, sigma):
         kappa = self.inputs.obs.kappa.to(pd.device)
@@ -114,11 +153,21 @@ class PhotonLevel(TransportLevel):
             steps = [RefitStep(None, fit_mask, f"fit {k + 1}/{outer} joint", iterations)]
         else:
             diffuse = fit_mask & (cls == T_DIFF)
-            no_diffuse = ~diffuse.any(0)          # texels without a T_diff observation: Pd from all of theirs
-            steps = [RefitStep(["raw_pd"], diffuse | (fit_mask & no_diffuse[None]), f"fit {k + 1}/{outer} (a) Pd on T_diff",
-                               iterations),
-                     RefitStep(["raw_ps", "raw_sigma"], fit_mask & ((cls == T_SPEC) | (cls == T_NONE)),
-                               f"fit {k + 1}/{outer} (b) Ps, sigma on T_spec + T_none", iterations)]
+            no_diffuse = ~diffuse.any(0)  # texels without a T_diff observation: Pd from all of theirs
+            steps = [
+                RefitStep(
+                    ["raw_pd"],
+                    diffuse | (fit_mask & no_diffuse[None]),
+                    f"fit {k + 1}/{outer} (a) Pd on T_diff",
+                    iterations,
+                ),
+                RefitStep(
+                    ["raw_ps", "raw_sigma"],
+                    fit_mask & ((cls == T_SPEC) | (cls == T_NONE)),
+                    f"fit {k + 1}/{outer} (b) Ps, sigma on T_spec + T_none",
+                    iterations,
+                ),
+            ]
         kept = [s for s in steps if bool(s.mask.any())]
         for s in steps:
             if s not in kept:
@@ -128,7 +177,7 @@ class PhotonLevel(TransportLevel):
     def refresh(self, params, k: int) -> None:
         """Damp Pd towards the Pd the last cache was traced with, trace the cache at the parameters, score them."""
         inp, pc = self.inputs, self.inputs.cfg.photon
-        if k > 0 and pc.damping > 0:           # Pd only: Ps and sigma keep their refit values exactly
+        if k > 0 and pc.damping > 0:  # Pd only: Ps and sigma keep their refit values exactly
             with torch.no_grad():
                 params.raw_pd.copy_(inverse_softplus_b(pc.damping * self._traced_pd + (1.0 - pc.damping) * params.pd()))
         with torch.no_grad():
@@ -139,16 +188,24 @@ class PhotonLevel(TransportLevel):
             score = image_score(self.predict(*values), intensity, inp.fit_mask.to(inp.device))
         self.scores.append(score)
         stats = self.cache.stats
-        inp.log(f"photon refresh {k}: {stats['photons_emitted']} photons, {stats['stored_hits']} stored hits, "
-                f"{stats['specular_entries']} specular entries"
-                + (f" (+ {stats['gather_entries']} gathered from {stats['gather_rays']} rays)"
-                   if "gather_entries" in stats else "") + f"; image difference {score:.4f} DN")
+        inp.log(
+            f"photon refresh {k}: {stats['photons_emitted']} photons, {stats['stored_hits']} stored hits, "
+            f"{stats['specular_entries']} specular entries"
+            + (
+                f" (+ {stats['gather_entries']} gathered from {stats['gather_rays']} rays)"
+                if "gather_entries" in stats
+                else ""
+            )
+            + f"; image difference {score:.4f} DN"
+        )
         back = stats.get("back_side_hits", 0) / max(stats.get("rays", 0), 1)
         if k == 0 and back > BACK_HIT_WARNING:
-            inp.log(f"warning: {back:.0%} of the photon rays hit the back of the scanned surface: light reaches parts "
-                    "of the object the scan does not cover (holes, unscanned sides) and their interreflection is not "
-                    "modelled, so the fit attributes the missing indirect light to Pd (see metrics.json "
-                    "photon.cache.back_side_hits)")
+            inp.log(
+                f"warning: {back:.0%} of the photon rays hit the back of the scanned surface: light reaches parts "
+                "of the object the scan does not cover (holes, unscanned sides) and their interreflection is not "
+                "modelled, so the fit attributes the missing indirect light to Pd (see metrics.json "
+                "photon.cache.back_side_hits)"
+            )
         if score < self._best[0]:
             self._best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, self.cache)
 
@@ -163,4 +220,3 @@ class PhotonLevel(TransportLevel):
 
     def report(self) -> dict:
         return {"image_difference_per_refresh": self.scores, "kept_refresh": self._best[1], "cache": self.cache.stats}
-

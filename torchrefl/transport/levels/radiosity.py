@@ -13,15 +13,20 @@ import math
 
 import torch
 
-from torchrefl.core.rays import RayTracer
 from torchrefl.core.observation_classes import T_DIFF
+from torchrefl.core.rays import RayTracer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
 from torchrefl.transport.photon_cache import light_sources
-from torchrefl.transport.radiosity_level import (PatchMap, direct_irradiance, emitter_maps, indirect_irradiance,
-                                                 inverse_radiosity, reflected_indirect)
-
+from torchrefl.transport.radiosity_level import (
+    PatchMap,
+    direct_irradiance,
+    emitter_maps,
+    indirect_irradiance,
+    inverse_radiosity,
+    reflected_indirect,
+)
 
 #: a patch's texels stay within this angle of one another's normals: a block straddling a fold is split per side
 #: (a shared patch gave Object E +3 % Pd within 2 mm of the fold: docs/results/object_e.md)
@@ -45,7 +50,7 @@ class RadiosityLevel(TransportLevel):
     def __init__(self, inputs: LevelInputs):
         super().__init__(inputs)
         self.note = ""
-        self.chosen_reason: str | None = None      # set when another rule (auto) chose this level
+        self.chosen_reason: str | None = None  # set when another rule (auto) chose this level
         self.emitter_source = None
         self._local = inputs.local_predict()
 
@@ -59,50 +64,84 @@ class RadiosityLevel(TransportLevel):
         inp, rc = self.inputs, self.inputs.cfg.radiosity
         cfg, surface, obs = inp.cfg, inp.surface, inp.obs
         tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces, threads=cfg.threads)
-        patches, F = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size,
-                                              samples_per_patch=rc.hemisphere_samples, seed=cfg.seed,
-                                              split_angle_deg=SPLIT_ANGLE_DEG)
+        patches, F = form_factors_for_surface(
+            surface,
+            tracer,
+            patch_size=rc.patch_size,
+            samples_per_patch=rc.hemisphere_samples,
+            seed=cfg.seed,
+            split_angle_deg=SPLIT_ANGLE_DEG,
+        )
         self.patches = PatchMap(patches.texel_patch, surface.areas.double(), patches.num_patches)
         self.F = F.to(obs.intensity.dtype)
         self.F_solve = None
         if rc.solve_samples is not None and rc.solve_samples != rc.hemisphere_samples:
-            _, F_solve = form_factors_for_surface(surface, tracer, patch_size=rc.patch_size,
-                                                  samples_per_patch=rc.solve_samples, seed=cfg.seed + 1,
-                                                  split_angle_deg=SPLIT_ANGLE_DEG)
+            _, F_solve = form_factors_for_surface(
+                surface,
+                tracer,
+                patch_size=rc.patch_size,
+                samples_per_patch=rc.solve_samples,
+                seed=cfg.seed + 1,
+                split_angle_deg=SPLIT_ANGLE_DEG,
+            )
             self.F_solve = F_solve.to(obs.intensity.dtype)
         self.solver = SOLVER
         self.maps = None
         if obs.light_positions is not None and rc.light_maps > 1:
             sources = light_sources(surface, obs, rc.light_maps)
-            if sources.num_maps > 1:                                       # the lights move with the scan
-                self.maps = emitter_maps(sources, surface.positions, surface.normals, tracer,
-                                         cfg.geometry.shadow_offset_mm)
+            if sources.num_maps > 1:  # the lights move with the scan
+                self.maps = emitter_maps(
+                    sources, surface.positions, surface.normals, tracer, cfg.geometry.shadow_offset_mm
+                )
         self._reconstruct = None
         self.note = self._describe(patches, rc) + self._reconstruction(patches)
         inp.log(self.note)
 
     def _describe(self, patches, rc) -> str:
-        blocks = int(torch.unique(patches.block[:, 0] * (self.inputs.surface.grid_shape[1] + 1)
-                                  + patches.block[:, 1]).numel())
-        split = (f" ({patches.num_patches - blocks} more where a block straddles a crease of > "
-                 f"{SPLIT_ANGLE_DEG:g} deg)" if patches.num_patches > blocks else "")
-        self._rho, self._determined = inverse_radiosity(self.inputs.terms, self.inputs.obs.kappa, self.inputs.obs.intensity,
-                                                        (self.inputs.classes == T_DIFF) & self.inputs.fit_mask,
-                                                        self.patches, self.F)
-        return (f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels{split}, "
-                f"{rc.hemisphere_samples} hemisphere rays each, {_nonzeros(self.F)} non-zero form factors"
-                + (f" (the solve's: {rc.solve_samples} rays, {_nonzeros(self.F_solve)})" if self.F_solve is not None else "")
-                + (f", {self.maps.weights.shape[0]} emitter maps per light" if self.maps is not None else "")
-                + f"; inverse radiosity (eq. 4.7) determined {int(self._determined.sum())} patches")
+        blocks = int(
+            torch.unique(patches.block[:, 0] * (self.inputs.surface.grid_shape[1] + 1) + patches.block[:, 1]).numel()
+        )
+        split = (
+            f" ({patches.num_patches - blocks} more where a block straddles a crease of > {SPLIT_ANGLE_DEG:g} deg)"
+            if patches.num_patches > blocks
+            else ""
+        )
+        self._rho, self._determined = inverse_radiosity(
+            self.inputs.terms,
+            self.inputs.obs.kappa,
+            self.inputs.obs.intensity,
+            (self.inputs.classes == T_DIFF) & self.inputs.fit_mask,
+            self.patches,
+            self.F,
+        )
+        return (
+            f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels{split}, "
+            f"{rc.hemisphere_samples} hemisphere rays each, {_nonzeros(self.F)} non-zero form factors"
+            + (
+                f" (the solve's: {rc.solve_samples} rays, {_nonzeros(self.F_solve)})"
+                if self.F_solve is not None
+                else ""
+            )
+            + (f", {self.maps.weights.shape[0]} emitter maps per light" if self.maps is not None else "")
+            + f"; inverse radiosity (eq. 4.7) determined {int(self._determined.sum())} patches"
+        )
 
     def _reconstruction(self, patches) -> str:
         """Texel irradiance from a plane through the neighbouring patches' (patches larger than one texel)."""
         s, size = self.inputs.surface, self.inputs.cfg.radiosity.patch_size
         if size == 1:
             return ""
-        self._reconstruct = linear_reconstruction(s.texel_index.numpy(), s.grid_shape, s.positions.double().numpy(),
-                                                  s.normals.double().numpy(), patches.texel_patch.numpy(),
-                                                  patches.centres.numpy(), patches.normals.numpy(), size, SPLIT_ANGLE_DEG)
+        self._reconstruct = linear_reconstruction(
+            s.texel_index.numpy(),
+            s.grid_shape,
+            s.positions.double().numpy(),
+            s.normals.double().numpy(),
+            patches.texel_patch.numpy(),
+            patches.centres.numpy(),
+            patches.normals.numpy(),
+            size,
+            SPLIT_ANGLE_DEG,
+        )
         return "; texel irradiance from a plane through the neighbouring patches' (radiosity.reconstruction)"
 
     def use_emitters(self, source: torch.Tensor) -> None:
@@ -114,8 +153,18 @@ class RadiosityLevel(TransportLevel):
     def indirect(self, pd: torch.Tensor, per_map: bool = False) -> torch.Tensor:
         """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3); per_map: (P, K, T, 3)
         before the interpolation between emitter maps and the spread over the texel grid."""
-        H = indirect_irradiance(self.inputs.terms, self.inputs.obs.kappa, self._emitting(pd), self.patches, self.F,
-                                self.maps, self.F_solve, per_map=per_map, reconstruct=self._reconstruct, **self.solver)
+        H = indirect_irradiance(
+            self.inputs.terms,
+            self.inputs.obs.kappa,
+            self._emitting(pd),
+            self.patches,
+            self.F,
+            self.maps,
+            self.F_solve,
+            per_map=per_map,
+            reconstruct=self._reconstruct,
+            **self.solver,
+        )
         return H
 
     def radiance(self, pd: torch.Tensor):
@@ -123,8 +172,18 @@ class RadiosityLevel(TransportLevel):
         (P, K, T, 3) every texel's outgoing all-diffuse radiance Pd (E + H) / pi with light p at map k's source,
         and the maps' (K, T) weights (K = 1 for static lights)."""
         pd = self._emitting(pd)
-        H_maps = indirect_irradiance(self.inputs.terms, self.inputs.obs.kappa, pd, self.patches, self.F, self.maps,
-                                     self.F_solve, per_map=True, reconstruct=self._reconstruct, **self.solver)
+        H_maps = indirect_irradiance(
+            self.inputs.terms,
+            self.inputs.obs.kappa,
+            pd,
+            self.patches,
+            self.F,
+            self.maps,
+            self.F_solve,
+            per_map=True,
+            reconstruct=self._reconstruct,
+            **self.solver,
+        )
         if self.maps is None:
             E = direct_irradiance(self.inputs.terms, self.inputs.obs.kappa)[:, None]
             weights = torch.ones(1, pd.shape[0], dtype=torch.float64)
