@@ -130,15 +130,49 @@ def level_inputs(cfg: Config, capture: Capture, log, device: torch.device = torc
     return inputs, seen
 
 
+def start_params(cfg: Config, init, dtype: torch.dtype, device: torch.device) -> TexelParams:
+    """The texel tensors at the start, within the reflectance bounds (one lobe with fit.specular: shared)."""
+    rc = cfg.reflectance
+    shared = cfg.fit.specular == "shared"
+    pd, ps, sigma = (x.to(dtype) for x in (init.pd, init.ps, init.sigma))
+    return TexelParams(pd, ps, sigma, rc.sigma_min, rc.sigma_max, shared_specular=shared, ps_max=rc.ps_max).to(device)
+
+
+def fit_result(pd, ps, sigma, predicted, history, seen, init, level: TransportLevel) -> FitResult:
+    """The FitResult of a finished fit: the estimate, what the fit saw (seen), the start (init) and the level."""
+    init_counts = {
+        "pd_closed_form": int(init.pd_from_diffuse.sum()),
+        "spec_closed_form": int(init.spec_closed_form.sum()),
+        "spec_known": int(init.known.sum()),
+    }
+    return FitResult(
+        pd=pd.cpu(),
+        ps=ps.cpu(),
+        sigma=sigma.cpu(),
+        predicted=predicted,
+        fit_mask=seen.fit_mask,
+        eval_mask=seen.eval_mask,
+        counts=seen.counts,
+        coverage=init.coverage,
+        estimated=init.defined,
+        init_counts=init_counts,
+        history=history,
+        level=level.name,
+        model_reason=level.reason,
+        diffuse=seen.diffuse,
+        model_numbers=level.model_numbers,
+        photon=level.report(),
+    )
+
+
 def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torch.device) -> FitResult:
     """Classify, start, and refine at the transport level cfg.fit.model (or auto's choice)."""
-    rc, obs = cfg.reflectance, capture.obs
     with stages.stage("precompute"):
         inputs, seen = level_inputs(cfg, capture, log, device)
         level = named_level(inputs)
         prepare(level)
     with stages.stage("initialise"):
-        init = inputs.initialise(obs.intensity)
+        init = inputs.initialise(capture.obs.intensity)
         source = emitter_source(cfg, inputs, init, log)
         if source is not None:
             level.use_emitters(source)
@@ -150,40 +184,10 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
     log(init.note)
     log(f"transport level: {level.name} ({level.reason})")
     with stages.stage("fit"):
-        dt = obs.intensity.dtype
-        params = TexelParams(
-            init.pd.to(dt),
-            init.ps.to(dt),
-            init.sigma.to(dt),
-            rc.sigma_min,
-            rc.sigma_max,
-            shared_specular=cfg.fit.specular == "shared",
-            ps_max=rc.ps_max,
-        ).to(device)
+        params = start_params(cfg, init, capture.obs.intensity.dtype, device)
         history = refit(level, params, objective_factory(cfg, inputs, init), cfg)
         with torch.no_grad():
             pd, ps, sigma = (x.detach() for x in params.values())
             predicted = level.predict(pd, ps, sigma).cpu()
     log(f"refinement ({cfg.fit.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
-    return FitResult(
-        pd=pd.cpu(),
-        ps=ps.cpu(),
-        sigma=sigma.cpu(),
-        predicted=predicted,
-        fit_mask=seen.fit_mask,
-        eval_mask=seen.eval_mask,
-        counts=seen.counts,
-        coverage=init.coverage,
-        estimated=init.defined,
-        init_counts={
-            "pd_closed_form": int(init.pd_from_diffuse.sum()),
-            "spec_closed_form": int(init.spec_closed_form.sum()),
-            "spec_known": int(init.known.sum()),
-        },
-        history=history,
-        level=level.name,
-        model_reason=level.reason,
-        diffuse=seen.diffuse,
-        model_numbers=level.model_numbers,
-        photon=level.report(),
-    )
+    return fit_result(pd, ps, sigma, predicted, history, seen, init, level)
