@@ -109,7 +109,8 @@ def image_names(folder: Path) -> list[str]:
 def _check_rows(path: Path, table: np.ndarray, num_images: int) -> None:
     if table.shape[0] != num_images:
         raise CaptureError(
-            f"{path}: {table.shape[0]} rows, expected {num_images} (one row per image; the folder lists {num_images} images)"
+            f"{path}: {table.shape[0]} rows, expected {num_images} (one row per image; the folder lists {num_images} "
+            "images)"
         )
 
 

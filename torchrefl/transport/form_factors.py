@@ -17,10 +17,10 @@ an independent one, so the estimate is unbiased, but the origins and directions 
 independent rays an entry would have the binomial standard error sqrt(F (1 - F) / N) (`sampling_error`);
 the stratified rays stay below it (on a closed box: 0.47 of it at 2 000 rays per patch, 0.27 at 32 000,
 the error falling like N^-0.7 instead of N^-0.5). On Object E at full size they cut the fitter's own
-per-texel Pd noise on the lower plate from 0.45-0.55 % to 0.14-0.27 % (docs/results/object_e_texel_by_texel.md). The (deterministic) discretisation of u
-into its candidate origins comes on top. Rays that escape, hit a face that belongs to no patch (a blocker), or
-reach the back side of a patch count nowhere: energy arriving at the back of a range-image surface
-does not feed the radiosity B of its observed front side (`count_back_hits=True` counts them).
+per-texel Pd noise on the lower plate from 0.45-0.55 % to 0.14-0.27 % (docs/results/object_e_texel_by_texel.md).
+The (deterministic) discretisation of u into its candidate origins comes on top. Rays that escape, hit a face that
+belongs to no patch (a blocker), or reach the back side of a patch count nowhere: energy arriving at the back of a
+range-image surface does not feed the radiosity B of its observed front side (`count_back_hits=True` counts them).
 Embree's tnear is 0, so rays start `offset` along the normal.
 
 Patches are square blocks of texels on the texel grid, split where the texel normals disagree
@@ -290,9 +290,9 @@ def hemisphere_form_factors(
     progress(done_rays, total_rays) is called after each work unit.
     corners: (face_corners) the patches (F, 3) and normals (F, 3, 3) of each face's corners. A hit then goes
     to the patch of the face's first corner only if that corner's normal faces the ray (n . d < 0), else to
-    the corner that faces it most (fold_hits.facing_corner). A face that bridges a crease (a range mesh cuts a fold's corner with a
-    strip of faces from one side's last texel row to the other's first) is thus seen from each side as the
-    other side's surface, which is what a ray crossing that strip reaches on the real object; from its own
+    the corner that faces it most (fold_hits.facing_corner). A face that bridges a crease (a range mesh cuts a
+    fold's corner with a strip of faces from one side's last texel row to the other's first) is thus seen from each side
+    as the other side's surface, which is what a ray crossing that strip reaches on the real object; from its own
     side's texels such a face would otherwise be the texels' own patch, lit like them (Object E at full size:
     the lower plate's row nearest the fold gathered 3 % too little light). Faces with all corners alike are
     unaffected, and so are faces whose corners' normals agree within about 25 degrees (fold_hits.MIXED_COS).
