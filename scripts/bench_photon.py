@@ -13,7 +13,8 @@
    outside (coherent and cheaper per ray than bounce rays that start on the surface).
 3. Scaling: the time of one cache refresh against photons per light, lights and texels.
 
-    python scripts/bench_photon.py [--threads 2] [--photons 2000000] [--outer 3] [--specular-smoothing 0] [--smoothing 1] [--no-scaling] [--out DIR]
+    python scripts/bench_photon.py [--threads 2] [--photons 2000000] [--outer 3] [--specular-smoothing 0]
+        [--smoothing 1] [--no-scaling] [--out DIR]
 """
 
 from __future__ import annotations
@@ -142,7 +143,8 @@ def main() -> None:
         "--specular-smoothing",
         type=float,
         default=0.0,
-        help="photon.specular_smoothing (0: the library default; the glossy Object E config uses 1.0, ~2.5x the fit time)",
+        help="photon.specular_smoothing (0: the library default; the glossy Object E config uses 1.0, "
+        "~2.5x the fit time)",
     )
     ap.add_argument(
         "--smoothing",

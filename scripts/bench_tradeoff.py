@@ -129,11 +129,16 @@ def main() -> None:
     import matplotlib.pyplot as plt
     import torch
 
-    machine = f"{platform.machine()}, {platform.processor() or 'cpu'}, torch {torch.__version__}, {torch.get_num_threads()} threads"
+    machine = (
+        f"{platform.machine()}, {platform.processor() or 'cpu'}, torch {torch.__version__}, "
+        f"{torch.get_num_threads()} threads"
+    )
     lines = [
-        f"Machine: {machine}; size {'512 x 450' if args.full else '256 x 225'} texels; times are precompute + initialise + fit.",
+        f"Machine: {machine}; size {'512 x 450' if args.full else '256 x 225'} texels; times are precompute + "
+        "initialise + fit.",
         "",
-        "| scene | level | setting | time s | pd_rmse | Ps med rel | sigma med rel | held-out mean 8-bit | held-out var | Pareto |",
+        "| scene | level | setting | time s | pd_rmse | Ps med rel | sigma med rel | held-out mean 8-bit | held-out "
+        "var | Pareto |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     fig, axes = plt.subplots(2, len(args.scenes), figsize=(6 * len(args.scenes), 8), squeeze=False)
@@ -165,8 +170,8 @@ def main() -> None:
             f = lambda v: f"{v:.4g}" if isinstance(v, float) else "-"
             lines.append(
                 f"| {scene} | {r['level']} | {r['setting']} | {r['time_s']:.1f} | {f(r['pd_rmse'])} | "
-                f"{f(r['ps_median_rel_err'])} | {f(r['sigma_median_rel_err'])} | {f(r['holdout_mean_abs_diff_8bit'])} | "
-                f"{f(r['holdout_var_diff_8bit'])} | {'yes' if r.get('pareto_holdout') else ''} |"
+                f"{f(r['ps_median_rel_err'])} | {f(r['sigma_median_rel_err'])} | {f(r['holdout_mean_abs_diff_8bit'])} "
+                f"| {f(r['holdout_var_diff_8bit'])} | {'yes' if r.get('pareto_holdout') else ''} |"
             )
     fig.tight_layout()
     fig.savefig(out / "tradeoff.png", dpi=100)

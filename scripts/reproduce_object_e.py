@@ -20,7 +20,8 @@ capture floor: the share of texels an exact fitter could bring within 2 % of the
 capture, and the std of the capture's own relative error near the fold and elsewhere. Read the
 per-texel columns against it.
 
-    python scripts/reproduce_object_e.py [--out outputs/object_e] [--setups 1 2] [--quick] [--no-floor] [--set KEY=VALUE ...]
+    python scripts/reproduce_object_e.py [--out outputs/object_e] [--setups 1 2] [--quick] [--no-floor]
+        [--set KEY=VALUE ...]
 
 --set passes config overrides (dotted keys, as on the train command line) to every method's run, e.g.
 --set photon.diffuse_paths=radiosity.
@@ -257,23 +258,24 @@ def main():
     fig.savefig(out / "pd_profiles.png", dpi=100)
     (out / "object_e.json").write_text(json.dumps(rows, indent=2))
     print(
-        f"\n{'setup':>5} {'method':>6} {'level':>10} {'fit s':>7} {'dev<=10mm':>10} {'dev>10mm':>9} {'inner':>7} {'pd_rmse':>8} "
-        f"{'<=2%':>6} {'out':>5} {'max':>6} {'p95<=10':>8} {'p95>10':>7} {'mean8':>7} {'var8':>7}"
+        f"\n{'setup':>5} {'method':>6} {'level':>10} {'fit s':>7} {'dev<=10mm':>10} {'dev>10mm':>9} {'inner':>7} "
+        f"{'pd_rmse':>8} {'<=2%':>6} {'out':>5} {'max':>6} {'p95<=10':>8} {'p95>10':>7} {'mean8':>7} {'var8':>7}"
     )
     for r in rows:
         f = lambda v, w=9: f"{v:>{w}.3f}" if isinstance(v, float) else f"{'-':>{w}}"
         print(
-            f"{r['setup']:>5} {r['method']:>6} {r['level']:>10} {r['fit_time_s']:>7.1f} {f(r['max_rel_dev_within_10mm'], 10)} "
-            f"{f(r['max_rel_dev_elsewhere'])} {f(r['max_rel_dev_elsewhere_without_edges'], 7)} {f(r['pd_rmse'], 8)} "
+            f"{r['setup']:>5} {r['method']:>6} {r['level']:>10} {r['fit_time_s']:>7.1f} "
+            f"{f(r['max_rel_dev_within_10mm'], 10)} {f(r['max_rel_dev_elsewhere'])} "
+            f"{f(r['max_rel_dev_elsewhere_without_edges'], 7)} {f(r['pd_rmse'], 8)} "
             f"{f(r['texels_within_2pct'], 6)} {r['texels_outside_2pct']:>5} {f(r['texel_rel_err_max'], 6)} "
             f"{f(r['texel_rel_err_p95_within_10mm'], 8)} {f(r['texel_rel_err_p95_elsewhere'], 7)} "
             f"{f(r['mean_abs_diff_8bit'], 7)} {f(r['var_diff_8bit'], 7)}"
         )
     for setup, fl in floors.items():
         print(
-            f"setup {setup} capture floor: {fl['floor_texels_within_2pct']:.3f} of the texels within 2 % for an exact fitter; "
-            f"the capture's own relative error std {fl['floor_rel_std_within_10mm']:.4f} within 10 mm of the fold, "
-            f"{fl['floor_rel_std_elsewhere']:.4f} elsewhere"
+            f"setup {setup} capture floor: {fl['floor_texels_within_2pct']:.3f} of the texels within 2 % "
+            f"for an exact fitter; the capture's own relative error std {fl['floor_rel_std_within_10mm']:.4f} "
+            f"within 10 mm of the fold, {fl['floor_rel_std_elsewhere']:.4f} elsewhere"
         )
     print(f"\nwritten {out / 'pd_profiles.png'} and {out / 'object_e.json'}")
 

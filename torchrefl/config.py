@@ -52,7 +52,8 @@ class SyntheticConfig:
 
     object: str = opt(
         "ellipsoid",
-        "synthetic object: ellipsoid, sphere, blob (analytic), or object_e, object_e_glossy, bowl, vase (meshes with interreflection)",
+        "synthetic object: ellipsoid, sphere, blob (analytic), or object_e, object_e_glossy, bowl, vase (meshes with "
+        "interreflection)",
         choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl", "vase"),
     )
     size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
@@ -64,7 +65,8 @@ class SyntheticConfig:
     )
     minnaert_k: float = opt(
         1.0,
-        "Minnaert exponent k of the rendered diffuse part, Pd/pi (cos_l cos_v)^(k-1) (1 = Lambert; objects without interreflection only)",
+        "Minnaert exponent k of the rendered diffuse part, Pd/pi (cos_l cos_v)^(k-1) (1 = Lambert; objects without "
+        "interreflection only)",
         low=0.5,
         high=2.0,
     )
@@ -100,7 +102,8 @@ class CaptureConfig:
     )
     path: str = opt(
         "",
-        "capture folder (relative to the config file; on the command line, to the current folder); unused for synthetic",
+        "capture folder (relative to the config file; on the command line, to the current folder); unused for "
+        "synthetic",
     )
     saturation_level: float = opt(
         0.995, "fraction of full range at or above which a channel is saturated", low=0.0, high=1.0
@@ -151,12 +154,14 @@ class ReflectanceConfig:
     )
     diffuse: str = opt(
         "lambert",
-        "diffuse part: lambert (Pd/pi, eq. 2.9) or minnaert (Pd/pi (cos_l cos_v)^(k-1), darker than Lambert towards grazing for k > 1; local transport only)",
+        "diffuse part: lambert (Pd/pi, eq. 2.9) or minnaert (Pd/pi (cos_l cos_v)^(k-1), darker than Lambert towards "
+        "grazing for k > 1; local transport only)",
         choices=("lambert", "minnaert"),
     )
     minnaert_k: Optional[float] = opt(
         None,
-        "Minnaert exponent k with diffuse: minnaert; null = fitted on the diffuse-only (T_diff) observations, one k for the object",
+        "Minnaert exponent k with diffuse: minnaert; null = fitted on the diffuse-only (T_diff) observations, one k "
+        "for the object",
         low=0.5,
         high=2.0,
     )
@@ -171,7 +176,8 @@ class ReflectanceConfig:
     sigma_max: float = opt(0.6, "upper bound of the roughness sigma (radians)", low=1e-3)
     ps_max: float = opt(
         4.0,
-        "upper bound of Ps (kappa = pi units: 1 = a specular peak as bright as white paper); stops tiny-sigma, huge-Ps fits of faint tails",
+        "upper bound of Ps (kappa = pi units: 1 = a specular peak as bright as white paper); stops tiny-sigma, huge-Ps "
+        "fits of faint tails",
         low=1e-3,
     )
     min_cos_view: float = opt(
@@ -204,7 +210,8 @@ class FitConfig:
     )
     specular: str = opt(
         "texel",
-        "Ps, sigma per texel (texel), one lobe for the whole object (shared), or per texel pulled towards the shared lobe (pooled)",
+        "Ps, sigma per texel (texel), one lobe for the whole object (shared), or per texel pulled towards the shared "
+        "lobe (pooled)",
         choices=("texel", "shared", "pooled"),
     )
     pooling: float = opt(0.01, "weight of the pull towards the shared lobe when fit.specular is pooled", low=0.0)
@@ -226,7 +233,8 @@ class RadiosityConfig:
     hemisphere_samples: int = opt(256, "cosine-weighted hemisphere rays per patch for the form factors", low=1)
     solve_samples: Optional[int] = opt(
         None,
-        "hemisphere rays per patch of a cheaper second form-factor set used only by the radiosity solve (null = one set)",
+        "hemisphere rays per patch of a cheaper second form-factor set used only by the radiosity solve (null = one "
+        "set)",
         low=1,
     )
     light_maps: int = opt(
@@ -245,7 +253,8 @@ class PhotonConfig:
     )
     light_maps: int = opt(
         8,
-        "photon maps per light when the lights move with the scan (co-rotating rig); texels interpolate cubically between the four nearest",
+        "photon maps per light when the lights move with the scan (co-rotating rig); texels interpolate cubically "
+        "between the four nearest",
         low=1,
     )
     outer_iterations: int = opt(
@@ -253,7 +262,8 @@ class PhotonConfig:
     )
     schedule: str = opt(
         "joint",
-        "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the dissertation",
+        "joint: refit Pd, Ps, sigma together; seed: (a) Pd on T_diff then (b) Ps, sigma on T_spec and T_none, as the "
+        "dissertation",
         choices=("joint", "seed"),
     )
     damping: float = opt(
@@ -264,7 +274,8 @@ class PhotonConfig:
     )
     smoothing: float = opt(
         1.0,
-        "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each texel's own photons)",
+        "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel "
+        "grid (0 = each texel's own photons)",
         low=0.0,
     )
     diffuse_paths: str = opt(
@@ -277,7 +288,8 @@ class PhotonConfig:
     )
     specular_gather: int = opt(
         0,
-        "with diffuse_paths radiosity: lobe directions per texel that gather the specular reflection of diffuse light (0 = off)",
+        "with diffuse_paths radiosity: lobe directions per texel that gather the specular reflection of diffuse light "
+        "(0 = off)",
         low=0,
     )
 
@@ -349,6 +361,14 @@ def _coerce(value: Any, tp, key: str, where: str, meta: dict) -> Any:
             return None
         inner = [a for a in args if a is not type(None)][0]
         return _coerce(value, inner, key, where, meta)
+    value = _coerce_type(value, tp, key, where)
+    _check_choices_and_range(value, key, where, meta)
+    return value
+
+
+def _coerce_type(value: Any, tp, key: str, where: str) -> Any:
+    """`value` checked against the plain (non-Optional) type `tp`; floats converted to float and checked finite."""
+    origin = typing.get_origin(tp)
     bad = lambda: ConfigError(f"{where}: key '{key}' = {value!r} has the wrong type, expected {_type_name(tp)}")
     if tp is bool:
         if not isinstance(value, bool):
@@ -368,6 +388,11 @@ def _coerce(value: Any, tp, key: str, where: str, meta: dict) -> Any:
     elif tp is list or origin is list:
         if not isinstance(value, list):
             raise bad()
+    return value
+
+
+def _check_choices_and_range(value: Any, key: str, where: str, meta: dict) -> None:
+    """ConfigError unless `value` is one of meta's choices (when given) and within its low/high bounds."""
     choices = meta.get("choices") or ()
     if choices and value not in choices:
         near = difflib.get_close_matches(str(value), [str(c) for c in choices], n=1)
@@ -379,7 +404,6 @@ def _coerce(value: Any, tp, key: str, where: str, meta: dict) -> Any:
             raise ConfigError(f"{where}: key '{key}' = {value!r} must be >= {low}")
         if high is not None and value > high:
             raise ConfigError(f"{where}: key '{key}' = {value!r} must be <= {high}")
-    return value
 
 
 def _apply(obj, data: dict, prefix: str, where: str, sources: dict | None = None) -> None:
@@ -408,41 +432,49 @@ def _validate(cfg: Config, where_of) -> None:
     """Cross-field checks; where_of(key) names where the key's value came from (the file or an override)."""
     if cfg.reflectance.sigma_min >= cfg.reflectance.sigma_max:
         raise ConfigError(
-            f"{where_of('reflectance.sigma_min')}: reflectance.sigma_min ({cfg.reflectance.sigma_min}) must be < reflectance.sigma_max ({cfg.reflectance.sigma_max})"
+            f"{where_of('reflectance.sigma_min')}: reflectance.sigma_min ({cfg.reflectance.sigma_min}) must be < "
+            f"reflectance.sigma_max ({cfg.reflectance.sigma_max})"
         )
     rc = cfg.reflectance
     if rc.minnaert_k is not None and rc.diffuse != "minnaert":
         raise ConfigError(
-            f"{where_of('reflectance.minnaert_k')}: key 'reflectance.minnaert_k' is set but reflectance.diffuse is '{rc.diffuse}'; "
+            f"{where_of('reflectance.minnaert_k')}: key 'reflectance.minnaert_k' is set but reflectance.diffuse is "
+            f"'{rc.diffuse}'; "
             "set reflectance.diffuse: minnaert or drop the key"
         )
     if rc.diffuse != "lambert" and cfg.fit.model in ("radiosity", "photon"):
         raise ConfigError(
-            f"{where_of('reflectance.diffuse')}: reflectance.diffuse '{rc.diffuse}' is for local transport only; fit.model "
+            f"{where_of('reflectance.diffuse')}: reflectance.diffuse '{rc.diffuse}' is for local transport only; "
+            "fit.model "
             f"'{cfg.fit.model}' carries Lambertian interreflection (use reflectance.diffuse: lambert)"
         )
     if cfg.synthetic.minnaert_k != 1.0 and cfg.synthetic.indirect_samples > 0:
         raise ConfigError(
-            f"{where_of('synthetic.minnaert_k')}: key 'synthetic.minnaert_k' = {cfg.synthetic.minnaert_k} needs synthetic.indirect_samples: 0 "
+            f"{where_of('synthetic.minnaert_k')}: key 'synthetic.minnaert_k' = {cfg.synthetic.minnaert_k} needs "
+            "synthetic.indirect_samples: 0 "
             "(the interreflection renderer is Lambertian)"
         )
     if cfg.photon.specular_gather > 0 and cfg.photon.diffuse_paths != "radiosity":
         raise ConfigError(
-            f"{where_of('photon.specular_gather')}: key 'photon.specular_gather' ({cfg.photon.specular_gather}) gathers the radiosity "
+            f"{where_of('photon.specular_gather')}: key 'photon.specular_gather' ({cfg.photon.specular_gather}) "
+            "gathers the radiosity "
             f"level's light and needs photon.diffuse_paths: radiosity (it is '{cfg.photon.diffuse_paths}'); "
             "set photon.diffuse_paths: radiosity or photon.specular_gather: 0"
         )
     if cfg.reflectance.theta_specular_deg >= cfg.reflectance.theta_diffuse_deg:
         raise ConfigError(
-            f"{where_of('reflectance.theta_specular_deg')}: reflectance.theta_specular_deg must be < reflectance.theta_diffuse_deg"
+            f"{where_of('reflectance.theta_specular_deg')}: reflectance.theta_specular_deg must be < "
+            "reflectance.theta_diffuse_deg"
         )
     if len(cfg.capture.kappa) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.capture.kappa):
         raise ConfigError(
-            f"{where_of('capture.kappa')}: key 'capture.kappa' must be a list of 3 positive numbers, got {cfg.capture.kappa!r}"
+            f"{where_of('capture.kappa')}: key 'capture.kappa' must be a list of 3 positive numbers, got "
+            f"{cfg.capture.kappa!r}"
         )
     if len(cfg.synthetic.size_mm) != 3 or not all(isinstance(k, (int, float)) and k > 0 for k in cfg.synthetic.size_mm):
         raise ConfigError(
-            f"{where_of('synthetic.size_mm')}: key 'synthetic.size_mm' must be a list of 3 positive numbers, got {cfg.synthetic.size_mm!r}"
+            f"{where_of('synthetic.size_mm')}: key 'synthetic.size_mm' must be a list of 3 positive numbers, got "
+            f"{cfg.synthetic.size_mm!r}"
         )
     for key, lst in (("fit.holdout", cfg.fit.holdout), ("capture.light_subset", cfg.capture.light_subset or [])):
         if not all(isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in lst):

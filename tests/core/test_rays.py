@@ -94,7 +94,8 @@ def test_closest_hit_matches_brute_force(scene):
 
 
 def test_first_hit_triangles_and_per_call_threads_agree_with_closest_hit(scene):
-    """The raw fast paths (one Embree call: primitive ids; Embree's hit records) and a per-call thread count give closest_hit's triangles."""
+    """The raw fast paths (one Embree call: primitive ids; Embree's hit records) and a per-call thread count give
+    closest_hit's triangles."""
     vertices, faces, o, d, t, u, v, margin = scene
     tracer = RayTracer(vertices, faces, threads=2)
     ref = tracer.closest_hit(o, d)

@@ -89,8 +89,9 @@ def test_the_radiosity_setup_builds_a_separate_solve_matrix_when_asked():
 
 def test_the_photon_level_gathers_the_radiosity_radiance_when_asked():
     """photon.specular_gather: the radiosity setup's radiance is Pd (E + H) / pi with the same H as its indirect
-    light, which the same call returns (static lights: one map); the photon level's cache then holds the flagged photons' specular entries plus
-    the gathered ones (counted in its stats), and without the gather every photon's entries."""
+    light, which the same call returns (static lights: one map); the photon level's cache then holds the flagged
+    photons' specular entries plus the gathered ones (counted in its stats), and without the gather every photon's
+    entries."""
     from conftest import fold_surface
 
     from torchrefl.transport.radiosity_level import direct_irradiance

@@ -55,8 +55,8 @@ def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow", 
 
 
 def eq_2_9(params, L, Y, camera, k=1.0):
-    """The seed's eq. 2.9 for a point light, texel by texel (kappa = pi): Y / C^2 (Pd cos_l + Ps exp(-th^2 / 2 s^2) / cos_v),
-    with the diffuse term times Minnaert's (cos_l cos_v)^(k - 1)."""
+    """The seed's eq. 2.9 for a point light, texel by texel (kappa = pi):
+    Y / C^2 (Pd cos_l + Ps exp(-th^2 / 2 s^2) / cos_v), with the diffuse term times Minnaert's (cos_l cos_v)^(k - 1)."""
     H, W = params["mask"].shape
     out = np.zeros((H, W, 3))
     for r in range(H):

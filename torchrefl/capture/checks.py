@@ -26,7 +26,8 @@ DARK_LEVEL = 2.0 / 255.0
 
 
 def light_indices(subset, count: int, where: str) -> list[int]:
-    """The lights to load: all (subset None) or capture.light_subset, checked against the `count` lights `where` lists."""
+    """The lights to load: all (subset None) or capture.light_subset, checked against the `count` lights `where`
+    lists."""
     if subset is None:
         return list(range(count))
     subset = list(subset)

@@ -109,7 +109,8 @@ def image_names(folder: Path) -> list[str]:
 def _check_rows(path: Path, table: np.ndarray, num_images: int) -> None:
     if table.shape[0] != num_images:
         raise CaptureError(
-            f"{path}: {table.shape[0]} rows, expected {num_images} (one row per image; the folder lists {num_images} images)"
+            f"{path}: {table.shape[0]} rows, expected {num_images} (one row per image; the folder lists {num_images} "
+            "images)"
         )
 
 
@@ -226,23 +227,8 @@ def load_photometric_stereo(
     """
     t0 = time.perf_counter()
     folder = Path(folder)
-    if not folder.is_dir():
-        raise CaptureError(f"{folder}: photometric stereo folder missing (expected the DiLiGenT layout)")
-    if not 0.0 < float(saturation_level) <= 1.0:
-        raise CaptureError(f"saturation_level={saturation_level!r} for {folder}, expected a value in (0, 1]")
-    kappa_arr = np.asarray(kappa, dtype=np.float64).reshape(-1)
-    if kappa_arr.shape != (3,) or not (np.isfinite(kappa_arr) & (kappa_arr > 0)).all():
-        raise CaptureError(f"kappa={kappa!r} for {folder}, expected 3 finite values > 0")
-
-    names = image_names(folder)
-    paths = [folder / name for name in names]
-    for p in paths:
-        if not p.is_file():
-            raise CaptureError(
-                f"{p}: image file missing (listed in {folder / FILENAMES})"
-                if (folder / FILENAMES).is_file()
-                else f"{p}: image file missing"
-            )
+    kappa_arr = _check_options(folder, saturation_level, kappa)
+    names, paths = _image_files(folder)
     dirs_path = _require_file(folder / LIGHT_DIRECTIONS)
     ints_path = _require_file(folder / LIGHT_INTENSITIES)
     mask_path = _require_file(folder / MASK)
@@ -254,85 +240,35 @@ def load_photometric_stereo(
     )
     distinct_image_files([paths[i] for i in keep], [names[i] for i in keep], str(folder))
 
-    mask_img, _ = read_image(mask_path)
-    first, _ = read_image(paths[keep[0]])
-    H, W = first.shape[:2]
-    if mask_img.shape[:2] != (H, W):
-        raise CaptureError(
-            f"{mask_path} is {mask_img.shape[1]}x{mask_img.shape[0]}, expected {W}x{H} like {paths[keep[0]]}"
-        )
-    mask = (mask_img > 0).any(axis=-1)
-    del first, mask_img
-    if not mask.any():
-        raise CaptureError(f"{mask_path}: the mask selects no pixel (expected non-zero pixels on the object)")
-
-    normal_map = read_normal_map(normals_path)
-    if normal_map.shape[:2] != (H, W):
-        raise CaptureError(
-            f"{normals_path}: '{NORMALS_KEY}' is {normal_map.shape[1]}x{normal_map.shape[0]}, expected {W}x{H} "
-            f"like {paths[keep[0]]}"
-        )
-    normals = normal_map[mask]
-    length = np.linalg.norm(normals, axis=1)
-    bad = ~np.isfinite(length) | (np.abs(length - 1.0) > UNIT_TOLERANCE)
-    if bad.any():
-        raise GeometryError(
-            f"{normals_path}: {int(bad.sum())} of {normals.shape[0]} normals inside {MASK} are NaN or not unit "
-            f"length (expected |n| = 1 +- {UNIT_TOLERANCE} on the object)"
-        )
-    normals = normals / length[:, None]
-
+    mask = _read_mask(mask_path, paths[keep[0]])
+    normals = _read_normals(normals_path, mask, paths[keep[0]])
     intensity, bits = read_images([paths[i] for i in keep], threads=threads, pixels=mask)
     warnings = _image_checks(folder, names, keep, intensity)
     if dtype == torch.float64:  # recover the exact v / (2**bits - 1) from the float32 fractions
         full = float(2**bits - 1)
         intensity = np.rint(intensity.astype(np.float64) * full) / full
+    surface = _image_surface(mask, normals, dtype, folder)
 
-    rows, cols = np.nonzero(mask)
-    texel_index = np.flatnonzero(mask.ravel())
-    positions = np.column_stack([cols - W / 2.0, H / 2.0 - rows, np.zeros(rows.size)])
-    surface = Surface(
-        grid_shape=(H, W),
-        texel_index=torch.from_numpy(texel_index.astype(np.int64)),
-        positions=torch.from_numpy(positions).to(dtype),
-        normals=torch.from_numpy(normals).to(dtype),
-        areas=torch.ones(rows.size, dtype=dtype),
-        units="px",
-        source=str(folder),
-    )
-
-    P, T = len(keep), rows.size
-    dirs = directions[keep]
-    cos_l = dirs @ normals.T  # (P, T)
-    cos_v = normals[:, 2]  # view (0, 0, 1)
-    saturated = (intensity >= saturation_level).any(axis=-1)
-    finite = np.isfinite(intensity).all(axis=-1)
-    valid = _valid_observations(cos_v, cos_l, saturated, finite, folder)
-    implied_albedo_check(
-        intensity.astype(np.float64),
-        valid,
-        cos_l,
-        np.broadcast_to(intensities[keep][:, None, :], intensity.shape),
+    obs = _observations(
+        intensity,
+        normals,
+        directions[keep],
+        intensities[keep],
+        [names[i] for i in keep],
         kappa_arr,
-        str(ints_path),
+        saturation_level,
+        dtype,
+        folder,
+        ints_path,
     )
+    return surface, obs, _load_stats(obs, bits, t0, warnings)
 
-    light_dir = torch.from_numpy(dirs).to(dtype)[:, None, :].expand(P, T, 3)
-    obs = Observations(
-        intensity=torch.from_numpy(intensity).to(dtype),
-        valid=torch.from_numpy(valid),
-        saturated=torch.from_numpy(saturated),
-        shadowed=torch.zeros(P, T, dtype=torch.bool),
-        light_dir=light_dir,
-        falloff=torch.ones(1, 1, dtype=dtype).expand(P, T),
-        light_intensity=torch.from_numpy(intensities[keep]).to(dtype),
-        view_dir=torch.tensor([0.0, 0.0, 1.0], dtype=dtype).expand(T, 3),
-        kappa=torch.from_numpy(kappa_arr).to(dtype),
-        light_positions=None,
-        light_names=[names[i] for i in keep],
-        source=str(folder),
-    )
-    stats = {
+
+def _load_stats(obs: Observations, bits: int, t0: float, warnings: list[str]) -> dict:
+    """load_photometric_stereo's stats (its docstring); t0: perf_counter at the start of the load."""
+    saturated, valid = obs.saturated.numpy(), obs.valid.numpy()
+    P, T = valid.shape
+    return {
         "texels": int(T),
         "lights": int(P),
         "bit_depth": int(bits),
@@ -342,7 +278,122 @@ def load_photometric_stereo(
         "load_time_s": time.perf_counter() - t0,
         "warnings": warnings,
     }
-    return surface, obs, stats
+
+
+def _observations(
+    intensity, normals, dirs, light_intensity, light_names, kappa_arr, saturation_level, dtype, folder, ints_path
+) -> Observations:
+    """Observations of the loaded lights: intensity (P, T, 3) fractions of full range, normals (T, 3), dirs (P, 3)
+    and light_intensity (P, 3) of the loaded lights; checks that observations are left and the implied albedo."""
+    P, T = len(dirs), normals.shape[0]
+    cos_l = dirs @ normals.T  # (P, T)
+    cos_v = normals[:, 2]  # view (0, 0, 1)
+    saturated = (intensity >= saturation_level).any(axis=-1)
+    finite = np.isfinite(intensity).all(axis=-1)
+    valid = _valid_observations(cos_v, cos_l, saturated, finite, folder)
+    implied_albedo_check(
+        intensity.astype(np.float64),
+        valid,
+        cos_l,
+        np.broadcast_to(light_intensity[:, None, :], intensity.shape),
+        kappa_arr,
+        str(ints_path),
+    )
+
+    light_dir = torch.from_numpy(dirs).to(dtype)[:, None, :].expand(P, T, 3)
+    return Observations(
+        intensity=torch.from_numpy(intensity).to(dtype),
+        valid=torch.from_numpy(valid),
+        saturated=torch.from_numpy(saturated),
+        shadowed=torch.zeros(P, T, dtype=torch.bool),
+        light_dir=light_dir,
+        falloff=torch.ones(1, 1, dtype=dtype).expand(P, T),
+        light_intensity=torch.from_numpy(light_intensity).to(dtype),
+        view_dir=torch.tensor([0.0, 0.0, 1.0], dtype=dtype).expand(T, 3),
+        kappa=torch.from_numpy(kappa_arr).to(dtype),
+        light_positions=None,
+        light_names=light_names,
+        source=str(folder),
+    )
+
+
+def _check_options(folder: Path, saturation_level, kappa) -> np.ndarray:
+    """The folder, saturation_level and kappa checked (CaptureError); returns kappa as (3,) float64."""
+    if not folder.is_dir():
+        raise CaptureError(f"{folder}: photometric stereo folder missing (expected the DiLiGenT layout)")
+    if not 0.0 < float(saturation_level) <= 1.0:
+        raise CaptureError(f"saturation_level={saturation_level!r} for {folder}, expected a value in (0, 1]")
+    kappa_arr = np.asarray(kappa, dtype=np.float64).reshape(-1)
+    if kappa_arr.shape != (3,) or not (np.isfinite(kappa_arr) & (kappa_arr > 0)).all():
+        raise CaptureError(f"kappa={kappa!r} for {folder}, expected 3 finite values > 0")
+    return kappa_arr
+
+
+def _image_files(folder: Path) -> tuple[list[str], list[Path]]:
+    """(image names in light order, their paths), each path checked to exist."""
+    names = image_names(folder)
+    paths = [folder / name for name in names]
+    for p in paths:
+        if not p.is_file():
+            raise CaptureError(
+                f"{p}: image file missing (listed in {folder / FILENAMES})"
+                if (folder / FILENAMES).is_file()
+                else f"{p}: image file missing"
+            )
+    return names, paths
+
+
+def _read_mask(mask_path: Path, first_image: Path) -> np.ndarray:
+    """(H, W) bool object mask, checked to match the size of first_image and to select a pixel."""
+    mask_img, _ = read_image(mask_path)
+    first, _ = read_image(first_image)
+    H, W = first.shape[:2]
+    if mask_img.shape[:2] != (H, W):
+        raise CaptureError(
+            f"{mask_path} is {mask_img.shape[1]}x{mask_img.shape[0]}, expected {W}x{H} like {first_image}"
+        )
+    mask = (mask_img > 0).any(axis=-1)
+    del first, mask_img
+    if not mask.any():
+        raise CaptureError(f"{mask_path}: the mask selects no pixel (expected non-zero pixels on the object)")
+    return mask
+
+
+def _read_normals(normals_path: Path, mask: np.ndarray, first_image: Path) -> np.ndarray:
+    """(T, 3) float64 unit normals of the mask pixels (row-major), checked for size and unit length."""
+    H, W = mask.shape
+    normal_map = read_normal_map(normals_path)
+    if normal_map.shape[:2] != (H, W):
+        raise CaptureError(
+            f"{normals_path}: '{NORMALS_KEY}' is {normal_map.shape[1]}x{normal_map.shape[0]}, expected {W}x{H} "
+            f"like {first_image}"
+        )
+    normals = normal_map[mask]
+    length = np.linalg.norm(normals, axis=1)
+    bad = ~np.isfinite(length) | (np.abs(length - 1.0) > UNIT_TOLERANCE)
+    if bad.any():
+        raise GeometryError(
+            f"{normals_path}: {int(bad.sum())} of {normals.shape[0]} normals inside {MASK} are NaN or not unit "
+            f"length (expected |n| = 1 +- {UNIT_TOLERANCE} on the object)"
+        )
+    return normals / length[:, None]
+
+
+def _image_surface(mask: np.ndarray, normals: np.ndarray, dtype, folder: Path) -> Surface:
+    """The Surface of the mask pixels: pixel-coordinate positions on z = 0, the given normals, unit areas."""
+    H, W = mask.shape
+    rows, cols = np.nonzero(mask)
+    texel_index = np.flatnonzero(mask.ravel())
+    positions = np.column_stack([cols - W / 2.0, H / 2.0 - rows, np.zeros(rows.size)])
+    return Surface(
+        grid_shape=(H, W),
+        texel_index=torch.from_numpy(texel_index.astype(np.int64)),
+        positions=torch.from_numpy(positions).to(dtype),
+        normals=torch.from_numpy(normals).to(dtype),
+        areas=torch.ones(rows.size, dtype=dtype),
+        units="px",
+        source=str(folder),
+    )
 
 
 class PhotometricStereoLoader(CaptureLoader):

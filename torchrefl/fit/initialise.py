@@ -93,7 +93,8 @@ def initialise_local(
             known = cf.spec_determined | take
             note = f"sigma search kept at {int(take.sum())} texels with specular evidence"
             if shared_lobe is not None:
-                note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, sigma {float(shared_lobe[1][0]):.4f}"
+                note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, "
+                note += f"sigma {float(shared_lobe[1][0]):.4f}"
     if known.any():
         grid_vals = surface.to_grid(torch.cat([ps, sigma[:, None]], 1).double())
         filled, _ = fill_undetermined(

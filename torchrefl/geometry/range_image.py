@@ -12,8 +12,8 @@ The chain (``preprocess_range_image``):
 2. the Yokoya-Levine adaptive local quadratic fit (eq. 2.5-2.8, ``fit_quadratic_yokoya_levine``):
    of the 25 5 x 5 windows that contain a pixel, the one with the smallest least-squares
    residual is used, and its quadratic is evaluated *at the pixel*;
-3. points from the fitted (smoothed) range r_hat (``cylindrical_points``);
-4. unit outward normals from the cross product of the tangents (``cylindrical_normals``).
+3. points from the fitted (smoothed) range r_hat (``cylindrical_points``, torchrefl.geometry.cylindrical);
+4. unit outward normals from the cross product of the tangents (``cylindrical_normals``, same module).
 
 Note on eq. 2.4 of the seed: as printed it reads
     N = {-r_s sin s - r cos s, -r_t r, -r_s cos s + r sin s} / sqrt(r_s^2 + r^2 + r^2 r_t^2),
@@ -39,6 +39,7 @@ import torch
 import torch.nn.functional as F
 
 from torchrefl.errors import GeometryError
+from torchrefl.geometry.cylindrical import cylindrical_normals, cylindrical_points
 
 #: A pixel whose every candidate window holds an invalid (or out-of-image) pixel is fitted by
 #: least squares over the valid pixels of its best partial window; that window must hold at
@@ -141,25 +142,6 @@ def _check_tolerance(value) -> float:
     if not math.isfinite(v) or v < 0 or isinstance(value, bool):
         raise GeometryError(f"argument 'noise_tolerance': expected a finite number >= 0, got {value!r}")
     return v
-
-
-def _check_axis(x, n: int, name: str, like: torch.Tensor) -> torch.Tensor:
-    if not isinstance(x, torch.Tensor):
-        raise GeometryError(f"argument '{name}': expected a torch.Tensor ({n},), got {type(x).__name__}")
-    if not torch.is_floating_point(x):
-        raise GeometryError(f"argument '{name}': expected a floating dtype, got {x.dtype}")
-    if tuple(x.shape) != (n,):
-        raise GeometryError(f"argument '{name}': expected shape ({n},), got {tuple(x.shape)}")
-    return x.to(dtype=like.dtype, device=like.device)
-
-
-def _check_like(x, ref: torch.Tensor, name: str) -> None:
-    if not isinstance(x, torch.Tensor):
-        raise GeometryError(f"argument '{name}': expected a torch.Tensor {tuple(ref.shape)}, got {type(x).__name__}")
-    if tuple(x.shape) != tuple(ref.shape):
-        raise GeometryError(f"argument '{name}': shape {tuple(x.shape)} does not match 'r' {tuple(ref.shape)}")
-    if x.dtype != ref.dtype:
-        raise GeometryError(f"argument '{name}': dtype {x.dtype} does not match 'r' {ref.dtype}")
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -316,21 +298,46 @@ def fit_quadratic_yokoya_levine(
     H, W = r.shape
     if H < k or W < k:
         raise GeometryError(f"argument 'r': shape {(H, W)} is smaller than the {k} x {k} fitting window")
-    if wrap and abs(W * ds - 2 * math.pi) > 0.01 * ds:
-        raise GeometryError(
-            f"argument 'wrap': wrap=True needs W * ds = 2 pi (a full turn), got "
-            f"W * ds = {W * ds:.6g} rad for W = {W}, ds = {ds:.6g}"
-        )
-    h = k // 2
+    _check_wrap(wrap, W, ds)
     dtype, device = r.dtype, r.device
     nan = float("nan")
     r0 = torch.where(valid, r, torch.zeros_like(r))  # invalid values never enter any product
 
     A, uu, vv = _design(k, dtype, device)
+    coef, res, full, centre = _centred_window_fits(r0, valid, A, k, wrap)
+    offsets = _offsets(k, adaptive)
+    best, best_res = _best_windows(res, full, offsets, k, wrap, noise_tolerance if adaptive else 0.0)
+    value, d_u, d_v = _evaluate_at_pixels(coef, centre, offsets, best, wrap)
+
+    ok = valid & torch.isfinite(best_res)
+    r_hat = torch.where(ok, value, nan)
+    r_u = torch.where(ok, d_u, nan)
+    r_v = torch.where(ok, d_v, nan)
+    residual = torch.where(ok, best_res, nan)
+
+    fallback = _fill_fallback(r0, valid & ~ok, valid, offsets, A, uu, vv, k, wrap, (r_hat, r_u, r_v, residual))
+    fit_valid = ok | fallback
+    return QuadraticFit(r_hat=r_hat, r_s=r_u / ds, r_t=r_v / dt, residual=residual, valid=fit_valid, fallback=fallback)
+
+
+def _check_wrap(wrap: bool, W: int, ds: float) -> None:
+    if wrap and abs(W * ds - 2 * math.pi) > 0.01 * ds:
+        raise GeometryError(
+            f"argument 'wrap': wrap=True needs W * ds = 2 pi (a full turn), got "
+            f"W * ds = {W * ds:.6g} rad for W = {W}, ds = {ds:.6g}"
+        )
+
+
+def _centred_window_fits(r0: torch.Tensor, valid: torch.Tensor, A: torch.Tensor, k: int, wrap: bool):
+    """Least-squares quadratics of the k x k window centred on every pixel (centres outside the image are never
+    fully valid), each patch relative to its centre value.
+
+    Returns coef (6, H, W), residual (H, W) (inf where the window is not fully valid), full (H, W) bool
+    (fully valid windows) and the centre values (H, W)."""
+    h = k // 2
+    dtype, device = r0.dtype, r0.device
     P = torch.linalg.pinv(A)  # (6, k*k)
     M = torch.eye(k * k, dtype=dtype, device=device) - A @ P  # residual projector
-
-    # every window centred on every pixel (centres outside the image are never fully valid)
     patches = _windows(_pad(r0, h, wrap, 0.0), k)  # (k*k, H, W)
     full = _windows(_pad(valid.to(dtype), h, wrap, 0.0), k).amin(0) > 0.5  # (H, W)
     centre = patches[(k * k) // 2]
@@ -339,13 +346,19 @@ def fit_quadratic_yokoya_levine(
     res = torch.einsum("jk,khw->jhw", M, rel).square().sum(0)  # (H, W)
     inf = torch.tensor(float("inf"), dtype=dtype, device=device)
     res = torch.where(full, res, inf)
+    return coef, res, full, centre
 
+
+def _best_windows(res: torch.Tensor, full: torch.Tensor, offsets, k: int, wrap: bool, noise_tolerance: float):
+    """The chosen candidate window of each pixel (index into offsets, (H, W)) and its residual (H, W): the
+    smallest residual or, with noise_tolerance > 0, the most centred window within the noise of it."""
+    H, W = res.shape
+    h = k // 2
     # candidate windows of each pixel: centre = pixel - offset
-    offsets = _offsets(k, adaptive)
     res_pad = _pad(res, h, wrap, float("inf"))
     cand = torch.stack([res_pad[h - dv : h - dv + H, h - du : h - du + W] for dv, du in offsets])  # (K, H, W)
     best_res, best = cand.min(dim=0)
-    if noise_tolerance > 0 and adaptive and bool((full & (res > 0)).any()):
+    if noise_tolerance > 0 and bool((full & (res > 0)).any()):
         # accept the most centred window whose residual is within the noise of the best one;
         # noise variance: median residual per degree of freedom of the fully valid windows
         # (windows with an exactly zero residual, e.g. on one 8-bit level, carry no noise information)
@@ -353,6 +366,13 @@ def fit_quadratic_yokoya_levine(
         accept = cand <= (best_res + noise_tolerance * (k * k - 6) * sigma2)[None]
         best = accept.to(torch.uint8).argmax(dim=0)
         best_res = torch.where(torch.isfinite(best_res), cand.gather(0, best[None])[0], best_res)
+    return best, best_res
+
+
+def _evaluate_at_pixels(coef: torch.Tensor, centre: torch.Tensor, offsets, best: torch.Tensor, wrap: bool):
+    """Each pixel's chosen window quadratic evaluated at the pixel: value (range), d/du, d/dv (H, W)."""
+    _, H, W = coef.shape
+    dtype, device = coef.dtype, coef.device
     off = torch.tensor(offsets, dtype=torch.long, device=device)  # (K, 2) (dv, du)
     dv_b, du_b = off[best, 0], off[best, 1]  # (H, W)
     rows = torch.arange(H, device=device)[:, None]
@@ -362,30 +382,27 @@ def fit_quadratic_yokoya_levine(
     ccol = ccol % W if wrap else ccol.clamp(0, W - 1)
     cf = coef[:, crow, ccol]  # (6, H, W)
     value, d_u, d_v = _evaluate(cf, du_b.to(dtype), dv_b.to(dtype))
-    value = value + centre[crow, ccol]
+    return value + centre[crow, ccol], d_u, d_v
 
-    ok = valid & torch.isfinite(best_res)
-    r_hat = torch.where(ok, value, nan)
-    r_u = torch.where(ok, d_u, nan)
-    r_v = torch.where(ok, d_v, nan)
-    residual = torch.where(ok, best_res, nan)
 
-    need = valid & ~ok
+def _fill_fallback(r0, need, valid, offsets, A, uu, vv, k, wrap, maps) -> torch.Tensor:
+    """Fits the pixels `need` (H, W) bool with no fully valid window by _fallback_fit, in chunks, writing value,
+    d/du, d/dv and residual into maps (four (H, W) tensors; NaN where no partial window fits either).
+    Returns the (H, W) bool mask of the pixels so fitted."""
+    W = r0.shape[1]
+    nan = float("nan")
     fallback = torch.zeros_like(valid)
     if bool(need.any()):
         idx = need.flatten().nonzero().squeeze(1)
         for start in range(0, idx.numel(), _FALLBACK_CHUNK):
             chunk = idx[start : start + _FALLBACK_CHUNK]
             got = _fallback_fit(r0, valid, chunk, offsets, A, uu, vv, k, wrap)
-            fit_ok, fv, fu, fvv, fres = got
+            fit_ok, fit = got[0], got[1:]
             rr, cc = chunk // W, chunk % W
-            r_hat[rr, cc] = torch.where(fit_ok, fv, nan)
-            r_u[rr, cc] = torch.where(fit_ok, fu, nan)
-            r_v[rr, cc] = torch.where(fit_ok, fvv, nan)
-            residual[rr, cc] = torch.where(fit_ok, fres, nan)
+            for m, f in zip(maps, fit):
+                m[rr, cc] = torch.where(fit_ok, f, nan)
             fallback[rr, cc] = fit_ok
-    fit_valid = ok | fallback
-    return QuadraticFit(r_hat=r_hat, r_s=r_u / ds, r_t=r_v / dt, residual=residual, valid=fit_valid, fallback=fallback)
+    return fallback
 
 
 def _fallback_fit(r0, valid, pix, offsets, A, uu, vv, k, wrap):
@@ -442,56 +459,6 @@ def _fallback_fit(r0, valid, pix, offsets, A, uu, vv, k, wrap):
     return ok, value, d_u, d_v, res[torch.arange(N, device=device), best]
 
 
-# ----------------------------------------------------------------------------- geometry
-
-
-def cylindrical_points(r: torch.Tensor, s: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-    """Eq. 2.1: S(s, t) = (-r sin s, -t, -r cos s).
-
-    r: (H, W) float range, mm; s: (W,) column angles, radians; t: (H,) row heights, mm.
-    Returns (H, W, 3) of r's dtype, mm (NaN where r is NaN).
-    """
-    if not isinstance(r, torch.Tensor) or r.ndim != 2 or r.dtype not in (torch.float32, torch.float64):
-        raise GeometryError(
-            f"argument 'r': expected a float32/float64 torch.Tensor (H, W), got "
-            f"{getattr(r, 'dtype', type(r).__name__)} {tuple(getattr(r, 'shape', ()))}"
-        )
-    H, W = r.shape
-    s = _check_axis(s, W, "s", r)
-    t = _check_axis(t, H, "t", r)
-    sin, cos = torch.sin(s)[None, :], torch.cos(s)[None, :]
-    return torch.stack([-r * sin, (-t)[:, None].expand(H, W), -r * cos], dim=-1)
-
-
-def cylindrical_normals(
-    r: torch.Tensor, r_s: torch.Tensor, r_t: torch.Tensor, s: torch.Tensor, t: torch.Tensor
-) -> torch.Tensor:
-    """Unit outward normals N = S_t x S_s / |S_t x S_s| (eq. 2.3; eq. 2.4 as printed is garbled,
-    see the module docstring):
-
-        N = (r_s cos s - r sin s, r r_t, -r_s sin s - r cos s) / sqrt(r_s^2 + r^2 + r^2 r_t^2).
-
-    r: (H, W) float range, mm; r_s: (H, W) dr/ds, mm/rad; r_t: (H, W) dr/dt, mm/mm;
-    s: (W,) radians; t: (H,) mm (the normal does not depend on t; checked for shape only).
-    Returns (H, W, 3) of r's dtype, unit, pointing away from the rotation axis;
-    NaN where an input is NaN or the normal is undefined (r = r_s = 0).
-    """
-    if not isinstance(r, torch.Tensor) or r.ndim != 2 or r.dtype not in (torch.float32, torch.float64):
-        raise GeometryError(
-            f"argument 'r': expected a float32/float64 torch.Tensor (H, W), got "
-            f"{getattr(r, 'dtype', type(r).__name__)} {tuple(getattr(r, 'shape', ()))}"
-        )
-    _check_like(r_s, r, "r_s")
-    _check_like(r_t, r, "r_t")
-    H, W = r.shape
-    s = _check_axis(s, W, "s", r)
-    _check_axis(t, H, "t", r)
-    sin, cos = torch.sin(s)[None, :], torch.cos(s)[None, :]
-    n = torch.stack([r_s * cos - r * sin, r * r_t, -r_s * sin - r * cos], dim=-1)
-    length = n.norm(dim=-1, keepdim=True)
-    return torch.where(length > 0, n / length.clamp_min(torch.finfo(r.dtype).tiny), float("nan"))
-
-
 # ----------------------------------------------------------------------------- the chain
 
 
@@ -530,11 +497,7 @@ def preprocess_range_image(
     H, W = r.shape
     s = float(s0) + ds * torch.arange(W, dtype=r.dtype, device=r.device)
     t = float(t0) + dt * torch.arange(H, dtype=r.dtype, device=r.device)
-    if wrap and abs(W * ds - 2 * math.pi) > 0.01 * ds:
-        raise GeometryError(
-            f"argument 'wrap': wrap=True needs W * ds = 2 pi (a full turn), got "
-            f"W * ds = {W * ds:.6g} rad for W = {W}, ds = {ds:.6g}"
-        )
+    _check_wrap(wrap, W, ds)
     rm = median_filter_range(r, valid, median_size, wrap=wrap)
     fit = fit_quadratic_yokoya_levine(rm, valid, ds, dt, window, wrap=wrap, noise_tolerance=noise_tolerance)
     points = cylindrical_points(fit.r_hat, s, t)

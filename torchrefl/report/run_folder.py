@@ -76,7 +76,8 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 class StagedRunFolder:
-    """The staging folder of one run into `target`; `commit()` moves it into place, `abandon()` keeps it as NAME.failed."""
+    """The staging folder of one run into `target`; `commit()` moves it into place, `abandon()` keeps it as
+    NAME.failed."""
 
     def __init__(self, target: Path, overwrite: bool = False):
         self.target = Path(target)

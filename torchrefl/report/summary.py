@@ -26,7 +26,8 @@ def summary_table(metrics: dict) -> str:
     s = section("selection")
     if all(isinstance(s.get(k), (int, float)) for k in ("lights_selected", "diffuse_coverage", "specular_coverage")):
         lines.append(
-            f"  selection: {s['lights_selected']} lights, diffuse {s['diffuse_coverage']:.1%}, specular {s['specular_coverage']:.1%}"
+            f"  selection: {s['lights_selected']} lights, diffuse {s['diffuse_coverage']:.1%}, specular "
+            f"{s['specular_coverage']:.1%}"
         )
     for warning in section("capture").get("warnings") or []:
         lines.append(f"  WARNING: {warning}")

@@ -51,11 +51,13 @@ ERRORS: dict[int, tuple[str, str]] = {
 ALARMS: dict[int, tuple[str, str]] = {
     1: (
         "Hard limit",
-        "Hard limit has been triggered. Machine position is likely lost due to sudden halt. Re-homing is highly recommended.",
+        "Hard limit has been triggered. Machine position is likely lost due to sudden halt. Re-homing is highly "
+        "recommended.",
     ),
     2: (
         "Soft limit",
-        "Soft limit alarm. G-code motion target exceeds machine travel. Machine position retained. Alarm may be safely unlocked.",
+        "Soft limit alarm. G-code motion target exceeds machine travel. Machine position retained. Alarm may be safely "
+        "unlocked.",
     ),
     3: (
         "Abort during cycle",
@@ -63,7 +65,8 @@ ALARMS: dict[int, tuple[str, str]] = {
     ),
     4: (
         "Probe fail",
-        "Probe fail. Probe is not in the expected initial state before starting probe cycle when G38.2 and G38.3 is not triggered and G38.4 and G38.5 is triggered.",
+        "Probe fail. Probe is not in the expected initial state before starting probe cycle when G38.2 and G38.3 is "
+        "not triggered and G38.4 and G38.5 is triggered.",
     ),
     5: (
         "Probe fail",
@@ -77,7 +80,8 @@ ALARMS: dict[int, tuple[str, str]] = {
     ),
     9: (
         "Homing fail",
-        "Homing fail. Could not find limit switch within search distances. Try increasing max travel, decreasing pull-off distance, or check wiring.",
+        "Homing fail. Could not find limit switch within search distances. Try increasing max travel, decreasing "
+        "pull-off distance, or check wiring.",
     ),
 }
 

@@ -1,1 +1,2 @@
-"""Synthetic scenes: objects with known reflectance, rendered (with interreflection) into capture folders the loaders read."""
+"""Synthetic scenes: objects with known reflectance, rendered (with interreflection) into capture folders the
+loaders read."""

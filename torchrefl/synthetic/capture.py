@@ -41,7 +41,8 @@ def synthetic_capture(cfg: Config, out: Path, stages: Stages, log: Log) -> tuple
             (out / "selection" / "selection.json").write_text(json.dumps(selection.to_json(), indent=2))
         t = selection.table()
         log(
-            f"light selection: {t['lights_selected']} of {t['candidates']} lights ({t['lights_for_diffuse']} for diffuse); "
+            f"light selection: {t['lights_selected']} of {t['candidates']} lights ({t['lights_for_diffuse']} for "
+            "diffuse); "
             f"diffuse coverage {t['diffuse_coverage']:.1%} (all: {t['diffuse_coverage_all_candidates']:.1%}), "
             f"specular {t['specular_coverage']:.1%} (all: {t['specular_coverage_all_candidates']:.1%})"
         )

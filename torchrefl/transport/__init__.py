@@ -1,1 +1,2 @@
-"""Transport levels: local (Method I), radiosity (Method II), photon (Method III), behind one TransportLevel interface."""
+"""Transport levels: local (Method I), radiosity (Method II), photon (Method III), behind one TransportLevel
+interface."""

@@ -17,10 +17,10 @@ an independent one, so the estimate is unbiased, but the origins and directions 
 independent rays an entry would have the binomial standard error sqrt(F (1 - F) / N) (`sampling_error`);
 the stratified rays stay below it (on a closed box: 0.47 of it at 2 000 rays per patch, 0.27 at 32 000,
 the error falling like N^-0.7 instead of N^-0.5). On Object E at full size they cut the fitter's own
-per-texel Pd noise on the lower plate from 0.45-0.55 % to 0.14-0.27 % (docs/results/object_e_texel_by_texel.md). The (deterministic) discretisation of u
-into its candidate origins comes on top. Rays that escape, hit a face that belongs to no patch (a blocker), or
-reach the back side of a patch count nowhere: energy arriving at the back of a range-image surface
-does not feed the radiosity B of its observed front side (`count_back_hits=True` counts them).
+per-texel Pd noise on the lower plate from 0.45-0.55 % to 0.14-0.27 % (docs/results/object_e_texel_by_texel.md).
+The (deterministic) discretisation of u into its candidate origins comes on top. Rays that escape, hit a face that
+belongs to no patch (a blocker), or reach the back side of a patch count nowhere: energy arriving at the back of a
+range-image surface does not feed the radiosity B of its observed front side (`count_back_hits=True` counts them).
 Embree's tnear is 0, so rays start `offset` along the normal.
 
 Patches are square blocks of texels on the texel grid, split where the texel normals disagree
@@ -290,13 +290,47 @@ def hemisphere_form_factors(
     progress(done_rays, total_rays) is called after each work unit.
     corners: (face_corners) the patches (F, 3) and normals (F, 3, 3) of each face's corners. A hit then goes
     to the patch of the face's first corner only if that corner's normal faces the ray (n . d < 0), else to
-    the corner that faces it most (fold_hits.facing_corner). A face that bridges a crease (a range mesh cuts a fold's corner with a
-    strip of faces from one side's last texel row to the other's first) is thus seen from each side as the
-    other side's surface, which is what a ray crossing that strip reaches on the real object; from its own
+    the corner that faces it most (fold_hits.facing_corner). A face that bridges a crease (a range mesh cuts a
+    fold's corner with a strip of faces from one side's last texel row to the other's first) is thus seen from each side
+    as the other side's surface, which is what a ray crossing that strip reaches on the real object; from its own
     side's texels such a face would otherwise be the texels' own patch, lit like them (Object E at full size:
     the lower plate's row nearest the fold gathered 3 % too little light). Faces with all corners alike are
     unaffected, and so are faces whose corners' normals agree within about 25 degrees (fold_hits.MIXED_COS).
     """
+    N = _check_form_factor_options(samples_per_patch, offset, layout)
+    o, nm, w, row, used = _check_candidate_origins(origins, normals, weights)
+    Q, K = o.shape[:2]
+    fp = _check_face_patch(face_patch, tracer, Q)
+    corner_rule = None if corners is None else _CornerRule.of(corners, len(fp))
+
+    cdf = torch.from_numpy(np.cumsum(w, axis=1) / row[:, None])
+    slot, frames, cstart = _ray_starts(o, nm, used, offset)
+    front = None if count_back_hits else _front_faces(tracer, fp, w, nm, Q).astype(np.float32)
+    sampler = _PatchRays(tracer, fp, cdf, slot, frames, cstart, front, corner_rule, N, int(seed))
+
+    # work units of whole patches (about UNIT_RAYS rays each), each sampled, traced and tallied by one thread
+    # with its own random stream keyed by (seed, unit): the result does not depend on the thread count
+    per_unit = max(1, UNIT_RAYS // N)
+    units = [(a, min(a + per_unit, Q)) for a in range(0, Q, per_unit)]
+    total = Q * N
+    done = [0]
+    lock = threading.Lock()
+
+    def work(i: int) -> np.ndarray:
+        a, b = units[i]
+        uniq, counts, rays = sampler.unit(i, a, b)
+        with lock:
+            done[0] += rays
+            if progress is not None:
+                progress(done[0], total)
+        return uniq, counts
+
+    parts = thread_map(work, range(len(units)), tracer.threads)
+    return _assemble(parts, Q, N, layout)
+
+
+def _check_form_factor_options(samples_per_patch, offset, layout: str) -> int:
+    """hemisphere_form_factors' scalar options checked (ConfigError); returns samples_per_patch as int."""
     if (
         isinstance(samples_per_patch, bool)
         or not isinstance(samples_per_patch, (int, np.integer))
@@ -307,6 +341,13 @@ def hemisphere_form_factors(
         raise ConfigError(f"offset must be a finite number >= 0 (ray start distance along the normal), got {offset!r}")
     if layout not in ("auto", "dense", "sparse"):
         raise ConfigError(f"layout must be 'auto', 'dense' or 'sparse', got {layout!r}")
+    return int(samples_per_patch)
+
+
+def _check_candidate_origins(origins, normals, weights):
+    """hemisphere_form_factors' origins (Q, K, 3), normals (Q, K, 3) and weights (Q, K) checked (GeometryError).
+
+    Returns (origins, normals, float64 weights, weight row sums (Q,), (Q, K) bool mask of positive weights)."""
     o = _as_array("origins", origins, "(Q, K, 3)")
     nm = _as_array("normals", normals, "(Q, K, 3)")
     w = _as_array("weights", weights, "(Q, K)")
@@ -334,6 +375,11 @@ def hemisphere_form_factors(
     if bad.any():
         q, k = np.argwhere(bad)[0]
         raise GeometryError(f"normals must be unit where weights > 0; normals[{q}, {k}] has length {nlen[q, k]:.4g}")
+    return o, nm, w, row, used
+
+
+def _check_face_patch(face_patch, tracer: RayTracer, Q: int) -> np.ndarray:
+    """(F,) int64 patch of each mesh face, checked against the tracer's faces and Q patches (GeometryError)."""
     fp = _as_array("face_patch", face_patch, "(F,)")
     if fp.shape != (tracer.num_triangles,):
         raise GeometryError(
@@ -344,13 +390,26 @@ def hemisphere_form_factors(
     fp = fp.astype(np.int64)
     if len(fp) and (fp.min() < -1 or fp.max() >= Q):
         raise GeometryError(f"face_patch values must lie in -1..{Q - 1} (Q = {Q} patches from origins)")
+    return fp
 
-    if corners is not None:
+
+@dataclass
+class _CornerRule:
+    """hemisphere_form_factors' corner rule: the patch (F, 3) int64 and normal (F, 3, 3) float32 of each face's
+    corners, and mixed (F + 1,) bool, the faces the rule applies to (False at index F, read by misses)."""
+
+    patch: np.ndarray
+    normal: np.ndarray
+    mixed: np.ndarray
+
+    @classmethod
+    def of(cls, corners, num_faces: int) -> Optional["_CornerRule"]:
+        """The rule for corners (patches, normals) of num_faces faces, or None when no face is mixed."""
         c_patch, c_normal = (np.asarray(x) for x in corners)
-        if c_patch.shape != (len(fp), 3) or c_normal.shape != (len(fp), 3, 3):
+        if c_patch.shape != (num_faces, 3) or c_normal.shape != (num_faces, 3, 3):
             raise GeometryError(
-                f"corners have shapes {c_patch.shape} and {c_normal.shape}, expected ({len(fp)}, 3) "
-                f"and ({len(fp)}, 3, 3): the patch and normal of each face's three corners"
+                f"corners have shapes {c_patch.shape} and {c_normal.shape}, expected ({num_faces}, 3) "
+                f"and ({num_faces}, 3, 3): the patch and normal of each face's three corners"
             )
         c_patch = c_patch.astype(np.int64)
         c_normal = c_normal.astype(np.float32)
@@ -358,11 +417,31 @@ def hemisphere_form_factors(
         mixed = mixed_faces(c_normal) & ((c_patch[:, 0] != c_patch[:, 1]) | (c_patch[:, 0] != c_patch[:, 2]))
         mixed = np.append(mixed, False)  # index -1 (a miss) reads False: one pass over the rays
         if not mixed.any():
-            corners = None
+            return None
+        return cls(c_patch, c_normal, mixed)
 
-    N = int(samples_per_patch)
-    cdf = torch.from_numpy(np.cumsum(w, axis=1) / row[:, None])
-    # frames and start points once per candidate origin (Q * K), then gathered per ray (float32, like Embree)
+    def apply(self, dst: np.ndarray, tri: np.ndarray, d: np.ndarray) -> None:
+        """Moves dst (N,), the patch of each ray's hit triangle tri (N,) along d (N, 3), to the corner that
+        faces the ray, in place."""
+        hit = np.flatnonzero(np.take(self.mixed, tri))
+        if hit.size:
+            th, cn = tri[hit], self.normal[tri[hit]]
+            k = facing_corner(
+                np.zeros(hit.size, dtype=np.int64),
+                cn,
+                d[hit],
+                -np.einsum("ni,nci->nc", d[hit], cn),
+                usable=self.patch[th] >= 0,
+            )
+            dst[hit] = np.where(k > 0, self.patch[th, k], dst[hit])
+
+
+def _ray_starts(o: np.ndarray, nm: np.ndarray, used: np.ndarray, offset: float):
+    """Frames and start points once per candidate origin (Q * K), then gathered per ray (float32, like Embree).
+
+    Returns (slot (Q * K,) int64: the candidate of each origin, -1 for padding; frames (C, 3, 3) float32, rows
+    t, b, n; start points (C, 3) float32, moved `offset` along the normal)."""
+    Q, K = used.shape
     cand = np.flatnonzero(used.ravel())
     slot = np.full(Q * K, -1, dtype=np.int64)
     slot[cand] = np.arange(len(cand))
@@ -371,62 +450,66 @@ def hemisphere_form_factors(
     ct, cb = tangent_frame(cn)
     frames = np.stack([ct, cb, cn], 1).astype(np.float32)  # (C, 3, 3): rows t, b, n
     cstart = (o.reshape(-1, 3)[cand].astype(np.float64) + offset * cn).astype(np.float32)
-    front = None if count_back_hits else _front_faces(tracer, fp, w, nm, Q).astype(np.float32)
+    return slot, frames, cstart
 
-    # work units of whole patches (about UNIT_RAYS rays each), each sampled, traced and tallied by one thread
-    # with its own random stream keyed by (seed, unit): the result does not depend on the thread count
-    per_unit = max(1, UNIT_RAYS // N)
-    units = [(a, min(a + per_unit, Q)) for a in range(0, Q, per_unit)]
-    total = Q * N
-    done = [0]
-    lock = threading.Lock()
 
-    def work(i: int) -> np.ndarray:
-        a, b = units[i]
-        rng = np.random.default_rng([int(seed), 0xF0, i])
+@dataclass
+class _PatchRays:
+    """What one work unit of hemisphere_form_factors needs to sample, trace and tally its patches' rays."""
+
+    tracer: RayTracer
+    fp: np.ndarray
+    cdf: torch.Tensor
+    slot: np.ndarray
+    frames: np.ndarray
+    cstart: np.ndarray
+    front: Optional[np.ndarray]
+    corner_rule: Optional[_CornerRule]
+    N: int
+    seed: int
+
+    def unit(self, i: int, a: int, b: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """Rays of patches a..b-1 (work unit i): (sorted keys src * Q + dst, their counts, rays traced)."""
+        Q = len(self.cdf)
+        rng = np.random.default_rng([self.seed, 0xF0, i])
+        src, j, d = self._directions(rng, a, b)
+        tri = self.tracer.first_hit_triangles(self.cstart[j], np.ascontiguousarray(d))
+        dst = np.where(tri >= 0, self.fp[np.maximum(tri, 0)], -1)
+        if self.corner_rule is not None:
+            self.corner_rule.apply(dst, tri, d)
+        if self.front is not None:
+            hit = np.flatnonzero(dst >= 0)
+            back = np.einsum("ni,ni->n", d[hit], self.front[tri[hit]]) >= 0
+            dst[hit[back]] = -1
+        ok = dst >= 0
+        # tally per unit, on the unit's thread: units own disjoint source patches, so their (key, count)
+        # pairs never overlap and concatenate in key order
+        uniq, counts = np.unique(src[ok] * Q + dst[ok], return_counts=True)
+        return uniq, counts, len(j)
+
+    def _directions(self, rng: np.random.Generator, a: int, b: int):
+        """(source patch (n,), candidate origin (n,), direction (n, 3) float32) of the n = (b - a) N rays."""
+        N = self.N
+        K = self.cdf.shape[1]
         # randomised QMC: one scrambled Sobol set per unit, moved by a uniform shift per patch; its first
         # coordinate picks the origin, the other two the direction, so both are stratified
         uq = toroidal_shift(sobol_base(N, 3, rng), rng.random((b - a, 3)))
         # origin choice by inverse CDF of the weights; a zero-weight slot has the same cdf as the slot
         # before it, so right=True never picks padding
         u = torch.from_numpy(np.ascontiguousarray(uq[:, 0].reshape(b - a, N)))
-        k = np.minimum(torch.searchsorted(cdf[a:b], u, right=True).numpy(), K - 1)
+        k = np.minimum(torch.searchsorted(self.cdf[a:b], u, right=True).numpy(), K - 1)
         src = np.repeat(np.arange(a, b), N)
-        j = slot[src * K + k.ravel()]
+        j = self.slot[src * K + k.ravel()]
         u1 = uq[:, 1].astype(np.float32)
         phi = uq[:, 2].astype(np.float32) * np.float32(2.0 * np.pi)
         r = np.sqrt(u1)
         local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(np.float32(1.0) - u1, 0))], 1)
-        d = np.einsum("ni,nij->nj", local, frames[j])
-        tri = tracer.first_hit_triangles(cstart[j], np.ascontiguousarray(d))
-        dst = np.where(tri >= 0, fp[np.maximum(tri, 0)], -1)
-        if corners is not None:
-            hit = np.flatnonzero(np.take(mixed, tri))
-            if hit.size:
-                th, cn = tri[hit], c_normal[tri[hit]]
-                k = facing_corner(
-                    np.zeros(hit.size, dtype=np.int64),
-                    cn,
-                    d[hit],
-                    -np.einsum("ni,nci->nc", d[hit], cn),
-                    usable=c_patch[th] >= 0,
-                )
-                dst[hit] = np.where(k > 0, c_patch[th, k], dst[hit])
-        if front is not None:
-            hit = np.flatnonzero(dst >= 0)
-            back = np.einsum("ni,ni->n", d[hit], front[tri[hit]]) >= 0
-            dst[hit[back]] = -1
-        ok = dst >= 0
-        # tally per unit, on the unit's thread: units own disjoint source patches, so their (key, count)
-        # pairs never overlap and concatenate in key order
-        uniq, counts = np.unique(src[ok] * Q + dst[ok], return_counts=True)
-        with lock:
-            done[0] += len(j)
-            if progress is not None:
-                progress(done[0], total)
-        return uniq, counts
+        d = np.einsum("ni,nij->nj", local, self.frames[j])
+        return src, j, d
 
-    parts = thread_map(work, range(len(units)), tracer.threads)
+
+def _assemble(parts, Q: int, N: int, layout: str) -> torch.Tensor:
+    """The (Q, Q) form factors from the work units' (keys, counts): dense or sparse by `layout`."""
     uniq = np.concatenate([p[0] for p in parts])
     counts = np.concatenate([p[1] for p in parts])
     values = torch.from_numpy(counts.astype(np.float64) / N)

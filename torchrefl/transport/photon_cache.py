@@ -396,6 +396,54 @@ def build_cache(
     """
     P, K = sources.positions.shape[:2]
     T = int(areas.shape[0])
+    scale, flux, obs_idx = _photon_flux(hits, sources, areas, T)
+    H, in_H = _photon_irradiance(hits, flux, obs_idx, P * T, diffuse_paths, specular_paths_only)
+    linear = None
+    if emitter_pd is not None and hits.emitter is not None and hits.count:
+        linear = _linear_in_pd(H, hits, scale, in_H, obs_idx, emitter_pd, P, T, dtype)
+    stats = {"stored_hits": hits.count, "rays": hits.rays, "back_side_hits": int(hits.back_hits)}
+    stats.update(photons_emitted=int(hits.emitted.sum()), maps_per_light=K)
+    empty = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=dtype), torch.zeros(0, 3, dtype=dtype))
+    sel = _lobe_hits(hits, keep, obs_idx, brdf != "lambertian", specular_paths_only)
+    if sel.size:
+        e_obs, theta_h, weight = _SpecularEntries(
+            hits, obs_idx, normals, view_dirs, brdf, sigma, sigma_max, min_cos_light, threads
+        ).select(sel, flux)
+        if specular_smoothing > 0 and grid is None:
+            raise ConfigError("photon.specular_smoothing > 0 needs the texel grid (texel_index, grid_shape)")
+        if e_obs.size and specular_smoothing > 0:
+            index, shape, gnormals = _grid_parts(grid)
+            e_obs, src, k = spread_on_grid(e_obs, T, index, shape, specular_smoothing, gnormals, smoothing_normal)
+            theta_h, weight = np.take(theta_h, src), np.take(weight, src, axis=1) * k
+        if e_obs.size:
+            merged = merge_entries(e_obs, theta_h, weight, sigma, T, theta_bin, bin_per_sigma)
+            empty = (torch.from_numpy(merged[0]), *(torch.from_numpy(x).to(dtype) for x in merged[1:]))
+            stats["specular_photons"] = int(e_obs.size)
+    stats["specular_entries"] = int(empty[0].numel())
+    irradiance = torch.from_numpy(H.reshape(P, T, 3))
+    if smoothing > 0:
+        irradiance, smoother = _smooth_irradiance(irradiance, grid, smoother, smoothing, smoothing_normal)
+    if linear is not None:
+        stats["linear_entries"] = int(linear._nnz())
+    return PhotonCache(
+        brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoother=smoother if smoothing > 0 else None
+    )
+
+
+def _lobe_hits(hits: PhotonHits, keep, obs_idx, lobe: bool, specular_paths_only: bool) -> np.ndarray:
+    """Indices of the hits that get specular entries: at kept observations, with a lobe, and (specular_paths_only)
+    only those whose path had a specular scattering."""
+    keep_np = np.asarray(keep, dtype=bool).reshape(-1)
+    wanted = np.take(keep_np, obs_idx)
+    if specular_paths_only and lobe:
+        wanted &= np.asarray(hits.specular_path, dtype=bool)
+    return np.flatnonzero(wanted) if lobe else np.zeros(0, dtype=np.int64)
+
+
+def _photon_flux(hits: PhotonHits, sources: LightSources, areas, T: int):
+    """(scale (N,): each photon's light-map weight at its texel over the texel area, flux (3, N) per unit
+    collection area, component-major, obs_idx (N,): flat observation p * T + t of each photon)."""
+    K = sources.positions.shape[1]
     A = np.asarray(areas, dtype=np.float64)
     p = hits.source // K
     t = hits.texel
@@ -406,6 +454,12 @@ def build_cache(
     )
     flux = np.asarray(hits.power, dtype=np.float64).T * scale  # (3, N)
     obs_idx = p * T + t
+    return scale, flux, obs_idx
+
+
+def _photon_irradiance(hits: PhotonHits, flux, obs_idx, PT: int, diffuse_paths: bool, specular_paths_only: bool):
+    """(H (P T, 3): the photons' irradiance per observation, in_H (N,) float64 1 where a photon counts in H, or
+    None when all do)."""
     if (not diffuse_paths or specular_paths_only) and hits.specular_path is None:
         raise ValueError(
             "build_cache: diffuse_paths=False or specular_paths_only needs hits.specular_path "
@@ -413,111 +467,93 @@ def build_cache(
         )
     in_H = None if diffuse_paths else np.asarray(hits.specular_path, dtype=np.float64)  # (N,) 1 = counted in H
     flux_H = flux if in_H is None else flux * in_H
-    H = np.stack([np.bincount(obs_idx, weights=flux_H[c], minlength=P * T) for c in range(3)], -1)
-    linear = None
-    if emitter_pd is not None and hits.emitter is not None and hits.count:
-        lin = np.asarray(hits.diffuse_per_pd, dtype=np.float64).T * (
-            scale if in_H is None else scale * in_H
-        )  # per unit Pd
-        e = hits.emitter
-        pd_ref = np.asarray(emitter_pd, dtype=np.float64)
-        for c in range(3):
-            H[:, c] -= np.bincount(obs_idx, weights=lin[c] * np.take(pd_ref[:, c], e), minlength=P * T)
-        rows = np.concatenate([c * P * T + obs_idx for c in range(3)])
-        cols = np.concatenate([c * T + e for c in range(3)])
-        linear = (
-            torch.sparse_coo_tensor(
-                torch.from_numpy(np.stack([rows, cols])),
-                torch.from_numpy(lin.reshape(-1)),
-                (3 * P * T, 3 * T),
-                check_invariants=False,
-            )
-            .coalesce()
-            .to(dtype)
+    H = np.stack([np.bincount(obs_idx, weights=flux_H[c], minlength=PT) for c in range(3)], -1)
+    return H, in_H
+
+
+def _linear_in_pd(H, hits: PhotonHits, scale, in_H, obs_idx, emitter_pd, P: int, T: int, dtype) -> torch.Tensor:
+    """The sparse (3 P T, 3 T) L of PhotonCache.linear; subtracts its part at emitter_pd from H (P T, 3) in place."""
+    lin = np.asarray(hits.diffuse_per_pd, dtype=np.float64).T * (scale if in_H is None else scale * in_H)  # per unit Pd
+    e = hits.emitter
+    pd_ref = np.asarray(emitter_pd, dtype=np.float64)
+    for c in range(3):
+        H[:, c] -= np.bincount(obs_idx, weights=lin[c] * np.take(pd_ref[:, c], e), minlength=P * T)
+    rows = np.concatenate([c * P * T + obs_idx for c in range(3)])
+    cols = np.concatenate([c * T + e for c in range(3)])
+    return (
+        torch.sparse_coo_tensor(
+            torch.from_numpy(np.stack([rows, cols])),
+            torch.from_numpy(lin.reshape(-1)),
+            (3 * P * T, 3 * T),
+            check_invariants=False,
         )
-    stats = {
-        "stored_hits": hits.count,
-        "rays": hits.rays,
-        "back_side_hits": int(hits.back_hits),
-        "photons_emitted": int(hits.emitted.sum()),
-        "maps_per_light": K,
-    }
-    empty = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=dtype), torch.zeros(0, 3, dtype=dtype))
-    lobe = brdf != "lambertian"
-    keep_np = np.asarray(keep, dtype=bool).reshape(-1)
-    wanted = np.take(keep_np, obs_idx)
-    if specular_paths_only and lobe:
-        wanted &= np.asarray(hits.specular_path, dtype=bool)
-    sel = np.flatnonzero(wanted) if lobe else np.zeros(0, dtype=np.int64)
-    if sel.size:
-        normals_3 = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
+        .coalesce()
+        .to(dtype)
+    )
+
+
+class _SpecularEntries:
+    """The specular entries of selected photon hits: their theta_h and weight, pruned where the lobe at the
+    receiving texel's capped roughness is negligible (build_cache)."""
+
+    def __init__(self, hits, obs_idx, normals, view_dirs, brdf, sigma, sigma_max, min_cos_light, threads):
+        self.t = hits.texel
+        self.obs_idx = obs_idx
+        self.normals_3 = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
         v_all = np.asarray(view_dirs, dtype=np.float64)
-        v_3, per_light_view = np.ascontiguousarray(v_all.reshape(-1, 3).T), v_all.ndim == 3
-        sigma_cap = np.minimum(3.0 * np.asarray(sigma, dtype=np.float64), sigma_max)
-        wi_3 = np.asarray(hits.direction).T
-        tt = torch.from_numpy
+        self.v_3, self.per_light_view = np.ascontiguousarray(v_all.reshape(-1, 3).T), v_all.ndim == 3
+        self.sigma_cap = np.minimum(3.0 * np.asarray(sigma, dtype=np.float64), sigma_max)
+        self.wi_3 = np.asarray(hits.direction).T
+        self.brdf = brdf
+        self.min_cos_light = min_cos_light
+        self.threads = threads
 
-        def block(sb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            """(alive selected hits, their theta_h, G / cos_i) for a block of selected hits (cache-sized)."""
-            ts = np.take(t, sb)
-            n = np.take(normals_3, ts, axis=1)  # (3, M)
-            v = np.take(v_3, np.take(obs_idx, sb) if per_light_view else ts, axis=1)
-            wi = np.take(wi_3, sb, axis=1).astype(np.float64)
-            cos_i, cos_v = column_dot(n, wi), column_dot(n, v)
-            with torch.no_grad():
-                th = brdf_mod.half_angle(tt(n.T), tt(wi.T), tt(v.T)).numpy()  # (M, 3) views of the (3, M) arrays
-                geom = (
-                    brdf_mod.specular_geometry(brdf, tt(cos_i), tt(cos_v)) / tt(cos_i).clamp_min(min_cos_light)
-                ).numpy()
-                lobe_at = brdf_mod.specular_lobe(brdf, tt(th), tt(np.take(sigma_cap, ts))).numpy()
-            alive = np.flatnonzero((cos_i > min_cos_light) & (cos_v > 0) & (lobe_at > LOBE_CUTOFF))
-            return np.take(sb, alive), np.take(th, alive), np.take(geom, alive)
-
+    def select(self, sel: np.ndarray, flux: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(flat observation (M,), theta_h (M,), weight (3, M)) of the alive hits among sel."""
         # blocks of 2^17 hits keep the temporaries in cache; numpy releases the GIL, so two threads share them
         blocks = [sel[i : i + (1 << 17)] for i in range(0, sel.size, 1 << 17)]
-        parts = thread_map(block, blocks, threads)
+        parts = thread_map(self.block, blocks, self.threads)
         sel = np.concatenate([x[0] for x in parts])
         theta_h = np.concatenate([x[1] for x in parts])
         weight = np.take(flux, sel, axis=1) * np.concatenate([x[2] for x in parts])  # (3, M)
-        e_obs = np.take(obs_idx, sel)
-        if specular_smoothing > 0 and grid is None:
-            raise ConfigError("photon.specular_smoothing > 0 needs the texel grid (texel_index, grid_shape)")
-        if sel.size and specular_smoothing > 0:
-            index, shape, gnormals = _grid_parts(grid)
-            e_obs, src, k = spread_on_grid(e_obs, T, index, shape, specular_smoothing, gnormals, smoothing_normal)
-            theta_h, weight = np.take(theta_h, src), np.take(weight, src, axis=1) * k
-        if e_obs.size:
-            entry_obs, mean_theta, wsum = merge_entries(e_obs, theta_h, weight, sigma, T, theta_bin, bin_per_sigma)
-            empty = (
-                torch.from_numpy(entry_obs),
-                torch.from_numpy(mean_theta).to(dtype),
-                torch.from_numpy(wsum).to(dtype),
-            )
-            stats["specular_photons"] = int(e_obs.size)
-    stats["specular_entries"] = int(empty[0].numel())
-    irradiance = torch.from_numpy(H.reshape(P, T, 3))
-    if smoothing > 0:
-        if grid is None:
-            raise ConfigError("photon.smoothing > 0 needs the texel grid (texel_index, grid_shape)")
-        if smoothing_normal > 0 and _grid_parts(grid)[2] is None:
-            raise ConfigError(
-                "photon.smoothing_normal > 0 needs the texel normals in the grid (texel_index, grid_shape, normals)"
-            )
-        index, shape, normals = _grid_parts(grid)
-        if smoother is None:
-            smoother = smoothing_matrix(
-                np.asarray(index),
-                shape,
-                smoothing,
-                None if normals is None else np.asarray(normals, dtype=np.float64),
-                smoothing_normal,
-            )
-        irradiance = apply_on_grid(smoother, irradiance)
-    if linear is not None:
-        stats["linear_entries"] = int(linear._nnz())
-    return PhotonCache(
-        brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoother=smoother if smoothing > 0 else None
-    )
+        return np.take(self.obs_idx, sel), theta_h, weight
+
+    def block(self, sb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(alive selected hits, their theta_h, G / cos_i) for a block of selected hits (cache-sized)."""
+        tt = torch.from_numpy
+        brdf, min_cos_light = self.brdf, self.min_cos_light
+        ts = np.take(self.t, sb)
+        n = np.take(self.normals_3, ts, axis=1)  # (3, M)
+        v = np.take(self.v_3, np.take(self.obs_idx, sb) if self.per_light_view else ts, axis=1)
+        wi = np.take(self.wi_3, sb, axis=1).astype(np.float64)
+        cos_i, cos_v = column_dot(n, wi), column_dot(n, v)
+        with torch.no_grad():
+            th = brdf_mod.half_angle(tt(n.T), tt(wi.T), tt(v.T)).numpy()  # (M, 3) views of the (3, M) arrays
+            geom = (brdf_mod.specular_geometry(brdf, tt(cos_i), tt(cos_v)) / tt(cos_i).clamp_min(min_cos_light)).numpy()
+            lobe_at = brdf_mod.specular_lobe(brdf, tt(th), tt(np.take(self.sigma_cap, ts))).numpy()
+        alive = np.flatnonzero((cos_i > min_cos_light) & (cos_v > 0) & (lobe_at > LOBE_CUTOFF))
+        return np.take(sb, alive), np.take(th, alive), np.take(geom, alive)
+
+
+def _smooth_irradiance(irradiance: torch.Tensor, grid, smoother, smoothing: float, smoothing_normal: float):
+    """build_cache's density estimation: (irradiance smoothed over the grid, the smoother it used, built here
+    when None)."""
+    if grid is None:
+        raise ConfigError("photon.smoothing > 0 needs the texel grid (texel_index, grid_shape)")
+    if smoothing_normal > 0 and _grid_parts(grid)[2] is None:
+        raise ConfigError(
+            "photon.smoothing_normal > 0 needs the texel normals in the grid (texel_index, grid_shape, normals)"
+        )
+    index, shape, normals = _grid_parts(grid)
+    if smoother is None:
+        smoother = smoothing_matrix(
+            np.asarray(index),
+            shape,
+            smoothing,
+            None if normals is None else np.asarray(normals, dtype=np.float64),
+            smoothing_normal,
+        )
+    return apply_on_grid(smoother, irradiance), smoother
 
 
 def indirect_radiance(

@@ -17,10 +17,10 @@ specular lobe, otherwise a cosine-weighted one, each with the weight of its own 
     w = g_c(n, l=wi, v=wo) cos(n, wo) / (cos(n, wi) P(c) pdf_c(wo))    (Pd / (1 - q) for the diffuse one),
 then Russian roulette with survival s = min(0.95, max_c w) and Phi <- Phi w / s (PhotonTracer.scatter).
 Every later hit on the front side of the mesh
-(face normal, oriented like the texel normals, towards wi) is stored with the texel, the incident direction wi (towards where the photon came from)
-and Phi; hits on the back of the scanned surface absorb the photon (the unscanned side is not modelled).
-Photons are scattered about the texel normal, or the face normal where the texel normal faces away
-from the photon (grazing arrival on a curved or folded mesh).
+(face normal, oriented like the texel normals, towards wi) is stored with the texel, the incident direction wi
+(towards where the photon came from) and Phi; hits on the back of the scanned surface absorb the photon (the unscanned
+side is not modelled). Photons are scattered about the texel normal, or the face normal where the texel normal faces
+away from the photon (grazing arrival on a curved or folded mesh).
 
 Deterministic in `seed`: random numbers are keyed by (seed, refresh, source, chunk), never by thread.
 The paths are traced in float32 (positions, directions, flux), as Embree intersects them; the cache

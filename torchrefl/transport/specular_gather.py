@@ -9,10 +9,10 @@ reflection of the neighbouring surfaces then goes into Pd (Object E's lower plat
 With photon.diffuse_paths 'radiosity' the light that reaches t after diffuse reflections only is known
 without photon noise: a texel u sends L_pu = Pd_u (E_pu + H_pu) / pi towards t (the radiosity level's direct
 and all-diffuse irradiance at u, with light p where t's image put it: the emitter maps of t's column,
-interpolated as photon_level.map_weights does it). This module estimates t's specular reflection of that radiance by gathering N
-directions l_k per texel from t's own lobe (mirrored about the view v_t, roughness sigma_s = min(1.25 sigma_t,
-sigma_max) at the refresh, so the fit may widen the lobe by a quarter before the next refresh and the weights stay
-bounded), each traced with Embree to the texel u_k it hits:
+interpolated as photon_level.map_weights does it). This module estimates t's specular reflection of that radiance
+by gathering N directions l_k per texel from t's own lobe (mirrored about the view v_t, roughness sigma_s = min(1.25
+sigma_t, sigma_max) at the refresh, so the fit may widen the lobe by a quarter before the next refresh and the weights
+stay bounded), each traced with Embree to the texel u_k it hits:
 
     S_pt = 1/N sum_k D(theta_k; sigma_t) G(n.l_k, n.v_t) / pdf(l_k) * L_{p u_k}(t)
 

@@ -42,7 +42,8 @@ class PhotonLevel(TransportLevel):
 
     def __init__(self, inputs: LevelInputs, radiosity: RadiosityLevel, reason: str | None = None):
         """radiosity: the capture's RadiosityLevel (prepared before this level), for Method II's start and, with
-        photon.diffuse_paths: radiosity, the all-diffuse paths; reason: model_reason when another rule chose this level."""
+        photon.diffuse_paths: radiosity, the all-diffuse paths; reason: model_reason when another rule chose this
+        level."""
         super().__init__(inputs)
         pc = inputs.cfg.photon
         self.radiosity = radiosity
