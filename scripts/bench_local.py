@@ -22,11 +22,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchrefl.capture.cylindrical_scan import load_scan_geometry, observation_geometry
-from torchrefl.config import load_config
-from torchrefl.planning.light_selection import select_for_scan
-from torchrefl.run import run
-from torchrefl.synthetic.scan import SyntheticScan
+import torchrefl
+from torchrefl.capture import load_scan_geometry, observation_geometry
+from torchrefl.planning import select_for_scan
+from torchrefl.synthetic import SyntheticScan
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -72,13 +71,13 @@ def main():
     args = ap.parse_args()
     out = Path(args.out or tempfile.mkdtemp(prefix="bench_local_"))
     torch.set_num_threads(args.threads)
-    cfg = load_config(
+    cfg = torchrefl.load_config(
         ROOT / "configs" / "default.yaml",
         [f"output.dir={out / 'run'}", "selection.num_lights=12", "output.progress=false", f"threads={args.threads}"],
     )
     print(f"machine: {platform.processor() or platform.machine()}, threads {args.threads}, torch {torch.__version__}")
 
-    metrics = run(cfg, quiet=True)
+    metrics = torchrefl.fit(cfg, overwrite=True).metrics
     t = metrics["timing_s"]
     pipeline = ["light selection", "observations", "precompute", "initialise", "fit"]
     print(

@@ -30,21 +30,19 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchrefl.capture.base import Capture
-from torchrefl.config import load_config
-from torchrefl.core.progress import Stages
-from torchrefl.core.rays import _check_mesh, _scene, aimed_rays
-from torchrefl.fit.pipeline import level_inputs
-from torchrefl.run import run
-from torchrefl.synthetic.capture import synthetic_capture
-from torchrefl.transport.levels.photon import PhotonLevel
+import torchrefl
+from torchrefl.capture import Capture, load_scan_geometry
+from torchrefl.core import RayTracer, Stages, aimed_rays
+from torchrefl.fit import level_inputs
+from torchrefl.synthetic import synthetic_capture
+from torchrefl.transport import PhotonLevel, RadiosityLevel, form_factors_for_surface
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def bare_intersect_rate(vertices, faces, n_rays: int, threads: int) -> float:
     """Bare embreex closest-hit rays/s on rays aimed at the mesh, split over `threads` calls."""
-    scene = _scene(*_check_mesh(vertices, faces))
+    scene = RayTracer(vertices, faces, threads=1).scene
     o, d, far = aimed_rays(vertices, n_rays, seed=1)
     parts = np.array_split(np.arange(n_rays), threads)
     start = time.perf_counter()
@@ -109,7 +107,8 @@ def refresh_time(
     surface, obs = cap.surface, cap.obs
     if lights is not None:
         obs = obs.subset_lights(list(range(lights)))
-    photon = PhotonLevel(level_inputs(cfg, Capture(surface, obs), quiet)[0])
+    inputs = level_inputs(cfg, Capture(surface, obs), quiet)[0]
+    photon = PhotonLevel(inputs, RadiosityLevel(inputs))  # every path from photons: the radiosity level unused
     photon.prepare()
     level = photon.refresher
     level.photons_per_light = photons
@@ -167,8 +166,8 @@ def main() -> None:
     }
 
     # 1. end to end
-    cfg = load_config(config, overrides(out / "e2e", args))
-    metrics = run(cfg, quiet=True)
+    cfg = torchrefl.load_config(config, overrides(out / "e2e", args))
+    metrics = torchrefl.fit(cfg, overwrite=True).metrics
     t = metrics["timing_s"]
     report["end_to_end_s"] = round(sum(t.get(k, 0.0) for k in ("precompute", "initialise", "fit")), 2)
     report["stages_s"] = t
@@ -176,7 +175,7 @@ def main() -> None:
 
     # 2. rays/s against bare Embree, same run
     capture = out / "e2e" / "capture"
-    base = load_config(
+    base = torchrefl.load_config(
         config, overrides(out / "rate", args) + ["capture.kind=cylindrical_scan", f"capture.path={capture}"]
     )
     record: list = []
@@ -186,7 +185,6 @@ def main() -> None:
     del record
     ours = stats["rays"] / seconds
     tracing = stats["rays"] / stats["trace_s"]
-    from torchrefl.capture.cylindrical_scan import load_scan_geometry
 
     geom = load_scan_geometry(capture)
     V, F = geom.surface.mesh_vertices, geom.surface.mesh_faces
@@ -208,8 +206,6 @@ def main() -> None:
         "refresh_ratio_to_bare_aimed": round(ours / bareN, 3),
         "stats": stats,
     }
-    from torchrefl.core.rays import RayTracer
-    from torchrefl.transport.form_factors import form_factors_for_surface
 
     tracer = RayTracer(V, F, threads=args.threads)
     rc = base.radiosity  # the configured (default) patch size and hemisphere samples
@@ -259,7 +255,7 @@ def main() -> None:
                 }
             )
         for cols, rws, ang, hgt in ((128, 112, 2.8, 2.24), (256, 225, 1.4, 1.12)):
-            small = load_config(config, overrides(out / f"tex{cols}", args, cols, rws, ang, hgt))
+            small = torchrefl.load_config(config, overrides(out / f"tex{cols}", args, cols, rws, ang, hgt))
             s, st = refresh_time(small, out / f"tex{cols}", args.photons)
             rows.append(
                 {

@@ -22,7 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import trimesh
 
-from torchrefl.core.rays import RayTracer, aimed_rays
+from torchrefl.core import RayTracer, aimed_rays
 
 
 def displaced_sphere(count: int) -> trimesh.Trimesh:

@@ -34,8 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from torchrefl.config import load_config
-from torchrefl.run import run
+import torchrefl
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = [
@@ -88,12 +87,12 @@ def main() -> None:
     for scene in args.scenes:
         config = ROOT / "configs" / f"{scene}.yaml"
         capture = out / scene / "capture_run"
-        first = load_config(config, size + COMMON + [f"output.dir={capture}", "fit.model=local"])
+        first = torchrefl.load_config(config, size + COMMON + [f"output.dir={capture}", "fit.model=local"])
         print(f"{scene}: rendering the capture ...", flush=True)
-        run(first, quiet=True)
+        torchrefl.fit(first, overwrite=True)
         for level, knob, over in POINTS:
             name = f"{level}_{knob.split(' ')[0].replace('=', '')}"
-            cfg = load_config(
+            cfg = torchrefl.load_config(
                 config,
                 size
                 + COMMON
@@ -105,7 +104,7 @@ def main() -> None:
                 ],
             )
             print(f"{scene}: {level} {knob} ...", flush=True)
-            m = run(cfg, quiet=True)
+            m = torchrefl.fit(cfg, overwrite=True).metrics
             t = m["timing_s"]
             gt, ho = m.get("ground_truth", {}), m.get("holdout", {})
             rows.append(

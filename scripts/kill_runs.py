@@ -28,8 +28,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from torchrefl.errors import TorchReflError  # noqa: E402
-from torchrefl.report.run_result import load_run  # noqa: E402
+from torchrefl import TorchReflError, load_run  # noqa: E402
 
 CONFIG = {
     "seed": 1,

@@ -37,11 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from torchrefl.capture.cylindrical_scan import read_scan_yaml
-from torchrefl.capture.images import read_images
-from torchrefl.config import load_config
-from torchrefl.run import run
-from torchrefl.synthetic.objects import make_object
+import torchrefl
+from torchrefl.capture import read_images, read_scan_yaml
+from torchrefl.synthetic import make_object
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = [("I", "local"), ("II", "radiosity"), ("III", "photon")]
@@ -198,9 +196,9 @@ def main():
             ]
             if capture is not None:
                 over += ["capture.kind=cylindrical_scan", f"capture.path={capture}"]
-            cfg = load_config(config, over)
+            cfg = torchrefl.load_config(config, over)
             print(f"setup {setup}, Method {name} ({level}) ...", flush=True)
-            m = run(cfg, quiet=True, overwrite=True)  # the script owns its output folders
+            m = torchrefl.fit(cfg, overwrite=True).metrics  # the script owns its output folders
             if capture is None:
                 capture = out / f"setup{setup}_method{name}" / "capture"
             obj = make_object(cfg.synthetic.object, cfg.seed, cfg.synthetic.materials)
@@ -228,8 +226,8 @@ def main():
         if not args.no_floor:
             print(f"setup {setup}, capture floor (the scene rendered again with seed {cfg.seed + 1}) ...", flush=True)
             twin_dir = out / f"setup{setup}_twin"
-            run(
-                load_config(
+            torchrefl.fit(
+                torchrefl.load_config(
                     config,
                     extra
                     + [
@@ -240,7 +238,6 @@ def main():
                         "output.progress=false",
                     ],
                 ),
-                quiet=True,
                 overwrite=True,
             )
             floor = capture_floor(capture, twin_dir / "capture", out / f"setup{setup}_methodI" / "params.npz", obj.info)
