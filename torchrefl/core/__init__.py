@@ -10,5 +10,15 @@ from torchrefl.core.progress import Stages, bar  # noqa: E402
 from torchrefl.core.rays import RayTracer, aimed_rays, raw_embree_rate  # noqa: E402
 from torchrefl.core.surface import Surface  # noqa: E402
 
-__all__ = ["Observations", "PointLight", "RayTracer", "Stages", "Surface", "TexelParams", "aimed_rays", "bar",
-           "point_light", "raw_embree_rate"]
+__all__ = [
+    "Observations",
+    "PointLight",
+    "RayTracer",
+    "Stages",
+    "Surface",
+    "TexelParams",
+    "aimed_rays",
+    "bar",
+    "point_light",
+    "raw_embree_rate",
+]
