@@ -91,17 +91,22 @@ def test_the_photon_level_scatters_with_the_filled_parameters():
     pd = torch.full((T, 3), 0.6, dtype=torch.float64) * fitted[:, None]
     ps, sigma = torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.1, dtype=torch.float64)
 
-    def make(source):
+    def make(source, prepare_first=False):
         level = PhotonLevel(radiosity.inputs, radiosity)
+        if prepare_first:  # as fit_capture does for fit.model photon: prepared before the start's fitted texels
+            level.prepare()
         if source is not None:
             level.use_emitters(source)
-        level.prepare()
+        if not prepare_first:
+            level.prepare()
         return level.refresher
 
     with_fill = make(src).cache(pd, ps, sigma, refresh=0)
     pre_filled = make(None).cache(pd[src], ps[src], sigma[src], refresh=0)
     black = make(None).cache(pd, ps, sigma, refresh=0)
     torch.testing.assert_close(with_fill.irradiance, pre_filled.irradiance)
+    filled_later = make(src, prepare_first=True).cache(pd, ps, sigma, refresh=0)
+    torch.testing.assert_close(filled_later.irradiance, pre_filled.irradiance)
     assert float(with_fill.irradiance[:, fitted].sum()) > 1.02 * float(black.irradiance[:, fitted].sum())
 
 

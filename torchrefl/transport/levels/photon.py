@@ -54,6 +54,7 @@ class PhotonLevel(TransportLevel):
         self.emitter_source = None
         self.scores: list[float] = []
         self.cache = None
+        self.refresher: PhotonRefresh | None = None
         self._best = (math.inf, -1, None, None)
 
     @property
@@ -73,6 +74,8 @@ class PhotonLevel(TransportLevel):
     def use_emitters(self, source: torch.Tensor) -> None:
         self.emitter_source = source
         self.radiosity.use_emitters(source)
+        if self.refresher is not None:  # prepared before the start knew its fitted texels
+            self.refresher.emitter_source = source
 
     def start(self, init):
         return self.radiosity.start(init)
