@@ -9,6 +9,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "torchrefl"
 LAYERS = [
     "errors",
     "version",
+    "config_loading",
     "config",
     "core",
     "geometry",

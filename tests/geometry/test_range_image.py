@@ -9,11 +9,8 @@ import torch
 
 from torchrefl.errors import GeometryError
 from torchrefl.geometry.cylindrical import cylindrical_normals, cylindrical_points
-from torchrefl.geometry.range_image import (
-    fit_quadratic_yokoya_levine,
-    median_filter_range,
-    preprocess_range_image,
-)
+from torchrefl.geometry.range_image import fit_quadratic_yokoya_levine, preprocess_range_image
+from torchrefl.geometry.range_median import median_filter_range
 
 DS = math.radians(0.7)  # the seed scanner (Table 2.1)
 DT = 0.56

@@ -14,13 +14,8 @@ from torchrefl.core.rays import RayTracer
 from torchrefl.core.surface import Surface
 from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.geometry.range_mesh import grid_triangulation
-from torchrefl.transport.form_factors import (
-    face_patches,
-    form_factors_for_surface,
-    hemisphere_form_factors,
-    sampling_error,
-    texel_patches,
-)
+from torchrefl.transport.form_factors import form_factors_for_surface, hemisphere_form_factors, sampling_error
+from torchrefl.transport.patches import face_patches, texel_patches
 
 DISC = 5e-4
 OFFSET = 1e-5
@@ -475,7 +470,7 @@ def test_the_strip_that_cuts_the_fold_is_seen_as_the_other_plate():
     on the strip would, on the real object, reach the other plate: with the corner rule (face_corners) no texel
     sees its own plate, and the plate-to-plate flow comes closer to Howell's C-14 than when each face counts as
     its owner's (corners=None: the owner's row sees itself)."""
-    from torchrefl.transport.form_factors import face_corners
+    from torchrefl.transport.patches import face_corners
 
     surf, first = fold_surface()
     N = 2000

@@ -6,8 +6,8 @@ import torch
 from conftest import fold_surface, point_light_observations
 
 from torchrefl.errors import ConfigError
-from torchrefl.transport.form_factors import texel_patches
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
+from torchrefl.transport.patches import texel_patches
 
 
 def operator(s, patches, size=2, angle=30.0):

@@ -16,11 +16,11 @@ from torchrefl.transport.photon_cache import (
     indirect_radiance,
     indirect_radiance_reference,
     light_sources,
-    smooth_on_grid,
-    spread_on_grid,
     texel_light_positions,
 )
-from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
+from torchrefl.transport.photon_density import smooth_on_grid, spread_on_grid
+from torchrefl.transport.photon_material import TexelMaterial
+from torchrefl.transport.photon_trace import PhotonTracer
 
 LIGHTS = np.array([[-40.0, 5.0, 50.0], [-20.0, -10.0, 70.0]])
 CAMERA = np.array([-150.0, 0.0, 150.0])
@@ -346,7 +346,7 @@ def test_specular_spreading_needs_the_grid(traced):
 def test_the_sparse_smoothing_operator_is_kornias_filter(sigma, normal_sigma):
     """smoothing_matrix (weights built once) applied to a field equals smooth_on_grid (kornia's Gaussian or
     joint bilateral filter, normalised over the texels present), on a fold with a hole in its texel set."""
-    from torchrefl.transport.photon_cache import apply_on_grid, smoothing_matrix
+    from torchrefl.transport.photon_density import apply_on_grid, smoothing_matrix
 
     s = fold_surface(12, 20)
     keep = torch.ones(s.num_texels, dtype=torch.bool)

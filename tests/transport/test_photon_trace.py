@@ -15,7 +15,8 @@ from torchrefl.synthetic.path_tracer import IndirectRenderer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.local import local_terms
 from torchrefl.transport.photon_cache import build_cache, indirect_radiance, light_sources
-from torchrefl.transport.photon_trace import PhotonTracer, ScatterTables, TexelMaterial
+from torchrefl.transport.photon_material import ScatterTables, TexelMaterial
+from torchrefl.transport.photon_trace import PhotonTracer
 from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance
 
 LIGHT = np.array([[-40.0, 5.0, 50.0]])

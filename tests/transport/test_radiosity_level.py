@@ -180,7 +180,7 @@ def test_fold_texels_get_their_own_irradiance_when_patches_split_at_the_fold():
     from conftest import fold_surface
 
     from torchrefl.transport.form_factors import form_factors_for_surface
-    from torchrefl.transport.photon_cache import apply_on_grid, smoothing_matrix
+    from torchrefl.transport.photon_density import apply_on_grid, smoothing_matrix
 
     s = fold_surface(16, 66)  # 33 columns per plate: blocks of columns 32-33 straddle the fold
     H, W = s.grid_shape

@@ -19,7 +19,7 @@ from torchrefl.synthetic.path_tracer import IndirectRenderer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.local import local_terms
 from torchrefl.transport.photon_cache import build_cache, indirect_radiance, light_sources
-from torchrefl.transport.photon_trace import TexelMaterial
+from torchrefl.transport.photon_material import TexelMaterial
 from torchrefl.transport.radiosity_level import PatchMap, direct_irradiance, indirect_irradiance
 from torchrefl.transport.specular_gather import SpecularGather
 

@@ -276,6 +276,35 @@ def _read_textures(geom: ScanGeometry, lights: list, where: str, threads: int) -
     return intensity, bits, warnings
 
 
+def _excluded_observations(
+    geom: ScanGeometry, og: dict, intensity: np.ndarray, saturation_level: float, edge_width: int, crease_angle_deg
+) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray]:
+    """load_scan_observations' exclusions: {reason: (P, T) bool observations it removes}, and the saturated
+    (P, T), edge (T,) and crease (T,) masks (for the statistics)."""
+    H, W = geom.surface.grid_shape
+    idx = geom.surface.texel_index.numpy()
+    saturated = (intensity >= saturation_level).any(-1)
+    finite = np.isfinite(intensity).all(-1)
+    edge = boundary_texels(geom.surface.mesh_faces, (H, W), idx, edge_width)
+    crease = crease_texels(
+        geom.surface.mesh_vertices,
+        geom.surface.mesh_faces,
+        geom.surface.normals.double().numpy(),
+        idx,
+        crease_angle_deg,
+    )
+    removed = {
+        "not seen by the camera (facing away or occluded)": np.broadcast_to(~og["seen"][None], saturated.shape),
+        "not lit (n.l at or below the threshold)": ~og["lit"],
+        "in cast shadow": og["shadowed"],
+        f"saturated (>= {saturation_level:g})": saturated,
+        "not finite": ~finite,
+        f"edge texels (geometry.edge_width {edge_width})": np.broadcast_to(edge[None], saturated.shape),
+        "crease texels (geometry.crease_angle_deg)": np.broadcast_to(crease[None], saturated.shape),
+    }
+    return removed, saturated, edge, crease
+
+
 def load_scan_observations(
     geom: ScanGeometry,
     *,
@@ -309,27 +338,10 @@ def load_scan_observations(
     og = observation_geometry(
         geom, head, shadow_offset=shadow_offset, min_cos_view=min_cos_view, min_cos_light=min_cos_light
     )
-    H, W = geom.surface.grid_shape
     idx = geom.surface.texel_index.numpy()
-    saturated = (intensity >= saturation_level).any(-1)
-    finite = np.isfinite(intensity).all(-1)
-    edge = boundary_texels(geom.surface.mesh_faces, (H, W), idx, edge_width)
-    crease = crease_texels(
-        geom.surface.mesh_vertices,
-        geom.surface.mesh_faces,
-        geom.surface.normals.double().numpy(),
-        idx,
-        crease_angle_deg,
+    removed, saturated, edge, crease = _excluded_observations(
+        geom, og, intensity, saturation_level, edge_width, crease_angle_deg
     )
-    removed = {
-        "not seen by the camera (facing away or occluded)": np.broadcast_to(~og["seen"][None], saturated.shape),
-        "not lit (n.l at or below the threshold)": ~og["lit"],
-        "in cast shadow": og["shadowed"],
-        f"saturated (>= {saturation_level:g})": saturated,
-        "not finite": ~finite,
-        f"edge texels (geometry.edge_width {edge_width})": np.broadcast_to(edge[None], saturated.shape),
-        "crease texels (geometry.crease_angle_deg)": np.broadcast_to(crease[None], saturated.shape),
-    }
     valid = ~np.logical_or.reduce(list(removed.values()))
     observations_left(valid, removed, where)
     Y = np.array([e.get("intensity", doc["light"]["intensity"]) for e in lights], dtype=np.float64)

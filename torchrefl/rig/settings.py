@@ -6,7 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from torchrefl.config import _apply, _nest, opt, parse_override, read_yaml_mapping
+from torchrefl.config import opt
+from torchrefl.config_loading import _apply, _nest, parse_override, read_yaml_mapping
 from torchrefl.errors import ConfigError
 
 

@@ -11,8 +11,10 @@ import numpy as np
 import torch
 
 from torchrefl.core.progress import bar
-from torchrefl.transport.photon_cache import LightSources, PhotonCache, build_cache, smoothing_matrix
-from torchrefl.transport.photon_trace import PhotonTracer, TexelMaterial
+from torchrefl.transport.photon_cache import LightSources, PhotonCache, build_cache
+from torchrefl.transport.photon_density import smoothing_matrix
+from torchrefl.transport.photon_material import TexelMaterial
+from torchrefl.transport.photon_trace import PhotonTracer
 from torchrefl.transport.specular_gather import SpecularGather
 
 

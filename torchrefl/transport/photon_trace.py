@@ -38,10 +38,8 @@ from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.lobe_sampling import (
     LOBES,
     column_dot,
-    lobe_constants,
     lobe_over_pdf,
     lobe_theta,
-    specular_probability,
     tangent_frame,
 )
 from torchrefl.core.point_light import point_light
@@ -50,6 +48,7 @@ from torchrefl.core.threads import thread_map
 from torchrefl.errors import GeometryError
 from torchrefl.geometry.range_mesh import oriented_face_normals
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
+from torchrefl.transport.photon_material import ScatterTables, TexelMaterial
 
 CHUNK = 1 << 17  # photons per work unit
 COLLECT_COS = 0.9  # a face corner collects photons for its texel when their normals agree this well
@@ -91,21 +90,6 @@ class PhotonHits:
     @property
     def count(self) -> int:
         return int(len(self.texel))
-
-
-@dataclass
-class TexelMaterial:
-    """Current reflectance of every texel, for scattering: pd (T, 3), ps (T, 3), sigma (T,) float64."""
-
-    pd: np.ndarray
-    ps: np.ndarray
-    sigma: np.ndarray
-
-    @classmethod
-    def from_tensors(cls, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> "TexelMaterial":
-        T = pd.shape[0]
-        as64 = lambda x: x.detach().cpu().double().numpy()
-        return cls(as64(pd), np.ascontiguousarray(np.broadcast_to(as64(ps), (T, 3))), as64(sigma))
 
 
 class PhotonTracer:
@@ -275,71 +259,82 @@ class PhotonTracer:
         parts = []
         iD = np.flatnonzero(~spec & (u[3] < np.take(surv, texel)))
         if iD.size:
-            tD, nD = np.take(texel, iD), _take3(n, iD)
-            z = 1 - 2 * np.take(u[0], iD)
-            r = np.sqrt(np.maximum(1 - z * z, 0))
-            phi = np.float32(2 * np.pi) * np.take(u[1], iD)
-            d = nD + np.stack([r * np.cos(phi), r * np.sin(phi), z])
-            d /= np.maximum(np.sqrt(column_dot(d, d)), np.float32(1e-12))
-            pw = _take3(power, iD)
-            parts.append(
-                (
-                    _take3(y, iD) + self._offset32 * nD,
-                    d,
-                    pw * _take3(w_d, tD),
-                    pw * np.take(k_d, tD),
-                    tD,
-                    np.take(path, iD),
-                )
-            )
+            parts.append(self._scatter_diffuse(iD, texel, y, n, power, w_d, k_d, u, path))
         iS = np.flatnonzero(spec) if self.lobe is not None and spec.any() else np.zeros(0, np.int64)
         if iS.size:
-            tS, nS, wiS = np.take(texel, iS), _take3(n, iS), _take3(wi, iS)
-            fa, fb = self._frames(tS, nS, None if own is None else np.take(own, iS))
-            theta = lobe_theta(self.lobe, np.take(tables.sigma, tS), np.take(u[0], iS), np.take(tables.truncation, tS))
-            st, ct = np.sin(theta), np.cos(theta)
-            phi = np.float32(2 * np.pi) * np.take(u[1], iS)
-            h = fa * (st * np.cos(phi))
-            h += fb * (st * np.sin(phi))
-            h += nS * ct
-            vh = column_dot(wiS, h)
-            wo = 2 * vh * h - wiS
-            ci = np.take(cos_i, iS)
-            cos_o = 2 * vh * ct - ci  # n.wo, since n.h = cos(theta)
-            with torch.no_grad():
-                g_cos = (
-                    brdf_mod.specular_geometry(self.brdf, torch.from_numpy(ci), torch.from_numpy(cos_o))
-                    * torch.from_numpy(np.maximum(cos_o, 0))
-                ).numpy()
-            ws = lobe_over_pdf(self.lobe, theta, ct, st, np.take(tables.ratio_scale, tS)) * (4 * np.abs(vh)) * g_cos
-            # cos_i > 0 here; the floor only bounds the weight of photons grazing a face whose normal stood in
-            ws /= np.maximum(ci, np.float32(1e-6)) * np.take(tables.q, tS)
-            top = np.take(tables.ps_max, tS) * ws
-            if roulette:
-                s = np.minimum(np.float32(0.95), top)
-                live = np.flatnonzero(np.take(u[3], iS) < s)
-            else:
-                s = np.ones_like(top)
-                live = np.flatnonzero(top > 0)
-            if live.size:
-                i, tl = np.take(iS, live), np.take(tS, live)
-                pw = _take3(power, i) * _take3(tables.ps, tl) * (np.take(ws, live) / np.take(s, live))
-                parts.append(
-                    (
-                        _take3(y, i) + self._offset32 * _take3(nS, live),
-                        _take3(wo, live),
-                        pw,
-                        np.zeros_like(pw),
-                        tl,
-                        np.ones(live.size, dtype=bool),
-                    )
-                )
+            part = self._scatter_specular(iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette)
+            if part is not None:
+                parts.append(part)
         if len(parts) == 1:
             return parts[0]
         if not parts:
             empty = np.zeros((3, 0), np.float32)
             return empty, empty, empty, empty, np.zeros(0, np.int32), np.zeros(0, bool)
         return tuple(np.concatenate([p[j] for p in parts], axis=-1) for j in range(6))
+
+    def _scatter_diffuse(self, iD, texel, y, n, power, w_d, k_d, u, path) -> tuple:
+        """scatter's diffuse branch for the photons iD (all survive): cosine-distributed directions about n
+        (n plus a uniform point on the unit sphere, normalised), weight w_d, per-unit-Pd weight k_d of the
+        texel (ScatterTables.diffuse); the photons keep their specular_path flags."""
+        tD, nD = np.take(texel, iD), _take3(n, iD)
+        z = 1 - 2 * np.take(u[0], iD)
+        r = np.sqrt(np.maximum(1 - z * z, 0))
+        phi = np.float32(2 * np.pi) * np.take(u[1], iD)
+        d = nD + np.stack([r * np.cos(phi), r * np.sin(phi), z])
+        d /= np.maximum(np.sqrt(column_dot(d, d)), np.float32(1e-12))
+        pw = _take3(power, iD)
+        return (
+            _take3(y, iD) + self._offset32 * nD,
+            d,
+            pw * _take3(w_d, tD),
+            pw * np.take(k_d, tD),
+            tD,
+            np.take(path, iD),
+        )
+
+    def _scatter_specular(self, iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette) -> tuple | None:
+        """scatter's specular branch for the photons iS: a half vector from the lobe, wo = reflect(wi, h), the
+        weight Ps D G cos_o / (cos_i q p(wo)) and the roulette; the survivors' part (specular_path set), or None
+        when none survives."""
+        tS, nS, wiS = np.take(texel, iS), _take3(n, iS), _take3(wi, iS)
+        fa, fb = self._frames(tS, nS, None if own is None else np.take(own, iS))
+        theta = lobe_theta(self.lobe, np.take(tables.sigma, tS), np.take(u[0], iS), np.take(tables.truncation, tS))
+        st, ct = np.sin(theta), np.cos(theta)
+        phi = np.float32(2 * np.pi) * np.take(u[1], iS)
+        h = fa * (st * np.cos(phi))
+        h += fb * (st * np.sin(phi))
+        h += nS * ct
+        vh = column_dot(wiS, h)
+        wo = 2 * vh * h - wiS
+        ci = np.take(cos_i, iS)
+        cos_o = 2 * vh * ct - ci  # n.wo, since n.h = cos(theta)
+        with torch.no_grad():
+            g_cos = (
+                brdf_mod.specular_geometry(self.brdf, torch.from_numpy(ci), torch.from_numpy(cos_o))
+                * torch.from_numpy(np.maximum(cos_o, 0))
+            ).numpy()
+        ws = lobe_over_pdf(self.lobe, theta, ct, st, np.take(tables.ratio_scale, tS)) * (4 * np.abs(vh)) * g_cos
+        # cos_i > 0 here; the floor only bounds the weight of photons grazing a face whose normal stood in
+        ws /= np.maximum(ci, np.float32(1e-6)) * np.take(tables.q, tS)
+        top = np.take(tables.ps_max, tS) * ws
+        if roulette:
+            s = np.minimum(np.float32(0.95), top)
+            live = np.flatnonzero(np.take(u[3], iS) < s)
+        else:
+            s = np.ones_like(top)
+            live = np.flatnonzero(top > 0)
+        if not live.size:
+            return None
+        i, tl = np.take(iS, live), np.take(tS, live)
+        pw = _take3(power, i) * _take3(tables.ps, tl) * (np.take(ws, live) / np.take(s, live))
+        return (
+            _take3(y, i) + self._offset32 * _take3(nS, live),
+            _take3(wo, live),
+            pw,
+            np.zeros_like(pw),
+            tl,
+            np.ones(live.size, dtype=bool),
+        )
 
     # ------------------------------------------------------------------ paths
 
@@ -480,56 +475,3 @@ class PhotonTracer:
             back_hits=back,
             specular_path=path,
         )
-
-
-@dataclass
-class ScatterTables:
-    """Per-texel float32 tables of one trace, from a TexelMaterial (vectors component-major, (3, T)):
-    q (T,) specular sampling probability; ps (3, T), ps_max (T,); sigma (T,) (>= brdf.SIGMA_EPS), truncation,
-    ratio_scale (T,) (lobe_constants); for the diffuse branch with and without roulette, (survival (T,),
-    weight Pd / (1 - q) / survival (3, T), per-unit-Pd weight 1 / (1 - q) / survival (T,)), the weights zero
-    where the survival is zero (a texel that reflects nothing diffusely).
-
-    q is rounded up to the grid of the float32 uniforms (multiples of 2^-24) that choose the component, so
-    that P(u < q) is exactly q and every weight divides by the probability actually used: a texel whose Ps is
-    tiny but positive is sampled specularly with probability >= 2^-24 (never a denormal q: no overflow),
-    and one whose Pd is below ~6e-8 of its Ps is never sampled diffusely (its diffuse part, and its
-    per-unit-Pd weight, are then dropped: at most that fraction of its reflection)."""
-
-    q: np.ndarray
-    ps: np.ndarray
-    ps_max: np.ndarray
-    sigma: np.ndarray
-    truncation: np.ndarray
-    ratio_scale: np.ndarray
-    diffuse_roulette: tuple
-    diffuse_first: tuple
-
-    @classmethod
-    def build(cls, lobe: str | None, mat: TexelMaterial) -> "ScatterTables":
-        f32 = lambda x: np.ascontiguousarray(x, dtype=np.float32)
-        q = np.ceil(specular_probability(lobe, mat.pd, mat.ps) * 2.0**24) / 2.0**24
-        rest = 1.0 - q
-        k = np.where(rest > 0, 1.0 / np.where(rest > 0, rest, 1.0), 0.0)
-        w = mat.pd * k[:, None]
-        top = w.max(-1)
-
-        def branch(survival):
-            inv = np.where(survival > 0, 1.0 / np.where(survival > 0, survival, 1.0), 0.0)
-            return f32(survival), f32((w * inv[:, None]).T), f32(k * inv)
-
-        sigma = np.maximum(mat.sigma, brdf_mod.SIGMA_EPS)
-        trunc, ratio = lobe_constants(lobe, sigma) if lobe is not None else (np.ones_like(sigma), np.zeros_like(sigma))
-        return cls(
-            f32(q),
-            f32(mat.ps.T),
-            f32(mat.ps.max(-1)),
-            f32(sigma),
-            f32(trunc),
-            f32(ratio),
-            branch(np.minimum(0.95, top)),
-            branch((top > 0).astype(np.float64)),
-        )
-
-    def diffuse(self, roulette: bool) -> tuple:
-        return self.diffuse_roulette if roulette else self.diffuse_first

@@ -1,0 +1,148 @@
+"""Density estimation on the texel grid for the photon level (and the radiosity level's smoothing): the
+normalised Gaussian kernel over neighbouring texels, optionally joint bilateral with the texel normals as
+guide (a photon map's gather with a normal test), as kornia's filters on the grid image (smooth_on_grid,
+the reference), as a sparse (T, T) operator built once (smoothing_matrix, applied by apply_on_grid), and
+as a spread of point entries over their grid neighbours (spread_on_grid, for the specular entries).
+torchrefl.transport.photon_cache describes where the cache uses each.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from torchrefl.core.lobe_sampling import column_dot
+from torchrefl.core.texel_grid import TexelGrid
+
+
+def smooth_on_grid(
+    values: torch.Tensor,
+    texel_index: torch.Tensor,
+    grid_shape: tuple[int, int],
+    sigma: float,
+    normals: torch.Tensor | None = None,
+    normal_sigma: float = 0.0,
+) -> torch.Tensor:
+    """Normalised Gaussian smoothing (std `sigma` texels) of per-texel values (..., T, C) over the grid;
+    with normals (T, 3) and normal_sigma > 0 each neighbour's weight also has the factor
+    exp(-|n - n'|^2 / (2 normal_sigma^2)) (joint bilateral filter guided by the normals).
+
+    kornia's filters on the grid image: the reference that smoothing_matrix (the operator the levels apply,
+    built once) is tested against."""
+    if sigma <= 0:
+        return values
+    from kornia.filters import gaussian_blur2d, joint_bilateral_blur
+
+    H, W = grid_shape
+    lead, (T, C) = values.shape[:-2], values.shape[-2:]
+    flat = values.reshape(-1, T, C).permute(0, 2, 1).reshape(-1, T)  # (B*C, T)
+    grid = torch.zeros(flat.shape[0] + 1, H * W, dtype=values.dtype)
+    grid[:-1, texel_index] = flat
+    grid[-1, texel_index] = 1.0  # the valid mask
+    k = 2 * int(math.ceil(3 * sigma)) + 1
+    if normals is not None and normal_sigma > 0:
+        guide = torch.zeros(3, H * W, dtype=values.dtype)
+        guide[:, texel_index] = normals.to(values.dtype).t()
+        blurred = joint_bilateral_blur(
+            grid.reshape(1, -1, H, W),
+            guide.reshape(1, 3, H, W),
+            (k, k),
+            float(normal_sigma),
+            (sigma, sigma),
+            border_type="constant",
+            color_distance_type="l2",
+        )
+    else:
+        blurred = gaussian_blur2d(grid.reshape(1, -1, H, W), (k, k), (sigma, sigma), border_type="constant")
+    blurred = blurred.reshape(-1, H * W)[:, texel_index]
+    out = blurred[:-1] / blurred[-1:].clamp_min(1e-12)
+    return out.reshape(-1, C, T).permute(0, 2, 1).reshape(*lead, T, C)
+
+
+def _grid_neighbours(
+    texel_index, grid_shape: tuple[int, int], sigma: float, radius: int, normals=None, normal_sigma: float = 0.0
+):
+    """The kernel shared by spread_on_grid and smoothing_matrix: a function of t_from (M,) that yields, per grid
+    offset within `radius`, (t_to (M,), weight (M,)): the texel at that offset (-1 outside the grid or the
+    texel set) and exp(-|offset|^2 / (2 sigma^2)) times, with normals (T, 3) and normal_sigma > 0,
+    exp(-|n - n'|^2 / (2 normal_sigma^2)) (kornia's joint bilateral weights with the normals as guide)."""
+    grid = TexelGrid(texel_index, grid_shape)
+    nrm = (
+        None if normals is None or normal_sigma <= 0 else np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
+    )
+    offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
+
+    def kernel(t_from: np.ndarray):
+        r, c = np.take(grid.rows, t_from), np.take(grid.cols, t_from)
+        n_from = None if nrm is None else np.take(nrm, t_from, axis=1)
+        for dy, dx in offsets:
+            to = grid.at(r + dy, c + dx)
+            w = np.where(to >= 0, math.exp(-(dy * dy + dx * dx) / (2.0 * sigma * sigma)), 0.0)
+            if n_from is not None:
+                d = n_from - np.take(nrm, np.maximum(to, 0), axis=1)
+                w *= np.exp(-column_dot(d, d) / (2.0 * normal_sigma**2))
+            yield to, w
+
+    return kernel
+
+
+def smoothing_matrix(
+    texel_index, grid_shape: tuple[int, int], sigma: float, normals=None, normal_sigma: float = 0.0
+) -> torch.Tensor:
+    """smooth_on_grid as a sparse (T, T) float64 operator (rows sum to one): for smoothing the same grid many
+    times (the radiosity level's irradiance at every fit evaluation), where building the bilateral weights once
+    pays. The kernel is smooth_on_grid's (radius ceil(3 sigma), normalised over the texels present)."""
+    T = len(np.asarray(texel_index))
+    kernel = _grid_neighbours(texel_index, grid_shape, sigma, int(math.ceil(3 * sigma)), normals, normal_sigma)
+    rows, cols, vals = [], [], []
+    t = np.arange(T)
+    for to, w in kernel(t):
+        keep = np.flatnonzero((to >= 0) & (w > 0))
+        rows.append(keep)
+        cols.append(np.take(to, keep))
+        vals.append(np.take(w, keep))
+    rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+    vals = vals / np.bincount(rows, weights=vals, minlength=T)[rows]
+    return torch.sparse_coo_tensor(
+        torch.from_numpy(np.stack([rows, cols])), torch.from_numpy(vals), (T, T), check_invariants=False
+    ).coalesce()
+
+
+def apply_on_grid(matrix: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """A (T, T) sparse operator (smoothing_matrix) applied to per-texel values (..., T, C); differentiable."""
+    lead, (T, C) = values.shape[:-2], values.shape[-2:]
+    flat = values.reshape(-1, T, C).permute(1, 0, 2).reshape(T, -1)
+    out = torch.sparse.mm(matrix.to(values.dtype), flat)
+    return out.reshape(T, -1, C).permute(1, 0, 2).reshape(*lead, T, C)
+
+
+def spread_on_grid(
+    obs: np.ndarray,
+    T: int,
+    texel_index,
+    grid_shape: tuple[int, int],
+    sigma: float,
+    normals=None,
+    normal_sigma: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Spread point entries at flat observation indices obs = p T + t over the grid neighbours of t, with the
+    kernel of smooth_on_grid (Gaussian of std `sigma` texels, truncated at radius max(1, round(sigma)) to bound the
+    number of copies, times the normal test)
+    normalised at each receiving texel (normalised convolution: a constant field stays constant).
+    Returns (obs of the copies, index of the entry each copy comes from, weight of each copy)."""
+    index = np.asarray(texel_index, dtype=np.int64)
+    kernel = _grid_neighbours(texel_index, grid_shape, sigma, max(1, int(round(sigma))), normals, normal_sigma)
+    mass = np.zeros(len(index))
+    for to, w in kernel(np.arange(len(index))):
+        mass += np.bincount(np.maximum(to, 0), weights=np.where(to >= 0, w, 0.0), minlength=len(index))
+    t_e, p_e = obs % T, obs // T
+    out_obs, out_src, out_w = [], [], []
+    for to, w in kernel(t_e):
+        keep = np.flatnonzero((to >= 0) & (w > 0))
+        dest = np.take(to, keep)
+        out_obs.append(np.take(p_e, keep) * T + dest)
+        out_src.append(keep)
+        out_w.append(np.take(w, keep) / np.take(mass, dest))
+    return np.concatenate(out_obs), np.concatenate(out_src), np.concatenate(out_w)
