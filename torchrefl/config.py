@@ -64,9 +64,9 @@ class SyntheticConfig:
 
     object: str = opt(
         "ellipsoid",
-        "synthetic object: ellipsoid, sphere, blob (analytic), or object_e, object_e_glossy, bowl, vase (meshes with "
-        "interreflection)",
-        choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "bowl", "vase"),
+        "synthetic object: ellipsoid, sphere, blob (analytic), or object_e, object_e_glossy, fold (non-uniform glossy), "
+        "bowl, vase (meshes with interreflection)",
+        choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "fold", "bowl", "vase"),
     )
     size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
     materials: str = opt("regions", "ground-truth material layout", choices=("regions", "uniform"))

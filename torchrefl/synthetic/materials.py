@@ -131,3 +131,53 @@ class BowlMaterials:
             "sigma": sigma.astype(np.float64),
             "region": region.astype(np.int64),
         }
+
+
+# (Pd RGB, Ps grey, sigma) of the glossy papers on the non-uniform fold: Ps 0.27-0.44, sigma 0.10-0.30
+_GLOSSY_PAPERS = [
+    ((0.55, 0.55, 0.55), 0.35, 0.10),
+    ((0.62, 0.30, 0.22), 0.30, 0.18),
+    ((0.25, 0.40, 0.60), 0.42, 0.12),
+    ((0.45, 0.58, 0.30), 0.27, 0.30),
+    ((0.72, 0.66, 0.40), 0.44, 0.22),
+]
+
+
+class FoldMaterials:
+    """Non-uniform glossy papers on the two plates of a fold, as a function of plate coordinates.
+
+    Each plate is cut across the fold into two papers at a random position (sharp borders), a band of a
+    fifth paper runs parallel to the fold over part of the upper plate, and every paper varies smoothly
+    (+-15 % Pd, Ps and sigma) along and across the fold. The plates' edges (rims, back faces) carry the
+    paper of the nearest inside face. Deterministic in `seed`; regions 0-4 index _GLOSSY_PAPERS.
+    """
+
+    def __init__(self, seed: int = 0):
+        rng = np.random.default_rng([seed, 0xF0])
+        self.cuts = rng.uniform(0.35, 0.65, size=2)  # along the fold, fraction of the length (upper, lower)
+        self.band = np.sort(rng.uniform(0.3, 0.7, size=2))  # across the upper plate, fraction of its width
+        if self.band[1] - self.band[0] < 0.15:
+            self.band[1] = self.band[0] + 0.15
+        self.band_x = (rng.uniform(0.0, 0.3), rng.uniform(0.6, 1.0))  # along the fold
+        self.phase = rng.uniform(0, 2 * np.pi, size=3)
+
+    def __call__(self, along: np.ndarray, across: np.ndarray, plate: np.ndarray) -> dict:
+        """along: (N,) position along the fold / length, in [0, 1]; across: (N,) distance from the fold / width;
+        plate: (N,) 0 upper, 1 lower. Returns pd, ps (N, 3), sigma, region (N,)."""
+        x, a, plate = np.clip(along, 0, 1), np.clip(across, 0, 1), np.asarray(plate)
+        region = np.where(plate == 0, np.where(x < self.cuts[0], 0, 1), np.where(x < self.cuts[1], 2, 3))
+        band = (plate == 0) & (a >= self.band[0]) & (a < self.band[1]) & (x >= self.band_x[0]) & (x < self.band_x[1])
+        region = np.where(band, 4, region)
+        pd = np.array([p[0] for p in _GLOSSY_PAPERS])[region]
+        ps = np.array([p[1] for p in _GLOSSY_PAPERS])[region]
+        sigma = np.array([p[2] for p in _GLOSSY_PAPERS])[region]
+        ph = self.phase
+        pd = pd * (1 + 0.15 * np.sin(2 * np.pi * 1.5 * x + ph[0]) * np.cos(np.pi * a))[:, None]
+        ps = ps * (1 + 0.15 * np.sin(2 * np.pi * x + ph[1]) * np.cos(np.pi * 1.2 * a + ph[2]))
+        sigma = sigma * (1 + 0.15 * np.cos(2 * np.pi * x + ph[2]) * np.sin(np.pi * a + ph[0]))
+        return {
+            "pd": pd.astype(np.float64),
+            "ps": np.repeat(ps[:, None], 3, axis=1).astype(np.float64),
+            "sigma": sigma.astype(np.float64),
+            "region": region.astype(np.int64),
+        }

@@ -17,6 +17,9 @@ inside of the bowl) are placed in front of the axis, facing outwards, towards sc
   plate (region 0, Region I) faces 30 degrees downwards and the lower plate (region 1, Region II)
   60 degrees upwards: both insides are seen over a wide range of scan angles. Setup 1: white
   diffuse paper everywhere; setup 2 (object_e_glossy): glossy paper everywhere.
+- fold: Object E's geometry covered with non-uniform glossy papers (synthetic.materials.FoldMaterials:
+  two papers per plate with a sharp border, a band of a fifth, smooth variation; Ps 0.23-0.5, sigma
+  0.085-0.35), the hard case of Method III: specular interreflection between regions of different lobes.
 - bowl: a hemispherical shell (inner radius 45 mm, 4 mm wall) lying on its side with its opening
   towards the scanner (tilted 10 degrees upwards, turned 20 degrees about the vertical), its centre
   62 mm in front of the axis, so the scanner looks into it; the inside carries non-uniform
@@ -41,9 +44,9 @@ import numpy as np
 import trimesh
 
 from torchrefl.errors import GeometryError
-from torchrefl.synthetic.materials import PAPER_GLOSSY, PAPER_WHITE, BowlMaterials, uniform_material
+from torchrefl.synthetic.materials import PAPER_GLOSSY, PAPER_WHITE, BowlMaterials, FoldMaterials, uniform_material
 
-MESH_OBJECTS = ("object_e", "object_e_glossy", "bowl", "vase")
+MESH_OBJECTS = ("object_e", "object_e_glossy", "fold", "bowl", "vase")
 
 
 @dataclass
@@ -93,6 +96,7 @@ def _box(origin, e1, e2, e3, lengths) -> trimesh.Trimesh:
 def object_e(
     glossy: bool = False,
     *,
+    papers: FoldMaterials | None = None,
     length: float = 120.0,
     width: float = 80.0,
     thickness: float = 3.0,
@@ -125,7 +129,12 @@ def object_e(
         return fn[tri]
 
     def material(points, tri):
-        return uniform_material(len(tri), mat, region=(np.asarray(tri) >= nA).astype(np.int64))
+        plate = (np.asarray(tri) >= nA).astype(np.int64)
+        if papers is None:
+            return uniform_material(len(tri), mat, region=plate)
+        local = (np.asarray(points) @ R) - fold  # plate frame: along the fold (ex), across each plate (dA, dB)
+        across = np.where(plate == 0, local @ dA, local @ dB) / width
+        return papers(local @ ex / length, across, plate)
 
     info = {
         "fold_start": R @ fold,
@@ -137,7 +146,7 @@ def object_e(
         "thickness": thickness,
     }
     return MeshObject(
-        "object_e_glossy" if glossy else "object_e",
+        "fold" if papers is not None else "object_e_glossy" if glossy else "object_e",
         verts,
         faces,
         normal,
@@ -324,6 +333,8 @@ def make_object(name: str, seed: int = 0, materials: str = "regions") -> MeshObj
         return object_e(glossy=False)
     if name == "object_e_glossy":
         return object_e(glossy=True)
+    if name == "fold":
+        return object_e(glossy=True, papers=FoldMaterials(seed))
     if name == "bowl":
         return bowl(seed, uniform=materials == "uniform")
     if name == "vase":
