@@ -64,8 +64,8 @@ class SyntheticConfig:
 
     object: str = opt(
         "ellipsoid",
-        "synthetic object: ellipsoid, sphere, blob (analytic), or object_e, object_e_glossy, fold (non-uniform glossy), "
-        "bowl, vase (meshes with interreflection)",
+        "synthetic object: ellipsoid, sphere, blob (analytic), or object_e, object_e_glossy, fold (non-uniform "
+        "glossy), bowl, vase (meshes with interreflection)",
         choices=("ellipsoid", "sphere", "blob", "object_e", "object_e_glossy", "fold", "bowl", "vase"),
     )
     size_mm: list = opt([62.0, 95.0, 50.0], "semi-axes (x, y, z) of the object in mm (sphere uses the first)")
@@ -128,7 +128,11 @@ class CaptureConfig:
 class GeometryConfig:
     """Range-image preprocessing (dissertation 2.3)."""
 
-    median_size: int = opt(5, "median filter window (odd)", low=1)
+    median_size: Optional[int] = opt(
+        None,
+        "range median filter window (odd; 1 = none); null = auto: 5 on a noisy range image, none on a clean one",
+        low=1,
+    )
     fit_window: int = opt(5, "Yokoya-Levine quadratic fit window (odd)", low=3)
     shadow_offset_mm: float = opt(0.05, "origin offset along the normal for shadow rays, mm", low=0.0)
     edge_width: int = opt(

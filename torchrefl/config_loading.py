@@ -173,7 +173,8 @@ def _validate(cfg, where_of) -> None:
         )
     for key in ("geometry.median_size", "geometry.fit_window", "fit.interpolation_window"):
         section, name = key.split(".")
-        if getattr(getattr(cfg, section), name) % 2 != 1:
+        value = getattr(getattr(cfg, section), name)
+        if value is not None and value % 2 != 1:
             raise ConfigError(f"{where_of(key)}: key '{key}' must be an odd number")
 
 

@@ -9,7 +9,13 @@ import torch
 
 from torchrefl.errors import GeometryError
 from torchrefl.geometry.cylindrical import cylindrical_normals, cylindrical_points
-from torchrefl.geometry.range_image import fit_quadratic_yokoya_levine, preprocess_range_image
+from torchrefl.geometry.range_image import (
+    NOISE_FREE_NORMAL_DEG,
+    auto_median_size,
+    estimate_range_noise,
+    fit_quadratic_yokoya_levine,
+    preprocess_range_image,
+)
 from torchrefl.geometry.range_median import median_filter_range
 
 DS = math.radians(0.7)  # the seed scanner (Table 2.1)
@@ -368,3 +374,56 @@ BAD = [
 def test_bad_input_raises_geometry_error_naming_the_argument(name, call):
     with pytest.raises(GeometryError, match=f"'{name}'"):
         call()
+
+
+# ------------------------------------------------------------------ the automatic median (geometry.median_size: null)
+
+
+def crease(s, t, R0=60.0, slopes=(0.3, -1.7)):
+    """A crease along the scan direction: r = R0 + slope t with one slope above and one below t = 0 (two cones
+    meeting at a valley, the inside of a fold of about 100 deg, its sides unequally inclined like Object E's).
+    Returns range (H, W), valid, analytic outward normals away from the crease line."""
+    H, W = t.numel(), s.numel()
+    slope = torch.where(t >= 0, slopes[0], slopes[1]).to(t.dtype)
+    r = (R0 + slope * t)[:, None].expand(H, W).clone()
+    r_t = slope[:, None].expand(H, W)
+    n = cylindrical_normals(r, torch.zeros_like(r), r_t, s, t)
+    return r, torch.ones(H, W, dtype=torch.bool), n
+
+
+def test_range_noise_estimate_matches_the_added_noise_and_ignores_edges_and_creases():
+    s, t = axes(200, 180, s0=-1.2, t0=-52.0)
+    r, valid, _, _ = ellipsoid(s, t)
+    assert estimate_range_noise(r, valid) < 1e-4  # silhouettes and the quadratic's own misfit are not noise
+    gen = torch.Generator().manual_seed(0)
+    for sd in (0.02, 0.1):
+        noisy = r + sd * torch.randn(r.shape, generator=gen, dtype=r.dtype)
+        assert estimate_range_noise(noisy, valid) == pytest.approx(sd, rel=0.15)
+    s, t = axes(120, 100, s0=-0.5, t0=-33.6)
+    r, valid, _ = crease(s, t)
+    assert estimate_range_noise(r, valid) < 1e-6
+
+
+def test_auto_median_keeps_a_clean_fold_and_filters_a_noisy_one():
+    s, t = axes(120, 100, s0=-0.5, t0=-33.6 - DT / 2)  # no row on the crease line itself
+    r, valid, n_true = crease(s, t)
+    near = (t.abs() < 3 * DT)[:, None].expand(r.shape).clone()  # the rows next to the crease line
+    near[:, :6] = near[:, -6:] = False
+    auto = run(r, valid, s, t, median_size=None)
+    assert auto.median_size == 1 and auto.noise_mm < 1e-6
+    assert angle_deg(auto.normals, n_true)[near].max() < 0.1
+    rounded = run(r, valid, s, t, median_size=5)  # the seed's median rounds the fold it does not need to touch
+    assert angle_deg(rounded.normals, n_true)[near].max() > 2.0
+    gen = torch.Generator().manual_seed(1)
+    noisy = run(r + 0.1 * torch.randn(r.shape, generator=gen, dtype=r.dtype), valid, s, t, median_size=None)
+    assert noisy.median_size == 5 and noisy.noise_mm == pytest.approx(0.1, rel=0.2)
+
+
+def test_auto_median_threshold_follows_the_normal_tilt_of_the_noise():
+    s, t = axes(60, 60, s0=-0.3, t0=-16.0)
+    r, valid, _ = crease(s, t)
+    h = DT  # the height step is the smaller step here (arc 60 mm x 0.7 deg = 0.73 mm)
+    spread = math.sqrt(25 * 24 / 12)
+    at_threshold = math.radians(NOISE_FREE_NORMAL_DEG) * h * spread
+    assert auto_median_size(0.9 * at_threshold, r, valid, float(s[1] - s[0]), h, 5) == 1
+    assert auto_median_size(1.1 * at_threshold, r, valid, float(s[1] - s[0]), h, 5) == 5

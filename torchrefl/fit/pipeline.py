@@ -20,6 +20,7 @@ from torchrefl.errors import ConfigError
 from torchrefl.fit.emitter_fill import nearest_fitted
 from torchrefl.fit.initialise import initialise_local
 from torchrefl.fit.observe import observe
+from torchrefl.fit.reestimate import reestimate
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
 from torchrefl.fit.result import FitResult
 from torchrefl.transport.levels.auto import choose, named_level, prepare
@@ -91,6 +92,12 @@ def refit(level: TransportLevel, params: TexelParams, make_objective, cfg: Confi
     fc, history = cfg.fit, []
     level.refresh(params, 0)
     for k in range(level.refits):
+        restarted = reestimate(level, params, cfg)
+        if restarted:
+            level.inputs.log(
+                f"{level.name} refit {k + 1}: {restarted} texels restart from the sigma search on direct plus "
+                "indirect light"
+            )
         for step in level.steps(k):
             train = None if step.train is None else [getattr(params, name) for name in step.train]
             with bar(step.iterations, step.label, cfg.output.progress) as pb:

@@ -6,6 +6,10 @@ Evaluating that error on a geometric grid of sigma values finds the global minim
 (per texel, or for one lobe shared by the whole object) without any local-minimum trap; the
 autograd refinement then polishes from there.
 
+The interreflection levels add indirect light that is linear in the texel's own Pd and Ps for fixed sigma
+(Method III's cache: kappa (Pd/pi H + Ps S(sigma))): transport.levels.base.IndirectTerms adds those factors
+to A and E, so the same search re-estimates every texel against direct plus cached indirect light.
+
 Per group g (a texel-channel, a texel, or the whole object), with sums over fitted observations:
     u = i - A S_Ai / S_AA,  v = E - A S_AE / S_AA   (E = D B; Pd eliminated per texel and channel)
     Ps = clamp(sum(u v) / sum(v v), 0, ps_max),  error = sum(u u) - 2 Ps sum(u v) + Ps^2 sum(v v)
@@ -15,10 +19,12 @@ Per group g (a texel-channel, a texel, or the whole object), with sums over fitt
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 import torch
 
 from torchrefl.core.brdf import specular_lobe
+from torchrefl.transport.levels.base import IndirectTerms
 from torchrefl.transport.local import LocalTerms
 
 
@@ -35,15 +41,16 @@ def profile_search(
     ps_channels: int = 3,
     shared: bool = False,
     ps_max: float = float("inf"),
+    indirect: Optional[IndirectTerms] = None,
 ):
     """Best (pd (T, 3), ps (T, C), sigma (T,), error (T,)) over the sigma grid.
 
     intensity (P, T, 3); mask (P, T) fitted observations. shared=True picks one sigma and one Ps
-    for all texels (Pd stays per texel).
+    for all texels (Pd stays per texel). indirect: cached interreflection added to the local model.
     """
     dt = intensity.dtype
     w = mask.to(dt)[..., None]
-    A = terms.diffuse * w
+    A = (terms.diffuse if indirect is None else terms.diffuse + indirect.diffuse.to(dt)) * w
     i = intensity * w
     S_AA = (A * A).sum(0).clamp_min(1e-30)  # (T, 3)
     S_Ai = (A * i).sum(0)
@@ -51,7 +58,10 @@ def profile_search(
     uu = S_ii - S_Ai * S_Ai / S_AA
     best = None
     for s in sigmas.tolist():
-        E = specular_lobe(terms.brdf, terms.theta_h, torch.tensor(s, dtype=dt))[..., None] * terms.specular * w
+        E = specular_lobe(terms.brdf, terms.theta_h, torch.tensor(s, dtype=dt))[..., None] * terms.specular
+        if indirect is not None:
+            E = E + indirect.specular(s).to(dt)
+        E = E * w
         S_AE = (A * E).sum(0)
         uv = (E * i).sum(0) - S_AE * S_Ai / S_AA
         vv = ((E * E).sum(0) - S_AE * S_AE / S_AA).clamp_min(0)

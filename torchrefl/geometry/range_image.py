@@ -79,12 +79,15 @@ class RangeGeometry:
     normals: (H, W, 3) float, unit, outward (away from the rotation axis); NaN where not valid.
     valid: (H, W) bool, pixels with a measured range and a quadratic fit.
     r_smoothed: (H, W) float, the fitted range r_hat (median filter + quadratic fit), mm; NaN where not valid.
+    median_size: the median window applied (1 = none); noise_mm: the range noise estimated before it (mm).
     """
 
     points: torch.Tensor
     normals: torch.Tensor
     valid: torch.Tensor
     r_smoothed: torch.Tensor
+    median_size: int = 1
+    noise_mm: float = 0.0
 
 
 # ----------------------------------------------------------------------------- checks
@@ -227,6 +230,39 @@ def fit_quadratic_yokoya_levine(
     fallback = _fill_fallback(r0, valid & ~ok, valid, offsets, A, uu, vv, k, wrap, (r_hat, r_u, r_v, residual))
     fit_valid = ok | fallback
     return QuadraticFit(r_hat=r_hat, r_s=r_u / ds, r_t=r_v / dt, residual=residual, valid=fit_valid, fallback=fallback)
+
+
+#: median_size None (auto) applies AUTO_MEDIAN_SIZE unless the range noise would tilt the quadratic fit's
+#: normals by less than this (degrees): on a noise-free range image a median only rounds folds and creases
+NOISE_FREE_NORMAL_DEG = 0.25
+AUTO_MEDIAN_SIZE = 5
+
+
+def estimate_range_noise(r: torch.Tensor, valid: torch.Tensor, window: int = 5, wrap: bool = False) -> float:
+    """The range noise (mm): square root of the median, over the fully valid centred windows, of the quadratic fit's
+    residual per degree of freedom. Folds and steps occupy few windows, so the median ignores them."""
+    k = _check_odd(window, "window", minimum=3)
+    if r.shape[0] < k or r.shape[1] < k:
+        return 0.0
+    A, _, _ = _design(k, torch.float64, r.device)
+    r0 = torch.where(valid, r, torch.zeros_like(r)).double()
+    _, res, full, _ = _centred_window_fits(r0, valid, A, k, wrap)
+    if not bool(full.any()):
+        return 0.0
+    return float((res[full] / (k * k - 6)).median().clamp_min(0).sqrt())
+
+
+def auto_median_size(noise_mm: float, r: torch.Tensor, valid: torch.Tensor, ds: float, dt: float, window: int) -> int:
+    """AUTO_MEDIAN_SIZE, or 1 where noise_mm tilts the window's fitted normals by under NOISE_FREE_NORMAL_DEG.
+
+    The slope of a least-squares quadratic over a k x k window of spacing h has a standard deviation of about
+    noise / (h sqrt(sum u^2)), sum u^2 = k^2 (k^2 - 1) / 12 (column offsets u in pixels); h is the smaller of the
+    height step and the median arc step r ds."""
+    arc = float(r[valid].double().median()) * ds if bool(valid.any()) else dt
+    h = min(dt, arc)
+    spread = math.sqrt(window * window * (window * window - 1) / 12.0)
+    tilt_deg = math.degrees(noise_mm / max(h * spread, 1e-12))
+    return 1 if tilt_deg < NOISE_FREE_NORMAL_DEG else AUTO_MEDIAN_SIZE
 
 
 def _check_wrap(wrap: bool, W: int, ds: float) -> None:
@@ -379,7 +415,7 @@ def preprocess_range_image(
     ds: float,
     t0: float,
     dt: float,
-    median_size: int = 5,
+    median_size: int | None = 5,
     window: int = 5,
     wrap: bool = False,
     noise_tolerance: float = 0.0,
@@ -389,14 +425,15 @@ def preprocess_range_image(
     r: (H, W) float32/float64 range, mm (values at invalid pixels are ignored);
     valid: (H, W) bool, pixels where the scanner measured the surface;
     s0, ds: angle of column 0 and column step, radians; t0, dt: height of row 0 and row step, mm;
-    median_size: odd >= 1 (1 = no median); window: odd >= 3;
+    median_size: odd >= 1 (1 = no median), or None: auto (auto_median_size from the estimated noise); window: odd >= 3;
     wrap: columns wrap around (only when W * ds is a full turn);
     noise_tolerance: see fit_quadratic_yokoya_levine (0 = the seed's strict minimum; 2 is much
     better on noisy or 8-bit ranges).
     Returns RangeGeometry; valid = measured, fitted and with a finite normal.
     """
     _check_range(r, valid)
-    _check_odd(median_size, "median_size")
+    if median_size is not None:
+        _check_odd(median_size, "median_size")
     _check_odd(window, "window", minimum=3)
     ds = _check_step(ds, "ds")
     dt = _check_step(dt, "dt")
@@ -407,6 +444,9 @@ def preprocess_range_image(
     s = float(s0) + ds * torch.arange(W, dtype=r.dtype, device=r.device)
     t = float(t0) + dt * torch.arange(H, dtype=r.dtype, device=r.device)
     _check_wrap(wrap, W, ds)
+    noise = estimate_range_noise(r, valid, window, wrap)
+    if median_size is None:
+        median_size = auto_median_size(noise, r, valid, ds, dt, window)
     rm = median_filter_range(r, valid, median_size, wrap=wrap)
     fit = fit_quadratic_yokoya_levine(rm, valid, ds, dt, window, wrap=wrap, noise_tolerance=noise_tolerance)
     points = cylindrical_points(fit.r_hat, s, t)
@@ -418,4 +458,6 @@ def preprocess_range_image(
         normals=torch.where(ok[..., None], normals, nan),
         valid=ok,
         r_smoothed=torch.where(ok, fit.r_hat, nan),
+        median_size=int(median_size),
+        noise_mm=noise,
     )

@@ -446,6 +446,17 @@ def indirect_radiance(
     return kappa * out
 
 
+def specular_per_unit_ps(cache: PhotonCache, kappa: torch.Tensor, sigma: float) -> torch.Tensor:
+    """(P, T, 3) the sensor value of the cached specular interreflection per unit Ps, every texel's lobe at sigma
+    (what indirect_radiance adds as ps * kappa * S)."""
+    P, T, _ = cache.irradiance.shape
+    S = torch.zeros(P * T, 3, dtype=cache.irradiance.dtype, device=cache.irradiance.device)
+    if cache.entry_obs.numel():
+        D = brdf_mod.specular_lobe(cache.brdf, cache.entry_theta_h, torch.tensor(sigma, dtype=S.dtype))
+        S = S.index_add(0, cache.entry_obs, D[:, None] * cache.entry_weight)
+    return kappa * S.view(P, T, 3)
+
+
 def indirect_radiance_reference(
     hits: PhotonHits,
     sources: LightSources,

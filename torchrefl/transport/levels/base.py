@@ -7,6 +7,7 @@ The fit (torchrefl.fit.pipeline) drives every level through the same loop:
     init = level.start(init)              correct the closed-form start (Method II's passes)
     level.refresh(params, 0)              outer-iteration state (the photon cache)
     for k in range(level.refits):
+        re-estimate with level.indirect_terms  texels with specular evidence: the sigma search on direct + indirect
         for step in level.steps(k):       which parameters are refit on which observations
             refine(params, objective(level.predict, step.mask), ...)
         level.refresh(params, k + 1)
@@ -62,6 +63,16 @@ class LevelInputs:
 
 
 @dataclass
+class IndirectTerms:
+    """A level's indirect light at the current parameters as linear factors of each texel's own Pd and Ps:
+    diffuse (P, T, 3), the sensor value per unit Pd; specular(sigma: float) -> (P, T, 3), the sensor value per
+    unit Ps with every texel's lobe at sigma. Held fixed while one texel's parameters vary."""
+
+    diffuse: torch.Tensor
+    specular: Callable[[float], torch.Tensor]
+
+
+@dataclass
 class RefitStep:
     """One refinement within an outer iteration: the raw tensors trained (None = all) on which observations."""
 
@@ -105,6 +116,10 @@ class TransportLevel(ABC):
         """The refinements of outer iteration k (default: all parameters on every fitted observation)."""
         fc = self.inputs.cfg.fit
         return [RefitStep(None, self.inputs.fit_mask, f"fit ({fc.optimizer})", fc.iterations)]
+
+    def indirect_terms(self, pd: torch.Tensor) -> Optional[IndirectTerms]:
+        """The indirect light this level predicts at texel Pd (T, 3), as IndirectTerms (default: none)."""
+        return None
 
     def refresh(self, params, k: int) -> None:
         """Update the level's state for the parameters after k refits (default: nothing to refresh)."""

@@ -21,9 +21,9 @@ import torch
 from torchrefl.core.observation_classes import T_DIFF, T_NONE, T_SPEC
 from torchrefl.core.params import inverse_softplus_b
 from torchrefl.core.rays import RayTracer
-from torchrefl.transport.levels.base import LevelInputs, RefitStep, TransportLevel
+from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, RefitStep, TransportLevel
 from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
-from torchrefl.transport.photon_cache import indirect_radiance, light_sources
+from torchrefl.transport.photon_cache import indirect_radiance, light_sources, specular_per_unit_ps
 from torchrefl.transport.photon_refresh import PhotonRefresh
 from torchrefl.transport.photon_trace import PhotonTracer
 from torchrefl.transport.specular_gather import SpecularGather
@@ -146,6 +146,13 @@ class PhotonLevel(TransportLevel):
     def predict(self, pd, ps, sigma):
         kappa = self.inputs.obs.kappa.to(pd.device)
         return self._local(pd, ps, sigma) + indirect_radiance(self.cache, kappa, pd, ps, sigma)
+
+    def indirect_terms(self, pd: torch.Tensor) -> IndirectTerms:
+        kappa = self.inputs.obs.kappa.to(pd.device)
+        cache = self.cache
+        with torch.no_grad():
+            diffuse = kappa * cache.irradiance_at(pd) / math.pi
+        return IndirectTerms(diffuse, lambda sigma: specular_per_unit_ps(cache, kappa, sigma))
 
     def steps(self, k: int) -> list[RefitStep]:
         inp, pc = self.inputs, self.inputs.cfg.photon

@@ -16,7 +16,7 @@ import torch
 from torchrefl.core.observation_classes import T_DIFF
 from torchrefl.core.rays import RayTracer
 from torchrefl.transport.form_factors import form_factors_for_surface
-from torchrefl.transport.levels.base import LevelInputs, TransportLevel
+from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, TransportLevel
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
 from torchrefl.transport.photon_cache import light_sources
 from torchrefl.transport.radiosity_level import (
@@ -209,3 +209,10 @@ class RadiosityLevel(TransportLevel):
     def predict(self, pd, ps, sigma):
         kappa = self.inputs.obs.kappa.to(pd.device)
         return self._local(pd, ps, sigma) + reflected_indirect(kappa, pd, self.indirect(pd))
+
+    def indirect_terms(self, pd: torch.Tensor) -> IndirectTerms:
+        kappa = self.inputs.obs.kappa.to(pd.device)
+        with torch.no_grad():
+            diffuse = reflected_indirect(kappa, torch.ones_like(pd), self.indirect(pd))
+        zero = torch.zeros_like(diffuse)
+        return IndirectTerms(diffuse, lambda sigma: zero)
