@@ -44,8 +44,9 @@ about h, l = 2 (v.h) h - v, with density p_h / (4 v.h). Half vectors beyond 90 d
 below the surface, are dropped (value 0), which keeps the estimator unbiased.
 
 Surface: a triangle mesh with per-vertex materials. A hit takes the oriented geometric normal of its face
-(the front is the side its corners' vertex normals point to) and the material of the face's nearest
-corner (largest barycentric weight). Observed points come with their own position, normal, view
+(the front is the side its corners' vertex normals point to; hit_normals='vertex': the nearest corner's
+vertex normal where it faces the ray, a variant for checking that choice) and the material of the face's
+nearest corner (largest barycentric weight). Observed points come with their own position, normal, view
 direction and material. Rays start `offset` along the normal (Embree's tnear is 0), shadow rays end
 `offset` short of the light.
 """
@@ -154,16 +155,22 @@ class ReferenceRenderer:
 
     vertices (V, 3), faces (F, 3): the mesh; vertex_normals (V, 3): orient each face's front (only their
     sum over a face's corners is used); pd (V, 3), ps (V, 3), sigma (V,): the material of each vertex;
-    offset: ray origin offset (scene units); seed: the random numbers.
+    offset: ray origin offset (scene units); seed: the random numbers; hit_normals: 'face' or 'vertex'
+    (the normal at a hit, module doc).
     """
 
-    def __init__(self, vertices, faces, vertex_normals, pd, ps, sigma, *, offset: float, seed: int = 0):
+    def __init__(
+        self, vertices, faces, vertex_normals, pd, ps, sigma, *, offset: float, seed: int = 0, hit_normals="face"
+    ):
         self.vertices = np.asarray(vertices, dtype=np.float64)
         self.faces = np.asarray(faces, dtype=np.int64)
         a, b, c = (self.vertices[self.faces[:, k]] for k in range(3))
         fn = _unit(np.cross(b - a, c - a))
         side = np.einsum("fi,fi->f", fn, np.asarray(vertex_normals, dtype=np.float64)[self.faces].sum(1))
         self.face_normals = np.where((side < 0)[:, None], -fn, fn)
+        vn = np.asarray(vertex_normals, dtype=np.float64)
+        self.vertex_normals = vn / np.maximum(np.linalg.norm(vn, axis=-1, keepdims=True), 1e-300)
+        self.hit_normals = hit_normals
         self.pd, self.ps = np.asarray(pd, dtype=np.float64), np.asarray(ps, dtype=np.float64)
         self.sigma = np.asarray(sigma, dtype=np.float64)
         self.offset = float(offset)
@@ -280,6 +287,9 @@ class ReferenceRenderer:
             tri = self.vertices[self.faces[f]]
             x = (1 - u - vv)[:, None] * tri[:, 0] + u[:, None] * tri[:, 1] + vv[:, None] * tri[:, 2]
             n = fn[idx]
+            if self.hit_normals == "vertex":  # the nearest corner's normal where it faces the ray
+                vn = self.vertex_normals[vert]
+                n = np.where((_dot(vn, d[idx]) < 0)[:, None], vn, n)
             v = -d[idx]
             m_pd, m_ps, m_sg = self.pd[vert], self.ps[vert], self.sigma[vert]
             beta, path = beta[idx], path[idx]
