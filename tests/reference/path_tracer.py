@@ -31,11 +31,12 @@ one-sample mixture of a cosine-weighted direction and the lobe sampler below (pr
 Ps > 0) with the weight g / (mixture pdf). At every interreflection vertex the point light is sampled
 explicitly (next-event estimation with a shadow ray); a point light cannot be hit by a sampled ray, so
 nothing is counted twice. Paths end on a miss, on a hit on the back of a face (the mesh is a one-sided
-scanned sheet: light behind it is not modelled), by Russian roulette from the third vertex on (survival
-min(0.95, max weight of the bounce), unbiased), and at MAX_DEPTH vertices (the only bias: the light
-after 24 interreflections, below 0.95^22 < 0.33 % of a roulette-surviving path's throughput and far less
-on an open fold whose rays escape). The standard error per (light, point, channel) is the sample
-standard deviation of the independent paths' values over sqrt(samples).
+scanned sheet: light behind it is not modelled), by Russian roulette from the third scattering on
+(survival min(0.95, max weight of the scattering), unbiased), and after MAX_DEPTH scatterings (the only
+bias: the light after 24 interreflections. Measured on the test's glossy fold with the same random numbers,
+scatterings 5-6 add 7e-4 of the interreflected light and 7-24 add 5e-6: each two bounces keep about 1/40).
+The standard error per (light, point, channel) is the sample standard deviation of the independent paths'
+values over sqrt(samples).
 
 Lobe sampler (derived here): the half vector's polar angle from n is Rayleigh distributed,
 theta = sigma sqrt(-2 ln(1 - u1)), phi = 2 pi u2, i.e. the density over the half vector's solid angle
@@ -268,7 +269,7 @@ class ReferenceRenderer:
         for depth in range(1, MAX_DEPTH + 1):
             d, w = scatter(n, v, m_pd, m_ps, m_sg, diffuse_only, rng)
             beta = beta * w
-            if depth >= 3:  # Russian roulette from the third vertex on
+            if depth >= 3:  # Russian roulette from the third scattering on
                 survive = np.minimum(0.95, w.max(1))
                 keep = rng.random(len(w)) < survive
                 beta = np.where(keep[:, None], beta / np.maximum(survive, 1e-300)[:, None], 0.0)

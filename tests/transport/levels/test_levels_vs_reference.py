@@ -74,23 +74,21 @@ def fold_capture():
 
 
 def level_for(cfg, capture: Capture, name: str, seed: int):
+    """The level `name` (local, radiosity, photon: every path from photons, the photon.* defaults; photon_hybrid:
+    photon.diffuse_paths radiosity and specular_gather 64, as the bundled glossy configs), prepared."""
     c = copy.deepcopy(cfg)
     c.seed = seed
+    if name == "photon_hybrid":
+        c.photon.diffuse_paths, c.photon.specular_gather = "radiosity", 64
     inputs, _ = level_inputs(c, capture, lambda *a: None)
     if name == "local":
         return LocalLevel(inputs)
-    if name == "radiosity":
-        level = RadiosityLevel(inputs)
-        level.prepare()
-        return level
-    if name == "photon":  # every path from photons (the photon.* defaults)
-        level = PhotonLevel(inputs, RadiosityLevel(inputs))
-    else:  # photon_hybrid: the bundled glossy configs' photon.diffuse_paths radiosity, specular_gather 64
-        c.photon.diffuse_paths, c.photon.specular_gather = "radiosity", 64
-        inputs, _ = level_inputs(c, capture, lambda *a: None)
-        radiosity = RadiosityLevel(inputs)
+    radiosity = RadiosityLevel(inputs)
+    if name != "photon":  # the pure photon level does not use it
         radiosity.prepare()
-        level = PhotonLevel(inputs, radiosity)
+    if name == "radiosity":
+        return radiosity
+    level = PhotonLevel(inputs, radiosity)
     level.prepare()
     return level
 
