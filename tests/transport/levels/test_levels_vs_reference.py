@@ -153,7 +153,8 @@ def build(
     folder, patch_size: int = 1, pd_only: bool = False, geometry: dict | None = None, hit_normals: str = "face"
 ) -> dict:
     """The capture, the reference's images and the levels' predictions at the truth (pd_only: Ps = 0 everywhere;
-    patch_size: the radiosity level's; geometry: geometry.* options; hit_normals: the reference's)."""
+    patch_size: the radiosity level's; geometry: geometry.* options; hit_normals: the reference's). One torch
+    thread (the caller restores its own)."""
     torch.set_num_threads(1)
     cfg = fold_capture()
     cfg.radiosity.patch_size = patch_size
@@ -188,7 +189,11 @@ def build(
 
 @pytest.fixture(scope="module")
 def fold(tmp_path_factory):
-    out = build(tmp_path_factory.mktemp("fold"))
+    threads = torch.get_num_threads()
+    try:
+        out = build(tmp_path_factory.mktemp("fold"))
+    finally:
+        torch.set_num_threads(threads)
     print_table(out)
     return out
 
@@ -196,8 +201,8 @@ def fold(tmp_path_factory):
 def agreement(fold, level, level_se, mode, band):
     """Band statistics of level - reference in `mode` over the kept observations of the band: bias (the mean
     difference over the mean interreflected light), its standard error on that scale, the share of
-    observations within K combined standard errors + TOL_TEXEL of their interreflected light, and the band's
-    interreflected light relative to its direct light."""
+    observations within K combined standard errors + TOL_TEXEL of their interreflected light (all, and the
+    highlights: theta_h under 20 degrees), and the band's interreflected light relative to its direct light."""
     value, se = fold["ref"][mode]
     direct = fold["ref"]["direct"][0]
     lo, hi = band
