@@ -1,0 +1,1 @@
+"""Test-only reference code written apart from torchrefl (it imports nothing from torchrefl)."""
