@@ -246,9 +246,9 @@ class RadiosityConfig:
     patch_size: int = opt(
         2, "patch side in texels (patches are patch_size x patch_size texel blocks; 1 = one texel per patch)", low=1
     )
-    hemisphere_samples: int = opt(256, "cosine-weighted hemisphere rays per patch for the form factors", low=1)
+    hemisphere_samples: int = opt(2048, "cosine-weighted hemisphere rays per patch for the form factors", low=1)
     solve_samples: Optional[int] = opt(
-        None,
+        256,
         "hemisphere rays per patch of a cheaper second form-factor set used only by the radiosity solve (null = one "
         "set)",
         low=1,
@@ -274,7 +274,7 @@ class PhotonConfig:
         low=1,
     )
     outer_iterations: int = opt(
-        3, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0
+        5, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0
     )
     schedule: str = opt(
         "joint",
@@ -283,27 +283,27 @@ class PhotonConfig:
         choices=("joint", "seed"),
     )
     damping: float = opt(
-        0.5,
+        0.0,
         "fraction of the previous refresh's Pd that Pd keeps after each photon refit (under-relaxation; 0 = none)",
         low=0.0,
         high=0.95,
     )
     smoothing: float = opt(
-        1.0,
+        2.0,
         "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel "
         "grid (0 = each texel's own photons)",
         low=0.0,
     )
     diffuse_paths: str = opt(
-        "photons",
+        "radiosity",
         "source of the all-diffuse paths' indirect light: photons, or radiosity (the radiosity solution, noise-free)",
         choices=("photons", "radiosity"),
     )
     specular_smoothing: float = opt(
-        0.0, "std in texels of the 3 x 3 Gaussian that spreads each photon's specular entry (0 = per texel)", low=0.0
+        1.0, "std in texels of the 3 x 3 Gaussian that spreads each photon's specular entry (0 = per texel)", low=0.0
     )
     specular_gather: int = opt(
-        0,
+        64,
         "with diffuse_paths radiosity: lobe directions per texel that gather the specular reflection of diffuse light "
         "(0 = off)",
         low=0,

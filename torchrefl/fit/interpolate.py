@@ -3,31 +3,39 @@
 The seed interpolates linearly inside a W x W window and, where the window holds no
 determined texel, along the image row. Here: the mean of the determined texels in the
 W x W window (a masked box filter, kornia.filters.box_blur), repeated on the remaining
-gaps so that the window effectively grows, then linear interpolation along rows, then
-the median of all determined texels as the last resort.
+gaps so that the window grows (MAX_PASSES times), then the median of all determined texels.
+Not the seed's row interpolation: on the non-uniform glossy fold a scan row of the lower plate
+(no highlight from any light) then carried the lobe of the one stray texel it held across the
+whole plate (Ps 0.04 against 0.26-0.44), and its Pd came out 8 % high; with the object's median lobe
+3 % (docs/results/fold.md). A lobe measured further away than a few windows is no better evidence
+than the object's typical one.
 """
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from kornia.filters import box_blur
 
 
+#: window passes: a W x W mean spreads a determined value at most MAX_PASSES * (W // 2) texels
+MAX_PASSES = 2
+FILL_OUTSIDE, FILL_DETERMINED, FILL_WINDOW, FILL_MEDIAN = 0, 1, 2, 4
+
+
 def fill_undetermined(
-    grid: torch.Tensor, known: torch.Tensor, inside: torch.Tensor, window: int = 5, max_passes: int = 8
+    grid: torch.Tensor, known: torch.Tensor, inside: torch.Tensor, window: int = 5, max_passes: int = MAX_PASSES
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Fill grid values (H, W, C) where `known` (H, W) is False and `inside` (H, W) is True.
 
     Returns the filled grid and a (H, W) int8 map of how each texel was obtained:
-    0 outside, 1 determined, 2 window mean, 3 row interpolation, 4 global median.
+    0 outside, 1 determined, 2 window mean, 4 the median of the determined texels.
     """
     H, W, C = grid.shape
     g = grid.permute(2, 0, 1)[None].to(torch.float64)  # (1, C, H, W)
     k = (known & inside).to(torch.float64)[None, None]
     how = torch.zeros(H, W, dtype=torch.int8)
     how[known & inside] = 1
-    values = g * k
+    values = torch.where(k > 0, g, torch.zeros_like(g))  # undetermined values (possibly NaN) are never read
     for _ in range(max_passes):
         todo = inside & (k[0, 0] == 0)
         if not todo.any():
@@ -44,21 +52,8 @@ def fill_undetermined(
     out = values[0].permute(1, 2, 0).clone()
     todo = inside & (k[0, 0] == 0)
     if todo.any():
-        filled = k[0, 0] > 0
-        arr = out.numpy()
-        for r in np.flatnonzero(todo.any(dim=1).numpy()):
-            xs = np.flatnonzero(filled[r].numpy())
-            if xs.size == 0:
-                continue
-            miss = np.flatnonzero(todo[r].numpy())
-            for c in range(C):
-                arr[r, miss, c] = np.interp(miss, xs, arr[r, xs, c])
-            how[r, miss] = 3
-        out = torch.from_numpy(arr)
-        todo = inside & (how == 0)
-        if todo.any():
-            ref = known & inside
-            med = grid[ref].median(dim=0).values if ref.any() else torch.zeros(C, dtype=grid.dtype)
-            out[todo] = med.to(out.dtype)
-            how[todo] = 4
+        ref = known & inside
+        med = grid[ref].median(dim=0).values if ref.any() else torch.zeros(C, dtype=grid.dtype)
+        out[todo] = med.to(out.dtype)
+        how[todo] = FILL_MEDIAN
     return out.to(grid.dtype), how
