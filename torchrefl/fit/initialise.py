@@ -23,7 +23,10 @@ from torchrefl.fit.interpolate import fill_undetermined
 from torchrefl.fit.profile_search import profile_search, sigma_grid
 from torchrefl.transport.local import LocalTerms, predict
 
-COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND = 0, 1, 2, 3
+#: coverage codes (params.npz `coverage`, docs/outputs.md): none; Pd with Ps/sigma interpolated from neighbours;
+#: Pd with Ps/sigma measured (the texel's own T_spec observations); Pd from its upper bound only (Ps/sigma
+#: interpolated); untrusted geometry (edges, creases, mixed footprints: not fitted); Pd with the object's shared lobe
+COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND, COVER_UNTRUSTED, COVER_SHARED = 0, 1, 2, 3, 4, 5
 
 
 @dataclass
@@ -114,7 +117,7 @@ def initialise_local(
     coverage = torch.full((surface.num_texels,), COVER_NONE, dtype=torch.int8)
     coverage[defined] = COVER_PD_ONLY
     coverage[defined & ~cf.pd_from_diffuse] = COVER_PD_BOUND
-    coverage[known & defined] = COVER_FULL
+    coverage[known & defined] = COVER_SHARED if specular == "shared" else COVER_FULL
     head = (
         f"closed form: Pd from eq. 3.3 at {int(cf.pd_from_diffuse.sum())} texels, bound at "
         f"{int((defined & ~cf.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at {int(cf.spec_determined.sum())}; "
@@ -124,3 +127,13 @@ def initialise_local(
     return Initial(
         pd, ps, sigma, known & defined, defined, coverage, cf.pd_from_diffuse, cf.spec_determined, shared_lobe, head
     )
+
+
+def mark_untrusted(coverage: torch.Tensor, untrusted: torch.Tensor | None) -> torch.Tensor:
+    """coverage (T,) int8 with COVER_UNTRUSTED at the texels without an estimate that the capture left unfitted
+    for their geometry (untrusted (T,) bool: Capture.untrusted; None: none)."""
+    if untrusted is None:
+        return coverage
+    out = coverage.clone()
+    out[untrusted.to(torch.bool) & (coverage == COVER_NONE)] = COVER_UNTRUSTED
+    return out
