@@ -5,14 +5,24 @@ footprint, which reaches half-way to its neighbours. Where that footprint stradd
 crease or a depth step, the colour mixes faces that the one normal cannot model: a plate's inside face and its
 3 mm end face seen at a grazing light, for instance, read far brighter than the inside face's normal explains.
 
-The test needs only the range image. For each texel and each of its 8 grid neighbours, the neighbour's measured
-point (from the range as scanned, before smoothing) is compared with the texel's tangent plane (its smoothed
-point and normal): the chord from the texel's point to the neighbour's rises from the plane by an angle. On a
-surface that the grid resolves the chord stays close to the plane: a chord angle a means the normal turns by
-about 2 a over one texel spacing, so MIXED_ANGLE_DEG = 30 degrees is a surface turning by 60 degrees or
-more within one texel, or stepping, which the texel's footprint cannot see as one plane. Range noise lifts
-the chord too: NOISE_ALLOWANCE range noise deviations (estimated from the image itself, range_noise_mm) are
-subtracted from the rise first, so noisy or quantised scans are not flagged for their noise.
+The test needs only the range image. For a texel 0 and each of its 8 grid neighbours 1, two rises are measured:
+s0, the neighbour's scanned point (the range as measured, before smoothing) above texel 0's tangent plane (its
+smoothed point and normal), and s1, texel 0's scanned point above the neighbour's tangent plane. Range noise
+is forgiven first: NOISE_ALLOWANCE robust deviations of the scan's own range noise (range_noise_mm) come off
+both rises, so noisy or quantised scans are not flagged for their noise. Then, with d the distance between
+the two texels' points:
+
+- a crease (s0 and s1 of one sign: each point lies on the same side of the other's plane, a fold or a rim):
+  the two planes meet at the fraction a = |s1| / (|s0| + |s1|) of the way from texel 0 to its neighbour (in
+  the plane across the crease, by the law of sines), and turn by asin(|s0| / d) + asin(|s1| / d). Texel 0
+  is mixed when the crease turns by more than MIXED_ANGLE_DEG and lies within CREASE_FRACTION of the way:
+  then more than a sixth of its footprint (which reaches half-way) lies on the other face. A fold line between
+  two texels leaves both clean (a = 1/2), a texel on the fold line is mixed (its normal is both faces'
+  average, a = 0), and on a smooth surface s0 and s1 match (a = 1/2) whatever its curvature;
+- a step (s0 and s1 of opposite signs: parallel faces at different depths, a plate lying on another, a plate's
+  end seen against what is behind it): where between the two samples the wall stands the range cannot say,
+  so texel 0 is mixed when its neighbour rises from its plane by more than MIXED_ANGLE_DEG (asin(|s0| / d)):
+  a wall at least as steep as that within one texel.
 """
 
 from __future__ import annotations
@@ -21,8 +31,10 @@ import numpy as np
 
 from torchrefl.errors import GeometryError
 
-#: A neighbour's chord rising more than this from the texel's tangent plane marks a mixed footprint (degrees).
+#: A crease turning by more than this, or a step rising more than this within one texel, can mix a footprint (degrees).
 MIXED_ANGLE_DEG = 30.0
+#: A crease closer than this fraction of the way to a neighbour puts more than a sixth of the footprint across it.
+CREASE_FRACTION = 1.0 / 3.0
 #: Rise (along the normal) forgiven as range noise, in robust standard deviations of the range noise.
 NOISE_ALLOWANCE = 5.0
 #: The 8 grid neighbours (row, column offsets).
@@ -56,32 +68,31 @@ def _neighbour(a: np.ndarray, dr: int, dc: int, wrap: bool) -> np.ndarray:
     return out
 
 
-def chord_angles_deg(
-    measured: np.ndarray, points: np.ndarray, normals: np.ndarray, noise_mm: float = 0.0, wrap: bool = False
-) -> np.ndarray:
-    """(H, W) the largest angle (degrees) by which a chord from a texel's point to a neighbour's measured point
-    rises from the texel's tangent plane, after NOISE_ALLOWANCE x noise_mm of the rise is forgiven; 0 where no
-    neighbour has a point.
-
-    measured (H, W, 3): points of the range as scanned (NaN where none); points, normals (H, W, 3): the texels'
-    smoothed points and unit normals (NaN where none); noise_mm >= 0; wrap: columns wrap around (a full turn).
-    """
+def _check_points(measured, points, normals, noise_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     measured, points, normals = (np.asarray(a, dtype=np.float64) for a in (measured, points, normals))
     if not (measured.shape == points.shape == normals.shape) or measured.ndim != 3 or measured.shape[-1] != 3:
         raise GeometryError(
-            f"chord_angles_deg: 'measured' {measured.shape}, 'points' {points.shape} and 'normals' "
+            f"mixed_footprints: 'measured' {measured.shape}, 'points' {points.shape} and 'normals' "
             f"{normals.shape} must each be (H, W, 3)"
         )
     if not np.isfinite(noise_mm) or noise_mm < 0:
-        raise GeometryError(f"chord_angles_deg: 'noise_mm' must be a finite number >= 0, got {noise_mm!r}")
-    worst = np.zeros(points.shape[:2])
-    for dr, dc in NEIGHBOURS:
-        chord = _neighbour(measured, dr, dc, wrap) - points
-        rise = np.abs(np.einsum("hwi,hwi->hw", chord, normals))
-        along = np.sqrt(np.maximum(np.einsum("hwi,hwi->hw", chord, chord) - rise * rise, 0.0))
-        angle = np.degrees(np.arctan2(np.maximum(rise - NOISE_ALLOWANCE * noise_mm, 0.0), along))
-        worst = np.fmax(worst, np.nan_to_num(angle, nan=0.0))
-    return worst
+        raise GeometryError(f"mixed_footprints: 'noise_mm' must be a finite number >= 0, got {noise_mm!r}")
+    return measured, points, normals
+
+
+def _mixed_towards(rise0: np.ndarray, rise1: np.ndarray, distance: np.ndarray, noise: float) -> np.ndarray:
+    """(H, W) bool: the footprint of texel 0 is mixed by what lies towards one neighbour (the module docstring):
+    rise0 the neighbour's scanned point above texel 0's plane, rise1 texel 0's scanned point above the
+    neighbour's plane, distance between them, noise the rise forgiven (all (H, W), NaN where no neighbour)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sin0 = np.clip((np.abs(rise0) - noise) / distance, 0.0, 1.0)
+        sin1 = np.clip((np.abs(rise1) - noise) / distance, 0.0, 1.0)
+    limit = np.radians(MIXED_ANGLE_DEG)
+    crease = np.sign(rise0) == np.sign(rise1)
+    turns = np.arcsin(sin0) + np.arcsin(sin1) > limit
+    near = sin1 * (1.0 - CREASE_FRACTION) < sin0 * CREASE_FRACTION  # a = sin1 / (sin0 + sin1) < CREASE_FRACTION
+    mixed = np.where(crease, turns & near, np.arcsin(sin0) > limit)
+    return mixed & np.isfinite(distance) & (distance > 0)
 
 
 def mixed_footprints(
@@ -92,9 +103,24 @@ def mixed_footprints(
     noise_mm: float = 0.0,
     wrap: bool = False,
 ) -> np.ndarray:
-    """(H, W) bool: valid texels whose footprint is mixed, a neighbour's chord rising more than MIXED_ANGLE_DEG
-    from the texel's tangent plane (chord_angles_deg; the module docstring says why)."""
+    """(H, W) bool: valid texels whose footprint is mixed by a crease or a step towards one of their 8 grid
+    neighbours (the module docstring says how).
+
+    measured (H, W, 3): points of the range as scanned (NaN where none); points, normals (H, W, 3): the texels'
+    smoothed points and unit normals (NaN where none); valid (H, W) bool; noise_mm >= 0: the range noise
+    (range_noise_mm); wrap: columns wrap around (a full turn).
+    """
+    measured, points, normals = _check_points(measured, points, normals, noise_mm)
     valid = np.asarray(valid, dtype=bool)
-    if valid.shape != np.shape(points)[:2]:
-        raise GeometryError(f"mixed_footprints: 'valid' {valid.shape} is not the (H, W) of 'points' {np.shape(points)}")
-    return valid & (chord_angles_deg(measured, points, normals, noise_mm, wrap) > MIXED_ANGLE_DEG)
+    if valid.shape != points.shape[:2]:
+        raise GeometryError(f"mixed_footprints: 'valid' {valid.shape} is not the (H, W) of 'points' {points.shape}")
+    dot = lambda a, b: np.einsum("hwi,hwi->hw", a, b)
+    mixed = np.zeros(valid.shape, dtype=bool)
+    for dr, dc in NEIGHBOURS:
+        their_measured = _neighbour(measured, dr, dc, wrap)
+        chord = their_measured - points
+        rise0 = dot(chord, normals)
+        rise1 = dot(measured - _neighbour(points, dr, dc, wrap), _neighbour(normals, dr, dc, wrap))
+        distance = np.linalg.norm(their_measured - measured, axis=-1)
+        mixed |= _mixed_towards(rise0, rise1, distance, NOISE_ALLOWANCE * noise_mm)
+    return valid & mixed
