@@ -63,6 +63,10 @@ def test_outputs_contract(small_run):
     for key in ("pd_rmse", "ps_rmse", "sigma_rmse", "ps_median_rel_err", "sigma_median_rel_err"):
         assert key in m["ground_truth"]
     assert m["timing_s"]["total"] > 0
+    # silhouette texels are untrusted geometry: coverage code 4, no estimate, counted
+    assert m["coverage"]["untrusted_geometry"] == int((p["coverage"] == 4).sum()) > 0
+    assert not (p["mask"] & (p["coverage"] == 4)).any()
+    assert {"measured_share", "interpolated_share", "regions", "unmeasured_patches"} <= set(m["specular_source"])
     for name in ("pd.png", "ps.png", "sigma.png", "coverage.png"):
         assert (out / "maps" / name).stat().st_size > 0
     assert len(list((out / "maps").glob("light_*_diff.png"))) == 2

@@ -312,6 +312,17 @@ def test_the_truth_file_scan_yaml_names_is_the_one_read(scan):
         load("cylindrical_scan", scan)
 
 
+def test_the_truth_region_map_is_read_per_texel(scan):
+    """truth.npz's optional region (H, W) integers come per texel (metrics.json's per-region specular_source)."""
+    data = dict(np.load(scan / "truth.npz"))
+    cap = load("cylindrical_scan", scan)
+    flat = data["region"].reshape(-1)[cap.surface.texel_index.numpy()]  # the synthetic scanner writes one
+    assert cap.truth["region"].tolist() == flat.tolist()
+    data.pop("region", None)
+    np.savez(scan / "truth.npz", **data)
+    assert load("cylindrical_scan", scan).truth["region"] is None
+
+
 # ------------------------------------------------------------------ truth.npz is validated
 
 
@@ -322,6 +333,7 @@ def test_the_truth_file_scan_yaml_names_is_the_one_read(scan):
         (lambda d: d.update(pd=d["pd"][:, :10]), "'pd' is float.*expected numbers of shape"),
         (lambda d: d.update(sigma=np.full_like(d["sigma"], np.nan)), "'sigma' is NaN or infinite at"),
         (lambda d: d.update(minnaert_k=np.array("one")), "'minnaert_k'"),
+        (lambda d: d.update(region=d["sigma"]), "'region' is float64.*expected integers"),
     ],
 )
 def test_bad_truth_files_are_named_errors(scan, damage, match):

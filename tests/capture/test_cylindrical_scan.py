@@ -1,6 +1,7 @@
 """cylindrical_scan: synthetic scanner against analytic geometry, loader geometry and errors."""
 
 import math
+import shutil
 
 import numpy as np
 import pytest
@@ -109,6 +110,28 @@ def test_crease_texels_are_excluded_and_counted(scan_folder):
     assert 0 < s3["crease_texels_excluded"] < geom.surface.num_texels
     lost = base.valid.any(0) & ~tight.valid.any(0)
     assert int(lost.sum()) > 0 and bool((tight.valid <= base.valid).all())
+
+
+def test_a_raised_block_is_a_mixed_footprint_excluded_and_counted(scan_folder, tmp_path):
+    """A block raised 6 mm from the smooth ellipsoid (a plate's rim, a depth step): the texels along its rim are
+    mixed footprints (ScanGeometry.mixed), none of their observations is valid, and the statistics count them;
+    the smooth ellipsoid, the block's top and the surface around it are not flagged."""
+    folder, _ = scan_folder
+    assert not load_scan_geometry(folder, threads=1, dtype=torch.float64).mixed.any()
+    step = tmp_path / "step"
+    shutil.copytree(folder, step)
+    r = np.load(step / "range.npy")
+    r[30:46, 40:56] += 6.0
+    np.save(step / "range.npy", r)
+    geom = load_scan_geometry(step, threads=1, dtype=torch.float64)
+    grid = np.zeros(r.size, bool)
+    grid[geom.surface.texel_index.numpy()] = geom.mixed
+    grid = grid.reshape(r.shape)
+    assert grid[33:43, 39:41].all() and grid[33:43, 55:57].all() and grid[29:31, 43:53].all()
+    assert not grid[33:43, 43:53].any() and not grid[33:43, 30:37].any() and not grid[:20].any()
+    obs, stats = load_scan_observations(geom, threads=1, dtype=torch.float64)
+    mixed = torch.from_numpy(geom.mixed)
+    assert not obs.valid[:, mixed].any() and stats["mixed_footprint_texels_excluded"] == int(mixed.sum())
 
 
 def test_textures_are_deterministic_and_noise_is_seeded(tmp_path):

@@ -9,34 +9,70 @@ from torchrefl.capture.base import Capture
 from torchrefl.config import Config
 from torchrefl.core.progress import Stages
 from torchrefl.core.surface import Surface
+from torchrefl.fit.initialise import COVER_FULL, COVER_PD_BOUND, COVER_PD_ONLY, COVER_SHARED, COVER_UNTRUSTED
 from torchrefl.fit.pipeline import fit_capture, level_inputs
 from torchrefl.transport.levels.photon import PhotonLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
 from torchrefl.transport.local import local_terms, predict
 
 
-def test_a_shared_lobe_is_not_pulled_to_the_floor_by_texels_without_highlights():
-    """One glossy material, lights that show highlights at only some texels: the shared lobe must come out
-    near the truth (a per-texel prior towards the unknown texels' floor values once collapsed it to Ps ~ 0)."""
-    T = 400
+def glossy_dome(T: int = 400, ps_true: float = 0.3, sigma_true: float = 0.08):
+    """One glossy material (Pd 0.5) on a dome under lights that show highlights at only some texels: the
+    Surface and the Observations."""
     nrm, pos, lights, cam = dome_scene(T=T, seed=2)
     lights = lights[[0, 4, 8, 36, 40, 44, 72, 76, 80]]
     obs = point_light_observations(nrm, pos, lights, cam, dtype=torch.float32)
     n = torch.as_tensor(nrm, dtype=torch.float32)
     terms = local_terms("torrance_sparrow", n, obs)
     pd = torch.full((T, 3), 0.5)
-    ps_true, sigma_true = 0.3, 0.08
     obs.intensity = predict(terms, pd, torch.full((T, 3), ps_true), torch.full((T,), sigma_true))
     surface = Surface((20, 20), torch.arange(T), torch.as_tensor(pos, dtype=torch.float32), n, torch.ones(T))
+    return surface, obs
+
+
+def local_config(specular: str) -> Config:
     cfg = Config()
-    cfg.fit.specular = "shared"
+    cfg.fit.specular = specular
     cfg.fit.model = "local"
     cfg.output.progress = False
-    res = fit_capture(cfg, Capture(surface, obs), Stages(), lambda *a: None, torch.device("cpu"))
+    return cfg
+
+
+def test_a_shared_lobe_is_not_pulled_to_the_floor_by_texels_without_highlights():
+    """One glossy material, lights that show highlights at only some texels: the shared lobe must come out
+    near the truth (a per-texel prior towards the unknown texels' floor values once collapsed it to Ps ~ 0)."""
+    T, ps_true, sigma_true = 400, 0.3, 0.08
+    surface, obs = glossy_dome(T, ps_true, sigma_true)
+    res = fit_capture(local_config("shared"), Capture(surface, obs), Stages(), lambda *a: None, torch.device("cpu"))
     assert res.init_counts["spec_known"] < T  # some texel has no specular evidence of its own
     ps = float(res.ps[0].mean())
     sigma = float(res.sigma[0])
     assert abs(ps / ps_true - 1) < 0.1 and abs(sigma / sigma_true - 1) < 0.1, (ps, sigma)
+
+
+def test_coverage_says_where_ps_and_sigma_come_from_and_marks_untrusted_geometry():
+    """Texels the capture left unfitted for their geometry get COVER_UNTRUSTED and no estimate; the others say
+    whether their Ps and sigma were measured (their own highlights), interpolated, or the shared lobe."""
+    surface, obs = glossy_dome()
+    untrusted = torch.zeros(surface.num_texels, dtype=torch.bool)
+    untrusted[:30] = True
+    obs.valid[:, untrusted] = False
+    run = lambda specular: fit_capture(
+        local_config(specular),
+        Capture(surface, obs, untrusted=untrusted),
+        Stages(),
+        lambda *a: None,
+        torch.device("cpu"),
+    )
+    res = run("texel")
+    assert (res.coverage[untrusted] == COVER_UNTRUSTED).all() and not res.estimated[untrusted].any()
+    rest = res.coverage[~untrusted & res.estimated]
+    assert int((rest == COVER_FULL).sum()) == res.init_counts["spec_known"]
+    assert bool(((rest == COVER_PD_ONLY) | (rest == COVER_PD_BOUND)).any())
+    assert set(rest.tolist()) <= {COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND}
+    shared = run("shared")
+    assert (shared.coverage[shared.estimated] == COVER_SHARED).all()
+    assert (shared.coverage[untrusted] == COVER_UNTRUSTED).all()
 
 
 def radiosity_level(cfg, s, obs) -> RadiosityLevel:

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, ClassVar
 
+import torch
+
 from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.core.surface import Surface
@@ -33,6 +35,7 @@ class Capture:
     truth: dict | None = None  # per-texel pd, ps, sigma (synthetic folders), else None
     folder: Path | None = None
     warnings: list[str] = field(default_factory=list)  # what may be wrong with the capture (metrics: capture.warnings)
+    untrusted: torch.Tensor | None = None  # (T,) bool: texels not fitted for their geometry (edges, creases, mixed)
 
 
 class CaptureLoader(ABC):

@@ -42,7 +42,9 @@ from torchrefl.core.rays import RayTracer
 from torchrefl.core.surface import Surface
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import CaptureError, GeometryError
-from torchrefl.geometry.range_image import preprocess_range_image
+from torchrefl.geometry.cylindrical import cylindrical_points
+from torchrefl.geometry.footprint import mixed_footprints, range_noise_mm
+from torchrefl.geometry.range_image import RangeGeometry, preprocess_range_image
 from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
 
 DEFAULT_SATURATION = 0.995
@@ -57,6 +59,7 @@ class ScanGeometry:
     tracer: RayTracer
     meta: dict
     folder: Path
+    mixed: np.ndarray | None = None  # (T,) bool: texels whose footprint is mixed (geometry.footprint); None: none
     median_size: int = 1  # the median window the preprocessing applied (1 = none)
     noise_mm: float = 0.0  # the range noise it estimated, mm
 
@@ -163,6 +166,25 @@ def rig_from_yaml(doc: dict, shape) -> CylindricalRig:
     )
 
 
+def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, rig: CylindricalRig) -> np.ndarray:
+    """(H, W) bool: texels of the preprocessed range image geo whose footprint the scanned range r (H, W) mm
+    (valid (H, W)) shows to be mixed (torchrefl.geometry.footprint), the range noise estimated from r itself."""
+    H, W = r.shape
+    s = torch.from_numpy(rig.angle0 + rig.angle_step * np.arange(W))
+    t = torch.from_numpy(rig.height0 + rig.height_step * np.arange(H))
+    measured = cylindrical_points(torch.from_numpy(np.where(valid, r, np.nan)), s, t).numpy()
+    fitted = geo.r_smoothed.double().numpy()
+    ok = geo.valid.numpy() & valid
+    return mixed_footprints(
+        measured,
+        geo.points.double().numpy(),
+        geo.normals.double().numpy(),
+        ok,
+        noise_mm=range_noise_mm(r, fitted, ok),
+        wrap=rig.covers_full_turn(),
+    )
+
+
 def load_scan_geometry(
     folder,
     *,
@@ -213,7 +235,8 @@ def load_scan_geometry(
         source=str(folder / "range.npy"),
     )
     tracer = RayTracer(verts, faces, threads=threads)
-    return ScanGeometry(surface, rig, tracer, doc, folder, geo.median_size, geo.noise_mm)
+    mixed = mixed_footprint_grid(r, valid, geo, rig).ravel()[idx]
+    return ScanGeometry(surface, rig, tracer, doc, folder, mixed, geo.median_size, geo.noise_mm)
 
 
 def observation_geometry(
@@ -292,15 +315,12 @@ def _read_textures(geom: ScanGeometry, lights: list, where: str, threads: int) -
     return intensity, bits, warnings
 
 
-def _excluded_observations(
-    geom: ScanGeometry, og: dict, intensity: np.ndarray, saturation_level: float, edge_width: int, crease_angle_deg
-) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray]:
-    """load_scan_observations' exclusions: {reason: (P, T) bool observations it removes}, and the saturated
-    (P, T), edge (T,) and crease (T,) masks (for the statistics)."""
+def untrusted_geometry(geom: ScanGeometry, edge_width: int, crease_angle_deg) -> dict:
+    """Texels whose geometry cannot be trusted, {reason: (T,) bool}: 'edge' within edge_width texels of the mesh
+    boundary (range_mesh.boundary_texels), 'crease' on a crease sharper than crease_angle_deg
+    (range_mesh.crease_texels; None: none), 'mixed' a mixed footprint (geom.mixed, geometry.footprint)."""
     H, W = geom.surface.grid_shape
     idx = geom.surface.texel_index.numpy()
-    saturated = (intensity >= saturation_level).any(-1)
-    finite = np.isfinite(intensity).all(-1)
     edge = boundary_texels(geom.surface.mesh_faces, (H, W), idx, edge_width)
     crease = crease_texels(
         geom.surface.mesh_vertices,
@@ -309,16 +329,30 @@ def _excluded_observations(
         idx,
         crease_angle_deg,
     )
+    mixed = np.zeros(idx.size, dtype=bool) if geom.mixed is None else np.asarray(geom.mixed, dtype=bool)
+    return {"edge": edge, "crease": crease, "mixed": mixed}
+
+
+def _excluded_observations(
+    geom: ScanGeometry, og: dict, intensity: np.ndarray, saturation_level: float, edge_width: int, crease_angle_deg
+) -> tuple[dict, np.ndarray, dict]:
+    """load_scan_observations' exclusions: {reason: (P, T) bool observations it removes}, and the saturated
+    (P, T) and untrusted_geometry's (T,) masks (for the statistics)."""
+    saturated = (intensity >= saturation_level).any(-1)
+    finite = np.isfinite(intensity).all(-1)
+    texels = untrusted_geometry(geom, edge_width, crease_angle_deg)
+    every = lambda mask: np.broadcast_to(mask[None], saturated.shape)
     removed = {
-        "not seen by the camera (facing away or occluded)": np.broadcast_to(~og["seen"][None], saturated.shape),
+        "not seen by the camera (facing away or occluded)": every(~og["seen"]),
         "not lit (n.l at or below the threshold)": ~og["lit"],
         "in cast shadow": og["shadowed"],
         f"saturated (>= {saturation_level:g})": saturated,
         "not finite": ~finite,
-        f"edge texels (geometry.edge_width {edge_width})": np.broadcast_to(edge[None], saturated.shape),
-        "crease texels (geometry.crease_angle_deg)": np.broadcast_to(crease[None], saturated.shape),
+        f"edge texels (geometry.edge_width {edge_width})": every(texels["edge"]),
+        "crease texels (geometry.crease_angle_deg)": every(texels["crease"]),
+        "mixed-footprint texels (rims, thin edges, depth steps in the range image)": every(texels["mixed"]),
     }
-    return removed, saturated, edge, crease
+    return removed, saturated, texels
 
 
 def load_scan_observations(
@@ -341,7 +375,8 @@ def load_scan_observations(
     gives none (CylindricalScanLoader passes the values its precedence rule chose).
     edge_width: observations of texels within this many texels of the mesh boundary (silhouettes,
     depth discontinuities: mixed pixels) are not valid (counted in the statistics); crease_angle_deg:
-    neither are those of texels on a crease sharper than this (range_mesh.crease_texels; None: none)."""
+    neither are those of texels on a crease sharper than this (range_mesh.crease_texels; None: none), nor those
+    of texels whose footprint the range image shows to be mixed (geom.mixed: rims, thin edges, depth steps)."""
     doc = read_scan_yaml(geom.folder)
     where = str(geom.folder / "scan.yaml")
     if not doc["lights"]:
@@ -355,9 +390,10 @@ def load_scan_observations(
         geom, head, shadow_offset=shadow_offset, min_cos_view=min_cos_view, min_cos_light=min_cos_light
     )
     idx = geom.surface.texel_index.numpy()
-    removed, saturated, edge, crease = _excluded_observations(
+    removed, saturated, texels = _excluded_observations(
         geom, og, intensity, saturation_level, edge_width, crease_angle_deg
     )
+    edge, crease = texels["edge"], texels["crease"]
     valid = ~np.logical_or.reduce(list(removed.values()))
     observations_left(valid, removed, where)
     Y = np.array([e.get("intensity", doc["light"]["intensity"]) for e in lights], dtype=np.float64)
@@ -395,6 +431,7 @@ def load_scan_observations(
         "valid_observations": int(valid.sum()),
         "edge_texels_excluded": int(edge.sum()),
         "crease_texels_excluded": int((crease & ~edge).sum()),
+        "mixed_footprint_texels_excluded": int((texels["mixed"] & ~edge & ~crease).sum()),
         "warnings": warnings,
     }
     return obs, stats
@@ -449,8 +486,15 @@ class CylindricalScanLoader(CaptureLoader):
                 f"geometry: {stats['crease_texels_excluded']} texels on creases sharper than "
                 f"{g.crease_angle_deg:g} deg (mixed pixels) are not fitted"
             )
+        if stats["mixed_footprint_texels_excluded"]:
+            log(
+                f"geometry: {stats['mixed_footprint_texels_excluded']} texels whose footprint the range image shows "
+                "to be mixed (rims, thin edges, depth steps) are not fitted"
+            )
         warnings = stats.pop("warnings")
-        return Capture(s, obs, stats, load_truth(folder, s, geom.meta), Path(folder), warnings)
+        untrusted = np.logical_or.reduce(list(untrusted_geometry(geom, g.edge_width, g.crease_angle_deg).values()))
+        truth = load_truth(folder, s, geom.meta)
+        return Capture(s, obs, stats, truth, Path(folder), warnings, torch.from_numpy(untrusted))
 
 
 def folder_over_config(doc: dict, cfg: Config, where: Path, log: Log) -> tuple[float, list]:

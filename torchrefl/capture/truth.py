@@ -1,7 +1,8 @@
 """Ground truth of a synthetic capture folder (truth.npz), read and checked.
 
 Keys: pd (H, W, 3), ps (H, W, 3) or (H, W, 1), sigma (H, W) on the capture's texel grid, finite at every
-texel of the surface; optional brdf (a name) and minnaert_k (a number). Anything else is a CaptureError
+texel of the surface; optional brdf (a name), minnaert_k (a number) and region (H, W) integers (material regions,
+-1 none: metrics.json's per-region specular_source). Anything else is a CaptureError
 naming the file and the key.
 """
 
@@ -46,7 +47,8 @@ def _grid(data: dict, key: str, shapes: list[tuple], surface: Surface, path: Pat
 
 
 def load_truth(path: Path, surface: Surface) -> dict:
-    """Per-texel truth pd (T, 3), ps (T, C), sigma (T,), brdf (str or None), minnaert_k from a truth file."""
+    """Per-texel truth pd (T, 3), ps (T, C), sigma (T,), region (T,) int64 or None, brdf (str or None), minnaert_k
+    from a truth file."""
     path = Path(path)
     if not path.is_file():
         raise CaptureError(f"{path}: truth file not found")
@@ -60,7 +62,11 @@ def load_truth(path: Path, surface: Surface) -> dict:
     brdf = data.get("brdf")
     if brdf is not None and (brdf.shape != () or brdf.dtype.kind != "U"):
         raise CaptureError(f"{path}: 'brdf' is {brdf!r}, expected a BRDF name")
+    region = data.get("region")
+    if region is not None and (region.shape != (H, W) or not np.issubdtype(region.dtype, np.integer)):
+        raise CaptureError(f"{path}: 'region' is {region.dtype} {region.shape}, expected integers of shape {(H, W)}")
     k = data.get("minnaert_k", np.array(1.0))
     if k.size != 1 or not np.issubdtype(k.dtype, np.number) or not math.isfinite(float(k)):
         raise CaptureError(f"{path}: 'minnaert_k' is {k!r}, expected one finite number")
+    truth["region"] = None if region is None else surface.from_grid(region.astype(np.int64))
     return {**truth, "brdf": str(brdf) if brdf is not None else None, "minnaert_k": float(k)}

@@ -19,11 +19,15 @@ import torch
 
 from torchrefl.core.surface import Surface
 from torchrefl.fit.closed_form import closed_form
-from torchrefl.fit.interpolate import fill_undetermined
+from torchrefl.fit.interpolate import FILL_MEDIAN, fill_undetermined
 from torchrefl.fit.profile_search import profile_search, sigma_grid
 from torchrefl.transport.local import LocalTerms, predict
 
-COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND = 0, 1, 2, 3
+#: coverage codes (params.npz `coverage`, docs/outputs.md): none; Pd with Ps/sigma interpolated from neighbours;
+#: Pd with Ps/sigma measured (the texel's own T_spec observations); Pd from its upper bound only (Ps/sigma
+#: interpolated); untrusted geometry (edges, creases, mixed footprints: not fitted); Pd with the object's lobe (the
+#: shared one, or the measured texels' median lobe far from every measured texel)
+COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND, COVER_UNTRUSTED, COVER_SHARED = 0, 1, 2, 3, 4, 5
 
 
 @dataclass
@@ -95,9 +99,10 @@ def initialise_local(
             if shared_lobe is not None:
                 note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, "
                 note += f"sigma {float(shared_lobe[1][0]):.4f}"
+    object_lobe = torch.zeros(surface.num_texels, dtype=torch.bool)  # filled with the measured texels' median lobe
     if known.any():
         grid_vals = surface.to_grid(torch.cat([ps, sigma[:, None]], 1).double())
-        filled, _ = fill_undetermined(
+        filled, how = fill_undetermined(
             torch.from_numpy(grid_vals),
             torch.from_numpy(surface.to_grid(known.numpy(), fill=False)),
             torch.from_numpy(surface.to_grid(defined.numpy(), fill=False)),
@@ -106,6 +111,7 @@ def initialise_local(
         flat = surface.from_grid(filled.numpy()).to(ps.dtype)
         ps = torch.where(known[:, None], ps, flat[:, :-1])
         sigma = torch.where(known, sigma, flat[:, -1])
+        object_lobe = surface.from_grid(how.numpy() == FILL_MEDIAN) & ~known
     else:
         ps = torch.full_like(ps, 1e-3)
         sigma = torch.full_like(sigma, 0.5 * (sigma_min + sigma_max))
@@ -114,13 +120,25 @@ def initialise_local(
     coverage = torch.full((surface.num_texels,), COVER_NONE, dtype=torch.int8)
     coverage[defined] = COVER_PD_ONLY
     coverage[defined & ~cf.pd_from_diffuse] = COVER_PD_BOUND
-    coverage[known & defined] = COVER_FULL
+    coverage[object_lobe & defined] = COVER_SHARED
+    coverage[known & defined] = COVER_SHARED if specular == "shared" else COVER_FULL
     head = (
         f"closed form: Pd from eq. 3.3 at {int(cf.pd_from_diffuse.sum())} texels, bound at "
         f"{int((defined & ~cf.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at {int(cf.spec_determined.sum())}; "
         f"Ps/sigma known at {int((known & defined).sum())} of {surface.num_texels} texels, the rest interpolated "
-        f"(W = {window}); {note}"
+        f"(W = {window}) or, beyond two windows, the measured texels' median lobe "
+        f"({int((object_lobe & defined).sum())}); {note}"
     )
     return Initial(
         pd, ps, sigma, known & defined, defined, coverage, cf.pd_from_diffuse, cf.spec_determined, shared_lobe, head
     )
+
+
+def mark_untrusted(coverage: torch.Tensor, untrusted: torch.Tensor | None) -> torch.Tensor:
+    """coverage (T,) int8 with COVER_UNTRUSTED at the texels without an estimate that the capture left unfitted
+    for their geometry (untrusted (T,) bool: Capture.untrusted; None: none)."""
+    if untrusted is None:
+        return coverage
+    out = coverage.clone()
+    out[untrusted.to(torch.bool) & (coverage == COVER_NONE)] = COVER_UNTRUSTED
+    return out

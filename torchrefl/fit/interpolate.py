@@ -16,7 +16,6 @@ from __future__ import annotations
 import torch
 from kornia.filters import box_blur
 
-
 #: window passes: a W x W mean spreads a determined value at most MAX_PASSES * (W // 2) texels
 MAX_PASSES = 2
 FILL_OUTSIDE, FILL_DETERMINED, FILL_WINDOW, FILL_MEDIAN = 0, 1, 2, 4

@@ -18,7 +18,7 @@ from torchrefl.core.params import TexelParams
 from torchrefl.core.progress import Stages, bar
 from torchrefl.errors import ConfigError
 from torchrefl.fit.emitter_fill import nearest_fitted
-from torchrefl.fit.initialise import initialise_local
+from torchrefl.fit.initialise import initialise_local, mark_untrusted
 from torchrefl.fit.observe import observe
 from torchrefl.fit.reestimate import reestimate
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
@@ -197,4 +197,6 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
             pd, ps, sigma = (x.detach() for x in params.values())
             predicted = level.predict(pd, ps, sigma).cpu()
     log(f"refinement ({cfg.fit.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
-    return fit_result(pd, ps, sigma, predicted, history, seen, init, level)
+    result = fit_result(pd, ps, sigma, predicted, history, seen, init, level)
+    result.coverage = mark_untrusted(result.coverage, capture.untrusted)
+    return result

@@ -11,8 +11,10 @@ from torchrefl.capture.base import Capture
 from torchrefl.config import Config
 from torchrefl.core.atomic_files import atomic_file, atomic_write_text
 from torchrefl.core.progress import Stages
+from torchrefl.fit.initialise import COVER_UNTRUSTED
 from torchrefl.fit.result import FitResult
 from torchrefl.planning.light_selection import SelectionResult
+from torchrefl.report.coverage import specular_sources
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference, strict_json
 from torchrefl.version import __version__
@@ -62,7 +64,12 @@ def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionRe
         "lights": obs.num_lights,
         "holdout_lights": list(cfg.fit.holdout),
         "rerender": image_difference(res.predicted, obs.intensity, res.fit_mask),
-        "coverage": {**res.init_counts, "estimated": int(res.estimated.sum())},
+        "coverage": {
+            **res.init_counts,
+            "estimated": int(res.estimated.sum()),
+            "untrusted_geometry": int((res.coverage == COVER_UNTRUSTED).sum()),
+        },
+        "specular_source": specular_source(cap, res),
         "fit": {
             "optimizer": cfg.fit.optimizer,
             "loss_first": res.history[0],
@@ -80,6 +87,17 @@ def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionRe
     if selection is not None:
         metrics["selection"] = selection.table()
     return metrics
+
+
+def specular_source(cap: Capture, res: FitResult) -> dict:
+    """metrics.json's specular_source block (torchrefl.report.coverage), per truth region where the truth has them."""
+    surface = cap.surface
+    region = cap.truth.get("region") if cap.truth else None
+    return specular_sources(
+        surface.to_grid(res.coverage.numpy(), fill=0),
+        surface.to_grid(res.estimated.numpy(), fill=False),
+        None if region is None else surface.to_grid(np.asarray(region), fill=-1),
+    )
 
 
 def write_outputs(

@@ -160,7 +160,7 @@ class RunResult:
         import matplotlib.pyplot as plt
         from matplotlib.colors import ListedColormap
 
-        from torchrefl.report.maps import COVERAGE_COLOURS
+        from torchrefl.report.maps import COVERAGE_COLOURS, COVERAGE_NAMES
 
         blank = lambda a: np.where(self.mask if a.ndim == 2 else self.mask[..., None], a, np.nan)
         fig, axes = plt.subplots(1, 4, figsize=(16, 4), constrained_layout=True)
@@ -182,7 +182,7 @@ class RunResult:
             axes[3].imshow(
                 self.coverage, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5, interpolation="nearest"
             )
-            axes[3].set_title("coverage: none / Pd / Pd+spec / Pd bound")
+            axes[3].set_title("coverage: " + " / ".join(COVERAGE_NAMES), fontsize=7)
         else:
             axes[3].set_title("coverage: not in params.npz")
         for a in axes:

@@ -3,6 +3,28 @@
 from __future__ import annotations
 
 
+def _share(value) -> str:
+    return f"{value:.1%}" if isinstance(value, (int, float)) else "n/a"
+
+
+def _coverage_lines(coverage: dict, source: dict) -> list[str]:
+    """Where Ps and sigma come from (the share measured rather than interpolated or shared) and the texels left
+    unfitted for their geometry."""
+    lines = []
+    if isinstance(source.get("estimated"), int):
+        share = {k: _share(source.get(f"{k}_share")) for k in ("measured", "interpolated", "shared")}
+        lines.append(
+            f"  Ps/sigma measured at {share['measured']} of {source['estimated']} estimated texels "
+            f"(interpolated {share['interpolated']}, shared lobe {share['shared']})"
+        )
+    if isinstance(coverage.get("untrusted_geometry"), int) and coverage["untrusted_geometry"]:
+        lines.append(
+            f"  untrusted geometry: {coverage['untrusted_geometry']} texels not fitted "
+            "(edges, creases, mixed footprints)"
+        )
+    return lines
+
+
 def summary_table(metrics: dict) -> str:
     rows = [("stage", "seconds")] + [(k, f"{v:.2f}") for k, v in metrics["timing_s"].items()]
     lines = ["", "== torchrefl summary =="]
@@ -23,6 +45,7 @@ def summary_table(metrics: dict) -> str:
         lines.append(f"  held-out lights:    {fmt(metrics['holdout'])}")
     if section("ground_truth"):
         lines.append(f"  ground truth:       {fmt(metrics['ground_truth'])}")
+    lines += _coverage_lines(section("coverage"), section("specular_source"))
     s = section("selection")
     if all(isinstance(s.get(k), (int, float)) for k in ("lights_selected", "diffuse_coverage", "specular_coverage")):
         lines.append(
