@@ -70,7 +70,7 @@ def test_wrong_type_and_choice_and_range(tmp_path):
     with pytest.raises(ConfigError, match="photon.specular_gather.*>= 0"):
         load_config(write(tmp_path, "photon:\n  specular_gather: -1\n"))
     with pytest.raises(ConfigError, match="'photon.specular_gather' \\(64\\).*needs photon.diffuse_paths: radiosity"):
-        load_config(write(tmp_path, "photon:\n  specular_gather: 64\n"))
+        load_config(write(tmp_path, "photon:\n  specular_gather: 64\n  diffuse_paths: photons\n"))
     assert (
         load_config(None, ["photon.specular_gather=64", "photon.diffuse_paths=radiosity"]).photon.specular_gather == 64
     )
@@ -80,8 +80,8 @@ def test_wrong_type_and_choice_and_range(tmp_path):
 def test_object_e_configs_load_with_their_form_factor_settings(name):
     cfg = load_config(ROOT / "configs" / name)
     assert cfg.radiosity.hemisphere_samples == 2048 and cfg.radiosity.solve_samples == 256
-    assert cfg.geometry.median_size == 1 and cfg.synthetic.range_noise_mm == 0  # exact ranges need no median
-    assert cfg.photon.specular_gather == (64 if name == "object_e_setup2.yaml" else 0)
+    assert cfg.geometry.median_size is None and cfg.synthetic.range_noise_mm == 0  # auto: exact ranges get no median
+    assert cfg.photon.specular_gather == 64 and cfg.photon.diffuse_paths == "radiosity"
 
 
 def test_section_must_be_mapping(tmp_path):

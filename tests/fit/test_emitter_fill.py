@@ -85,7 +85,7 @@ def test_the_photon_level_scatters_with_the_filled_parameters():
     """A PhotonLevel given the emitter source traces with Pd, Ps, sigma taken from the nearest fitted texel: its
     cache equals that of a level without it traced with the filled tensors (same seed), and differs from the
     cache of the black tensors."""
-    cfg, s, obs, radiosity, fitted = fold_setup(photons_per_light=20_000)
+    cfg, s, obs, radiosity, fitted = fold_setup(photons_per_light=20_000, diffuse_paths="photons", specular_gather=0)
     T = s.num_texels
     src = nearest_fitted(s.positions, fitted)
     pd = torch.full((T, 3), 0.6, dtype=torch.float64) * fitted[:, None]

@@ -74,12 +74,12 @@ def fold_capture():
 
 
 def level_for(cfg, capture: Capture, name: str, seed: int):
-    """The level `name` (local, radiosity, photon: every path from photons, the photon.* defaults; photon_hybrid:
-    photon.diffuse_paths radiosity and specular_gather 64, as the bundled glossy configs), prepared."""
+    """The level `name` (local, radiosity, photon: every path from photons, photon.diffuse_paths photons;
+    photon_hybrid: the photon.* defaults, diffuse_paths radiosity and specular_gather 64), prepared."""
     c = copy.deepcopy(cfg)
     c.seed = seed
-    if name == "photon_hybrid":
-        c.photon.diffuse_paths, c.photon.specular_gather = "radiosity", 64
+    if name == "photon":
+        c.photon.diffuse_paths, c.photon.specular_gather = "photons", 0
     inputs, _ = level_inputs(c, capture, lambda *a: None)
     if name == "local":
         return LocalLevel(inputs)

@@ -60,7 +60,13 @@ def photon_level(s, obs, schedule="joint", outer=2, seed=0, damping=0.0, iterati
     cfg.reflectance.brdf = "lambertian"
     cfg.fit.iterations = iterations
     for key, value in dict(
-        photons_per_light=300_000, schedule=schedule, outer_iterations=outer, damping=damping, smoothing=1.0
+        photons_per_light=300_000,
+        schedule=schedule,
+        outer_iterations=outer,
+        damping=damping,
+        smoothing=1.0,
+        diffuse_paths="photons",
+        specular_gather=0,
     ).items():
         setattr(cfg.photon, key, value)
     cfg.output.progress = False
