@@ -298,3 +298,17 @@ def test_capture_warnings_reach_metrics_and_the_summary(small_run, tmp_path, cap
 
     run = load_run(out)
     assert run.metrics["capture"]["warnings"] == [] and not list((out / "maps").glob("light_*"))
+
+
+def test_the_automatic_median_is_stated_with_the_model_reason(small_run, tmp_path):
+    """geometry.median_size null: an exact synthetic range image gets no median (it would round folds) and a noisy
+    one the 5 x 5 median; each run says which, with its noise estimate, in model_reason and the capture block."""
+    m = json.loads((small_run / "metrics.json").read_text())
+    assert m["capture"]["range_median_size"] == 1 and m["capture"]["range_noise_mm"] < 0.01
+    assert "geometry: no range median" in m["model_reason"]
+    noisy = {**SMALL, "synthetic": {**SMALL["synthetic"], "range_noise_mm": 0.2}, "fit": {"iterations": 1}}
+    out = tmp_path / "noisy"
+    assert main([str(write_config(tmp_path, noisy)), f"output.dir={out}", "--quiet"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["capture"]["range_median_size"] == 5 and abs(m["capture"]["range_noise_mm"] - 0.2) < 0.05
+    assert "geometry: range median 5 x 5 against" in m["model_reason"]

@@ -188,6 +188,7 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
             if level.name == "photon":
                 level.prepare()
         init = level.start(init)
+        level.object_lobe_texels = (init.coverage == 5) & ~init.known
     log(init.note)
     log(f"transport level: {level.name} ({level.reason})")
     with stages.stage("fit"):
@@ -199,4 +200,6 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
     log(f"refinement ({cfg.fit.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
     result = fit_result(pd, ps, sigma, predicted, history, seen, init, level)
     result.coverage = mark_untrusted(result.coverage, capture.untrusted)
+    if capture.stats.get("preprocessing"):  # the geometry the level's choice rests on (geometry.median_size)
+        result.model_reason += f"; geometry: {capture.stats['preprocessing']}"
     return result
