@@ -322,6 +322,8 @@ def _photon_flux(hits: PhotonHits, sources: LightSources, areas, T: int):
     scale = np.take(np.asarray(sources.weights, dtype=np.float64).reshape(-1), (hits.source % K) * T + t) / np.take(
         A, t
     )
+    if hits.density_weight is not None:  # irradiance on the texel's normal, not the hit face's (photon_trace)
+        scale = scale * np.asarray(hits.density_weight, dtype=np.float64)
     flux = np.asarray(hits.power, dtype=np.float64).T * scale  # (3, N)
     obs_idx = p * T + t
     return scale, flux, obs_idx
@@ -487,5 +489,6 @@ def indirect_radiance_reference(
         f = pd[t] / math.pi  # every stored photon reached the surface
         if cos_i > min_cos_light and float(n @ v) > 0:
             f = f + brdf_mod.brdf(brdf, n, wi, v, torch.zeros_like(pd[t]), ps3[t], sigma[t])
-        out[p, t] += f * torch.as_tensor(hits.power[i] * sources.weights[k, t] / float(areas[t]), dtype=pd.dtype)
+        w = 1.0 if hits.density_weight is None else float(hits.density_weight[i])
+        out[p, t] += f * torch.as_tensor(hits.power[i] * w * sources.weights[k, t] / float(areas[t]), dtype=pd.dtype)
     return kappa * out
