@@ -2,7 +2,7 @@
 
 The cache holds, for every light p and texel t, what the photons stored there (second and later
 bounces, torchrefl.transport.photon_trace) bring:
-    H_pt   = sum_k Phi_k w_k / A_t                              indirect irradiance (P, T, 3)
+    H_pt   = sum_k Phi_k w_k u_k / A_t                          indirect irradiance (P, T, 3)
     entries (p, t, theta_h, c): the photons' incident directions reduced to what the specular lobe
            needs: theta_h = angle(n_t, half(wi_k, v_pt)) and c = Phi_k w_k / A_t * G(cos_i, cos_v) / cos_i,
            merged over photons of the same (p, t) whose theta_h falls in the same bin (power-weighted
@@ -10,7 +10,8 @@ bounces, torchrefl.transport.photon_trace) bring:
            within 1 % of the unmerged sum, 3 % if the fit halves sigma before the next refresh), kept only
            for fitted or evaluated observations and where the lobe at the texel's current roughness
            (times 3, capped at sigma_max) is above 1e-7.
-w_k are the light-position weights below. H is kept linear in the Pd of the texel each photon was
+w_k are the light-position weights below, u_k the hit's density weight (PhotonHits.density_weight: irradiance on the
+texel's normal; Phi_k below stands for Phi_k u_k). H is kept linear in the Pd of the texel each photon was
 last scattered from (its emitter e_k): the part of Phi_k that the emitter's diffuse reflection
 carries is exactly proportional to Pd_e at that bounce, so
     H_pt(Pd) = H0_pt + sum_k L_k Pd_{e_k},   L_k = Phi_k^diffuse-per-unit-Pd w_k / A_t
