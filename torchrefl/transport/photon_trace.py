@@ -158,7 +158,8 @@ class PhotonTracer:
         )
         self.face_normals = oriented_face_normals(verts, faces, self.normals[self.vertex_texel[faces]])
         self._face_area, self._centroids = fa, verts[faces].mean(1) if faces.size else np.zeros((0, 3))
-        self._face_points = verts[faces].astype(np.float32) if faces.size else np.zeros((0, 3, 3), np.float32)
+        corners = verts[faces] if faces.size else np.zeros((0, 3, 3))
+        self._corner3 = [np.ascontiguousarray(corners[:, c].T, dtype=np.float32) for c in range(3)]  # 3 x (3, F)
         # a corner of a face collects for its texel only where the face lies along the texel's surface
         # (normals within ~25 deg): faces that cut across a fold or a crease (their normal between the two
         # sides) still scatter photons but do not count in the fold texels' density, which would
@@ -182,6 +183,7 @@ class PhotonTracer:
         f32 = lambda x: np.ascontiguousarray(np.asarray(x).T, dtype=np.float32)  # (3, N): component-major
         self._pos3, self._n3 = f32(self.positions), f32(self.normals)
         self._t3, self._b3, self._fn3 = f32(self.frame_t), f32(self.frame_b), f32(self.face_normals)
+        self._ft3, self._fb3 = (f32(x) for x in tangent_frame(self.face_normals))
         self._corner_texel = corner_texel.astype(np.int32).ravel()
         self._corner_collects = self.collects.ravel()
         # faces whose corners' texel normals disagree (they bridge a fold or a crease): hit_texels' corner rule
@@ -203,9 +205,10 @@ class PhotonTracer:
         r1, r2 = rng.random((2, len(face)), dtype=np.float32)
         s1 = np.sqrt(r1)
         b = np.stack([1 - s1, s1 * (1 - r2), s1 * r2])  # (3, N) barycentric weights
-        y = np.einsum("cn,nci->in", b, self._face_points[face])
-        texel = np.take(self._corner_texel, face.astype(np.int64) * 3 + b.argmax(0))
-        return np.ascontiguousarray(y), texel
+        y = _take3(self._corner3[0], face) * b[0]
+        y += _take3(self._corner3[1], face) * b[1]
+        y += _take3(self._corner3[2], face) * b[2]
+        return y, np.take(self._corner_texel, face * 3 + b.argmax(0))
 
     # ------------------------------------------------------------------ pieces
 
@@ -231,9 +234,13 @@ class PhotonTracer:
         i = triangle.astype(np.int64) * 3 + corner
         return np.take(self._corner_texel, i), np.take(self._corner_collects, i)
 
-    def _frames(self, texel: np.ndarray, n: np.ndarray, own: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """Tangents (t, b), each (3, N), of the scattering normals n (3, N): the texel's precomputed frame, a
-        fresh one where the face normal stands in (own False)."""
+    def _frames(
+        self, texel: np.ndarray, n: np.ndarray, own: np.ndarray | None, face: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Tangents (t, b), each (3, N), of the scattering normals n (3, N): the precomputed frame of the face
+        (face given: n is its normal) or of the texel, a fresh one where the face normal stands in (own False)."""
+        if face is not None:
+            return _take3(self._ft3, face), _take3(self._fb3, face)
         t, b = _take3(self._t3, texel), _take3(self._b3, texel)
         if own is not None and not own.all():
             bad = np.flatnonzero(~own)
@@ -254,6 +261,7 @@ class PhotonTracer:
         u: np.ndarray,
         roulette: bool,
         path: np.ndarray | None = None,
+        face: np.ndarray | None = None,
     ):
         """One scattering of N photons at texels `texel` (N,) int32, positions y (3, N), arriving along -wi
         (3, N), about normals n (3, N) with cos_i = n.wi > 0, own (N,) bool or None (n is the texel's normal),
@@ -261,7 +269,8 @@ class PhotonTracer:
         Returns the survivors' (origin (3, M), direction (3, M), power (3, M), diffuse_per_pd (3, M), emitter
         texel (M,), specular_path (M,) bool), float32 / int32 (vectors are stored component-major: numpy's fast
         layout for them); path (N,) bool: the photons' specular_path flags before this scattering (None: all False),
-        which a survivor keeps after a diffuse scattering and sets after a specular one.
+        which a survivor keeps after a diffuse scattering and sets after a specular one; face (N,): n is that mesh
+        face's normal (its precomputed tangent frame), or None.
 
         One-sample component selection: with probability q_t the specular lobe, otherwise the cosine
         distribution, each weighted by its own part of the BRDF over its own pdf (unbiased, since
@@ -280,7 +289,7 @@ class PhotonTracer:
             parts.append(self._scatter_diffuse(iD, texel, y, n, power, w_d, k_d, u, path))
         iS = np.flatnonzero(spec) if self.lobe is not None and spec.any() else np.zeros(0, np.int64)
         if iS.size:
-            part = self._scatter_specular(iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette)
+            part = self._scatter_specular(iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette, face)
             if part is not None:
                 parts.append(part)
         if len(parts) == 1:
@@ -310,12 +319,13 @@ class PhotonTracer:
             np.take(path, iD),
         )
 
-    def _scatter_specular(self, iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette) -> tuple | None:
+    def _scatter_specular(self, iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette, face) -> tuple | None:
         """scatter's specular branch for the photons iS: a half vector from the lobe, wo = reflect(wi, h), the
         weight Ps D G cos_o / (cos_i q p(wo)) and the roulette; the survivors' part (specular_path set), or None
         when none survives."""
         tS, nS, wiS = np.take(texel, iS), _take3(n, iS), _take3(wi, iS)
-        fa, fb = self._frames(tS, nS, None if own is None else np.take(own, iS))
+        own_s, face_s = (None if x is None else np.take(x, iS) for x in (own, face))
+        fa, fb = self._frames(tS, nS, own_s, face_s)
         theta = lobe_theta(self.lobe, np.take(tables.sigma, tS), np.take(u[0], iS), np.take(tables.truncation, tS))
         st, ct = np.sin(theta), np.cos(theta)
         phi = np.float32(2 * np.pi) * np.take(u[1], iS)
@@ -381,9 +391,8 @@ class PhotonTracer:
         wi = np.asarray(source, dtype=np.float32)[:, None] - y
         wi /= np.sqrt(column_dot(wi, wi))
         power = np.repeat((intensity * (total / n_total)).astype(np.float32)[:, None], len(texel), 1)
-        n_s = _take3(self._fn3, face)  # scattered about the face normal (own False: a frame of their own)
+        n_s = _take3(self._fn3, face)  # scattered about the face normal
         cos_i = column_dot(n_s, wi)
-        own = np.zeros(len(texel), dtype=bool)
         origin = d = per_pd = emitter = None  # the rays of the previous bounce and their photons
         path = np.zeros(len(texel), dtype=bool)  # no scattering yet: the first hit is the direct light
         rays = back = 0
@@ -414,14 +423,14 @@ class PhotonTracer:
                 )
                 n_s = _take3(self._fn3, prim)  # the face's normal: n_s.wi > 0 on the front
                 cos_i = column_dot(n_s, wi)
-                own = np.zeros(k.size, dtype=bool)
+                face = prim
                 weight = np.maximum(column_dot(_take3(self._n3, texel), wi), 0) / np.maximum(cos_i, np.float32(1e-6))
                 stored.append((texel, wi, power, emitter, per_pd, collects, path, weight))
             if depth == self.max_bounces:
                 break
             u = rng.random((4, len(texel)), dtype=np.float32)
             origin, d, power, per_pd, emitter, path = self.scatter(
-                texel, y, wi, n_s, cos_i, own, power, tables, u, roulette=depth + 1 > self.min_bounces, path=path
+                texel, y, wi, n_s, cos_i, None, power, tables, u, depth + 1 > self.min_bounces, path=path, face=face
             )
             if not d.shape[1]:
                 break
