@@ -426,6 +426,7 @@ def test_leaving_out_the_all_diffuse_paths_keeps_exactly_the_flagged_photons(tra
         emitter=sub(hits.emitter),
         diffuse_per_pd=sub(hits.diffuse_per_pd),
         specular_path=sub(flagged),
+        density_weight=sub(hits.density_weight),
     )
     zero = torch.zeros_like(pd)
     ref = indirect_radiance_reference(

@@ -188,6 +188,7 @@ def test_flagged_photons_alone_stay_in_the_specular_entries(glossy_fold):
         emitter=sub(hits.emitter),
         diffuse_per_pd=sub(hits.diffuse_per_pd),
         specular_path=sub(flagged),
+        density_weight=sub(hits.density_weight),
     )
     torch.testing.assert_close(specular(f, only), specular(f, cache_of(f, subset)))
     torch.testing.assert_close(only.irradiance, cache_of(f, hits).irradiance)

@@ -7,7 +7,8 @@ side a texel of its own side, lit like itself. On the object that ray reaches th
 on a mixed face (its corners' normals disagree by more than about 25 degrees, MIXED_COS) keep the usual
 corner if its normal faces the ray (n . d < 0), else take, among the corners that face it, the one with
 the best score. One rule for the radiosity level's form factors (torchrefl.transport.form_factors) and
-the photon level's hits and gather rays (torchrefl.transport.photon_trace).
+the photon level's gather rays (torchrefl.transport.photon_trace.hit_texels). Photon hits do not use it: a photon
+density must be collected by the region whose area divides it, the nearest corner's.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 The cache holds, for every light p and texel t, what the photons stored there (second and later
 bounces, torchrefl.transport.photon_trace) bring:
-    H_pt   = sum_k Phi_k w_k / A_t                              indirect irradiance (P, T, 3)
+    H_pt   = sum_k Phi_k w_k u_k / A_t                          indirect irradiance (P, T, 3)
     entries (p, t, theta_h, c): the photons' incident directions reduced to what the specular lobe
            needs: theta_h = angle(n_t, half(wi_k, v_pt)) and c = Phi_k w_k / A_t * G(cos_i, cos_v) / cos_i,
            merged over photons of the same (p, t) whose theta_h falls in the same bin (power-weighted
@@ -10,7 +10,8 @@ bounces, torchrefl.transport.photon_trace) bring:
            within 1 % of the unmerged sum, 3 % if the fit halves sigma before the next refresh), kept only
            for fitted or evaluated observations and where the lobe at the texel's current roughness
            (times 3, capped at sigma_max) is above 1e-7.
-w_k are the light-position weights below. H is kept linear in the Pd of the texel each photon was
+w_k are the light-position weights below, u_k the hit's density weight (PhotonHits.density_weight: irradiance on the
+texel's normal; Phi_k below stands for Phi_k u_k). H is kept linear in the Pd of the texel each photon was
 last scattered from (its emitter e_k): the part of Phi_k that the emitter's diffuse reflection
 carries is exactly proportional to Pd_e at that bounce, so
     H_pt(Pd) = H0_pt + sum_k L_k Pd_{e_k},   L_k = Phi_k^diffuse-per-unit-Pd w_k / A_t
@@ -322,6 +323,8 @@ def _photon_flux(hits: PhotonHits, sources: LightSources, areas, T: int):
     scale = np.take(np.asarray(sources.weights, dtype=np.float64).reshape(-1), (hits.source % K) * T + t) / np.take(
         A, t
     )
+    if hits.density_weight is not None:  # irradiance on the texel's normal, not the hit face's (photon_trace)
+        scale = scale * np.asarray(hits.density_weight, dtype=np.float64)
     flux = np.asarray(hits.power, dtype=np.float64).T * scale  # (3, N)
     obs_idx = p * T + t
     return scale, flux, obs_idx
@@ -487,5 +490,6 @@ def indirect_radiance_reference(
         f = pd[t] / math.pi  # every stored photon reached the surface
         if cos_i > min_cos_light and float(n @ v) > 0:
             f = f + brdf_mod.brdf(brdf, n, wi, v, torch.zeros_like(pd[t]), ps3[t], sigma[t])
-        out[p, t] += f * torch.as_tensor(hits.power[i] * sources.weights[k, t] / float(areas[t]), dtype=pd.dtype)
+        w = 1.0 if hits.density_weight is None else float(hits.density_weight[i])
+        out[p, t] += f * torch.as_tensor(hits.power[i] * w * sources.weights[k, t] / float(areas[t]), dtype=pd.dtype)
     return kappa * out

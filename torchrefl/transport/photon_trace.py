@@ -1,15 +1,18 @@
 """Photon tracing with Embree (Method III, dissertation Ch.5): light paths from point lights over the texel mesh.
 
 Photons are aimed at the object: a photon of source s (position L, radiant intensity Y, RGB) first
-lands on texel t with probability proportional to the texel's unshadowed direct flux geometry (drawn by
-systematic sampling)
-    a_t = A_t max(n_t.l, 0) vis_t / |L - x_t|^2          (vis by an Embree shadow ray),
-which is exactly the density of a ray from L whose first hit is t, so every photon carries the same
-    Phi = Y * sum_t a_t / N                              (N photons of that source),
+lands on mesh face f with probability proportional to the face's direct flux geometry (drawn by
+systematic sampling), at a uniform point of the face,
+    a_f = A_f max(n_f.l, 0) vis_f / |L - c_f|^2          (at the centroid c_f; vis by an Embree shadow ray),
+which is the density of a ray from L whose first hit is f, so every photon carries the same
+    Phi = Y * sum_f a_f / N                              (N photons of that source),
 and no photon is wasted on directions that miss. The first hit is not stored (direct light is
-computed analytically by the local terms) and needs no ray: the photon starts at the texel with
-wi = l. Later hits are found with Embree; a hit's texel is the nearest mesh vertex (mesh vertices
-are texel grid points). From the first hit on, the photon is scattered by the current BRDF of the
+computed analytically by the local terms) and needs no ray: the photon starts on the face with
+wi = l. (Starting at the texel vertex about the smoothed texel normal, as before, misplaced the light next to a
+fold: part went into the faces around the vertex, and the bent faces' own direct light was missing.)
+Later hits are found with Embree; a hit's texel is the nearest mesh vertex (mesh vertices
+are texel grid points). From the first hit on, the photon is scattered about the normal of the face it is on
+(no photon re-enters the face it leaves, as the reference path tracer) by the current BRDF of the
 texel it hit, g = f cos_l = g_diffuse + g_specular (torchrefl.core.brdf; non-reciprocal lobes are evaluated
 with the light on the incident side, the way the fitter and the renderer use them), by one-sample
 component selection: with probability q = mean(Ps) / (mean(Pd) + mean(Ps)) a direction wo from the
@@ -18,9 +21,10 @@ specular lobe, otherwise a cosine-weighted one, each with the weight of its own 
 then Russian roulette with survival s = min(0.95, max_c w) and Phi <- Phi w / s (PhotonTracer.scatter).
 Every later hit on the front side of the mesh
 (face normal, oriented like the texel normals, towards wi) is stored with the texel, the incident direction wi
-(towards where the photon came from) and Phi; hits on the back of the scanned surface absorb the photon (the unscanned
-side is not modelled). Photons are scattered about the texel normal, or the face normal where the texel normal faces
-away from the photon (grazing arrival on a curved or folded mesh).
+(towards where the photon came from), Phi and the density weight max(n_t.wi, 0) / n_f.wi, which turns the flux
+through the face into irradiance on the texel's normal n_t, the normal the model and the observations use
+(next to a fold the faces around a texel are bent away from it); hits on the back of the scanned surface absorb the
+photon (the unscanned side is not modelled).
 
 Deterministic in `seed`: random numbers are keyed by (seed, refresh, source, chunk), never by thread.
 The paths are traced in float32 (positions, directions, flux), as Embree intersects them; the cache
@@ -67,7 +71,8 @@ class PhotonHits:
     direction: (N, 3) float32 unit incident direction wi; power: (N, 3) float32 flux Phi;
     emitter: (N,) int64 texel of the photon's last scattering; specular_path: (N,) bool whether any scattering on
     the photon's path so far took the specular lobe (the rest, all-diffuse paths, is what the radiosity level
-    computes); diffuse_per_pd: (N, 3) float32 the share of Phi
+    computes); density_weight: (N,) float32 max(n_t.wi, 0) / n_f.wi of the hit (module doc; None = 1);
+    diffuse_per_pd: (N, 3) float32 the share of Phi
     that is linear in the emitter's Pd, per unit Pd (Phi_in / ((1 - q) s) after a diffuse scattering with
     roulette survival s, 0 after a specular one), so that Phi(Pd') = Phi + diffuse_per_pd (Pd' - Pd) for the
     last bounce, exactly per photon and unbiased over photons (ScatterTables for where q rounds to 1).
@@ -86,6 +91,7 @@ class PhotonHits:
     diffuse_per_pd: np.ndarray | None = None
     back_hits: int = 0
     specular_path: np.ndarray | None = None
+    density_weight: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -151,6 +157,9 @@ class PhotonTracer:
             np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1
         )
         self.face_normals = oriented_face_normals(verts, faces, self.normals[self.vertex_texel[faces]])
+        self._face_area, self._centroids = fa, verts[faces].mean(1) if faces.size else np.zeros((0, 3))
+        corners = verts[faces] if faces.size else np.zeros((0, 3, 3))
+        self._corner3 = [np.ascontiguousarray(corners[:, c].T, dtype=np.float32) for c in range(3)]  # 3 x (3, F)
         # a corner of a face collects for its texel only where the face lies along the texel's surface
         # (normals within ~25 deg): faces that cut across a fold or a crease (their normal between the two
         # sides) still scatter photons but do not count in the fold texels' density, which would
@@ -174,6 +183,7 @@ class PhotonTracer:
         f32 = lambda x: np.ascontiguousarray(np.asarray(x).T, dtype=np.float32)  # (3, N): component-major
         self._pos3, self._n3 = f32(self.positions), f32(self.normals)
         self._t3, self._b3, self._fn3 = f32(self.frame_t), f32(self.frame_b), f32(self.face_normals)
+        self._ft3, self._fb3 = (f32(x) for x in tangent_frame(self.face_normals))
         self._corner_texel = corner_texel.astype(np.int32).ravel()
         self._corner_collects = self.collects.ravel()
         # faces whose corners' texel normals disagree (they bridge a fold or a crease): hit_texels' corner rule
@@ -181,14 +191,24 @@ class PhotonTracer:
         self._offset32 = np.float32(self.offset)
 
     def landing(self, source: np.ndarray) -> np.ndarray:
-        """(T,) a_t of the module docstring for one source position (cached per position)."""
+        """(F,) a_f of the module docstring, per mesh face, for one source position (cached per position)."""
         key = tuple(np.round(np.asarray(source, dtype=np.float64), 9))
         if key not in self._landing:
-            L = np.broadcast_to(np.asarray(source, dtype=np.float64), self.positions.shape)
-            self._landing[key] = (
-                self.areas * point_light(self.positions, self.normals, L, self.tracer, offset=self.offset).irradiance()
+            L = np.broadcast_to(np.asarray(source, dtype=np.float64), self._centroids.shape)
+            self._landing[key] = self._face_area * (
+                point_light(self._centroids, self.face_normals, L, self.tracer, offset=self.offset).irradiance()
             )
         return self._landing[key]
+
+    def points_on(self, face: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Uniform points (3, N) float32 on mesh faces `face` (N,) and their texels (N,) int32: the nearest corner."""
+        r1, r2 = rng.random((2, len(face)), dtype=np.float32)
+        s1 = np.sqrt(r1)
+        b = np.stack([1 - s1, s1 * (1 - r2), s1 * r2])  # (3, N) barycentric weights
+        y = _take3(self._corner3[0], face) * b[0]
+        y += _take3(self._corner3[1], face) * b[1]
+        y += _take3(self._corner3[2], face) * b[2]
+        return y, np.take(self._corner_texel, face * 3 + b.argmax(0))
 
     # ------------------------------------------------------------------ pieces
 
@@ -199,7 +219,8 @@ class PhotonTracer:
         first one on a tie) and (N,) bool whether the hit counts in that texel's density (self.collects).
         direction (3, N), the rays' directions: on a face that bridges a fold or crease the hit goes to the
         corner that faces the ray (fold_hits.facing_corner, scored by barycentric weight; the form factors
-        apply the same rule)."""
+        apply the same rule): specular_gather's rays, which read the radiosity level's radiance. Photon hits take
+        the nearest corner, the region whose area collects them."""
         w0 = 1 - u - v
         corner = np.where(u >= v, np.where(u > w0, 1, 0), np.where(v > w0, 2, 0))
         if direction is not None and triangle.size:
@@ -213,9 +234,13 @@ class PhotonTracer:
         i = triangle.astype(np.int64) * 3 + corner
         return np.take(self._corner_texel, i), np.take(self._corner_collects, i)
 
-    def _frames(self, texel: np.ndarray, n: np.ndarray, own: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """Tangents (t, b), each (3, N), of the scattering normals n (3, N): the texel's precomputed frame, a
-        fresh one where the face normal stands in (own False)."""
+    def _frames(
+        self, texel: np.ndarray, n: np.ndarray, own: np.ndarray | None, face: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Tangents (t, b), each (3, N), of the scattering normals n (3, N): the precomputed frame of the face
+        (face given: n is its normal) or of the texel, a fresh one where the face normal stands in (own False)."""
+        if face is not None:
+            return _take3(self._ft3, face), _take3(self._fb3, face)
         t, b = _take3(self._t3, texel), _take3(self._b3, texel)
         if own is not None and not own.all():
             bad = np.flatnonzero(~own)
@@ -236,6 +261,7 @@ class PhotonTracer:
         u: np.ndarray,
         roulette: bool,
         path: np.ndarray | None = None,
+        face: np.ndarray | None = None,
     ):
         """One scattering of N photons at texels `texel` (N,) int32, positions y (3, N), arriving along -wi
         (3, N), about normals n (3, N) with cos_i = n.wi > 0, own (N,) bool or None (n is the texel's normal),
@@ -243,7 +269,8 @@ class PhotonTracer:
         Returns the survivors' (origin (3, M), direction (3, M), power (3, M), diffuse_per_pd (3, M), emitter
         texel (M,), specular_path (M,) bool), float32 / int32 (vectors are stored component-major: numpy's fast
         layout for them); path (N,) bool: the photons' specular_path flags before this scattering (None: all False),
-        which a survivor keeps after a diffuse scattering and sets after a specular one.
+        which a survivor keeps after a diffuse scattering and sets after a specular one; face (N,): n is that mesh
+        face's normal (its precomputed tangent frame), or None.
 
         One-sample component selection: with probability q_t the specular lobe, otherwise the cosine
         distribution, each weighted by its own part of the BRDF over its own pdf (unbiased, since
@@ -262,7 +289,7 @@ class PhotonTracer:
             parts.append(self._scatter_diffuse(iD, texel, y, n, power, w_d, k_d, u, path))
         iS = np.flatnonzero(spec) if self.lobe is not None and spec.any() else np.zeros(0, np.int64)
         if iS.size:
-            part = self._scatter_specular(iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette)
+            part = self._scatter_specular(iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette, face)
             if part is not None:
                 parts.append(part)
         if len(parts) == 1:
@@ -292,12 +319,13 @@ class PhotonTracer:
             np.take(path, iD),
         )
 
-    def _scatter_specular(self, iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette) -> tuple | None:
+    def _scatter_specular(self, iS, texel, y, wi, n, cos_i, own, power, tables, u, roulette, face) -> tuple | None:
         """scatter's specular branch for the photons iS: a half vector from the lobe, wo = reflect(wi, h), the
         weight Ps D G cos_o / (cos_i q p(wo)) and the roulette; the survivors' part (specular_path set), or None
         when none survives."""
         tS, nS, wiS = np.take(texel, iS), _take3(n, iS), _take3(wi, iS)
-        fa, fb = self._frames(tS, nS, None if own is None else np.take(own, iS))
+        own_s, face_s = (None if x is None else np.take(x, iS) for x in (own, face))
+        fa, fb = self._frames(tS, nS, own_s, face_s)
         theta = lobe_theta(self.lobe, np.take(tables.sigma, tS), np.take(u[0], iS), np.take(tables.truncation, tS))
         st, ct = np.sin(theta), np.cos(theta)
         phi = np.float32(2 * np.pi) * np.take(u[1], iS)
@@ -348,24 +376,23 @@ class PhotonTracer:
         rng: np.random.Generator,
     ) -> tuple[list, int]:
         """n photons of one source (out of n_total for that source); returns ([(texel, wi (3, M), power (3, M),
-        emitter, diffuse_per_pd (3, M), collects, specular_path) per bounce], rays, back-side hits), float32 / int32
-        arrays."""
+        emitter, diffuse_per_pd (3, M), collects, specular_path, density_weight) per bounce], rays, back-side hits),
+        float32 / int32 arrays."""
         a = self.landing(source)
         total = float(a.sum())
         stored: list = []
         if total <= 0:
             return stored, 0, 0
-        # systematic sampling: n stratified positions on the cdf (lower variance than independent draws, O(T + n),
-        # and the photons come out ordered by texel, which keeps the rays coherent)
+        # systematic sampling: n stratified positions on the cdf (lower variance than independent draws, O(F + n),
+        # and the photons come out ordered by face, which keeps the rays coherent)
         edges = np.floor(np.concatenate([[0.0], np.cumsum(a / total)]) * n + rng.random())
-        texel = np.repeat(np.arange(len(a), dtype=np.int32), np.diff(edges).astype(np.int64))
-        y = _take3(self._pos3, texel)
+        face = np.repeat(np.arange(len(a), dtype=np.int64), np.diff(edges).astype(np.int64))
+        y, texel = self.points_on(face, rng)
         wi = np.asarray(source, dtype=np.float32)[:, None] - y
         wi /= np.sqrt(column_dot(wi, wi))
         power = np.repeat((intensity * (total / n_total)).astype(np.float32)[:, None], len(texel), 1)
-        n_s = _take3(self._n3, texel)
+        n_s = _take3(self._fn3, face)  # scattered about the face normal
         cos_i = column_dot(n_s, wi)
-        own = None
         origin = d = per_pd = emitter = None  # the rays of the previous bounce and their photons
         path = np.zeros(len(texel), dtype=bool)  # no scattering yet: the first hit is the direct light
         rays = back = 0
@@ -383,7 +410,9 @@ class PhotonTracer:
                     break
                 prim = np.take(prim, k)
                 dk = _take3(d, k)
-                texel, collects = self.hit_texels(prim, np.take(bu, k), np.take(bv, k), dk)
+                # the nearest corner: the fold rule (direction given) handed hits on a fold's faces to the far side's
+                # texels, whose collecting area does not include them (+37 % in the row next to a rounded fold)
+                texel, collects = self.hit_texels(prim, np.take(bu, k), np.take(bv, k))
                 y = _take3(origin, k) + np.take(dist, k) * dk
                 wi = -dk
                 power, per_pd, emitter, path = (
@@ -392,21 +421,16 @@ class PhotonTracer:
                     np.take(emitter, k),
                     np.take(path, k),
                 )
-                stored.append((texel, wi, power, emitter, per_pd, collects, path))
-                # the texel's normal, or the hit face's where the texel normal faces away from wi (a photon
-                # arriving at a grazing angle on a curved or folded mesh: the smooth normal would absorb it)
-                n_s = _take3(self._n3, texel)
+                n_s = _take3(self._fn3, prim)  # the face's normal: n_s.wi > 0 on the front
                 cos_i = column_dot(n_s, wi)
-                own = cos_i > 1e-6
-                if not own.all():
-                    bad = np.flatnonzero(~own)
-                    n_s[:, bad] = _take3(self._fn3, np.take(prim, bad))
-                    cos_i[bad] = column_dot(n_s[:, bad], wi[:, bad])
+                face = prim
+                weight = np.maximum(column_dot(_take3(self._n3, texel), wi), 0) / np.maximum(cos_i, np.float32(1e-6))
+                stored.append((texel, wi, power, emitter, per_pd, collects, path, weight))
             if depth == self.max_bounces:
                 break
             u = rng.random((4, len(texel)), dtype=np.float32)
             origin, d, power, per_pd, emitter, path = self.scatter(
-                texel, y, wi, n_s, cos_i, own, power, tables, u, roulette=depth + 1 > self.min_bounces, path=path
+                texel, y, wi, n_s, cos_i, None, power, tables, u, depth + 1 > self.min_bounces, path=path, face=face
             )
             if not d.shape[1]:
                 break
@@ -457,12 +481,14 @@ class PhotonTracer:
                 np.zeros((0, 3), np.float32),
                 back_hits=back,
                 specular_path=np.zeros(0, dtype=bool),
+                density_weight=np.zeros(0, dtype=np.float32),
             )
         keep = np.flatnonzero(np.concatenate([b[5] for _, b in batches]))
         ints = lambda j: np.take(np.concatenate([b[j] for _, b in batches]), keep).astype(np.int64)
         vecs = lambda j: np.take(np.concatenate([b[j] for _, b in batches], axis=1), keep, axis=1).T  # (N, 3) views
         source = np.take(np.concatenate([np.full(len(b[0]), s, dtype=np.int64) for s, b in batches]), keep)
         path = np.take(np.concatenate([b[6] for _, b in batches]), keep)
+        weight = np.take(np.concatenate([b[7] for _, b in batches]), keep)
         return PhotonHits(
             source,
             ints(0),
@@ -474,4 +500,5 @@ class PhotonTracer:
             vecs(4),
             back_hits=back,
             specular_path=path,
+            density_weight=weight,
         )
