@@ -27,7 +27,8 @@ from torchrefl.transport.local import LocalTerms, predict
 #: Pd with Ps/sigma measured (the texel's own T_spec observations); Pd from its upper bound only (Ps/sigma
 #: interpolated); untrusted geometry (edges, creases, mixed footprints: not fitted); Pd with the object's lobe (the
 #: shared one, or the measured texels' median lobe far from every measured texel)
-COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND, COVER_UNTRUSTED, COVER_SHARED = 0, 1, 2, 3, 4, 5
+#: and misfit (the fitted model cannot explain its observations: torchrefl.fit.misfit; no estimate)
+COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND, COVER_UNTRUSTED, COVER_SHARED, COVER_MISFIT = range(7)
 
 
 @dataclass

@@ -18,7 +18,8 @@ from torchrefl.core.params import TexelParams
 from torchrefl.core.progress import Stages, bar
 from torchrefl.errors import ConfigError
 from torchrefl.fit.emitter_fill import nearest_fitted
-from torchrefl.fit.initialise import initialise_local, mark_untrusted
+from torchrefl.fit.initialise import COVER_MISFIT, initialise_local, mark_untrusted
+from torchrefl.fit.misfit import MISFIT_DEVIATIONS, misfit_texels
 from torchrefl.fit.observe import observe
 from torchrefl.fit.reestimate import reestimate
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
@@ -172,6 +173,23 @@ def fit_result(pd, ps, sigma, predicted, history, seen, init, level: TransportLe
     )
 
 
+def drop_misfits(result: FitResult, intensity: torch.Tensor, log) -> None:
+    """Texels the fitted model cannot explain (torchrefl.fit.misfit) lose their estimate: coverage code 6, out of
+    the masks every metric uses."""
+    bad = misfit_texels(result.predicted, intensity, result.fit_mask, result.estimated)
+    result.misfit = int(bad.sum())
+    if not result.misfit:
+        return
+    result.estimated = result.estimated & ~bad
+    result.fit_mask = result.fit_mask & ~bad[None]
+    result.eval_mask = result.eval_mask & ~bad[None]
+    result.coverage = torch.where(bad, torch.full_like(result.coverage, COVER_MISFIT), result.coverage)
+    log(
+        f"{result.misfit} texels the fitted model cannot explain (RMS residual over {MISFIT_DEVIATIONS:g} robust "
+        "deviations above the median texel's: mixed footprints the range data missed) have no estimate"
+    )
+
+
 def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torch.device) -> FitResult:
     """Classify, start, and refine at the transport level cfg.fit.model (or auto's choice)."""
     with stages.stage("precompute"):
@@ -188,7 +206,6 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
             if level.name == "photon":
                 level.prepare()
         init = level.start(init)
-        level.object_lobe_texels = (init.coverage == 5) & ~init.known
     log(init.note)
     log(f"transport level: {level.name} ({level.reason})")
     with stages.stage("fit"):
@@ -200,6 +217,7 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
     log(f"refinement ({cfg.fit.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
     result = fit_result(pd, ps, sigma, predicted, history, seen, init, level)
     result.coverage = mark_untrusted(result.coverage, capture.untrusted)
+    drop_misfits(result, capture.obs.intensity, log)
     if capture.stats.get("preprocessing"):  # the geometry the level's choice rests on (geometry.median_size)
         result.model_reason += f"; geometry: {capture.stats['preprocessing']}"
     return result

@@ -42,21 +42,6 @@ def reestimate(level: TransportLevel, params: TexelParams, cfg: Config) -> int:
         residual = (level.predict(pd, ps, sigma).cpu() - intensity) * mask[..., None]
         err0 = residual.square().sum((0, 2))
         take = evidence & (err_s < err0)
-        import os
-
-        far = getattr(level, "object_lobe_texels", None)
-        if os.environ.get("TR_REG") and far is not None and bool(far.any()):
-            sub = mask & far[None]
-            pd_g, ps_g, sg_g, err_g = profile_search(
-                inp.terms, intensity, sub, grid, rc.ps_channels, shared=True, ps_max=rc.ps_max, indirect=cpu
-            )
-            e0, e1 = float(err0[far].sum()), float(err_g[far].sum())
-            inp.log(f"regional lobe: Ps {ps_g[0].tolist()} sigma {float(sg_g[0]):.3f}; error {e0:.4g} -> {e1:.4g}")
-            if e1 < 0.99 * e0:
-                pd_s = torch.where(far[:, None], pd_g, pd_s)
-                ps_s = torch.where(far[:, None], ps_g.expand_as(ps_s), ps_s)
-                sg_s = torch.where(far, sg_g, sg_s)
-                take = take | far
         if not bool(take.any()):
             return 0
         dev = params.raw_pd.device

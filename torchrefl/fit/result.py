@@ -43,3 +43,4 @@ class FitResult:
     diffuse: DiffuseModel
     model_numbers: dict = field(default_factory=dict)  # auto's measured interreflection
     photon: dict | None = None  # the photon level's per-refresh image differences and cache statistics
+    misfit: int = 0  # texels without an estimate because the fitted model cannot explain them (fit.misfit)

@@ -67,6 +67,7 @@ def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionRe
         "coverage": {
             **res.init_counts,
             "estimated": int(res.estimated.sum()),
+            "misfit": res.misfit,
             "untrusted_geometry": int((res.coverage == COVER_UNTRUSTED).sum()),
         },
         "specular_source": specular_source(cap, res),

@@ -1,0 +1,38 @@
+"""Misfit texels (torchrefl.fit.misfit): texels whose residual stands far out of the object's are found; noise
+alone, however large, flags none; held-out and unestimated texels are not judged."""
+
+import torch
+
+from torchrefl.fit.misfit import misfit_texels
+
+
+def images(P=12, T=500, noise_dn=0.5, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    truth = 0.2 + 0.6 * torch.rand(P, T, 3, generator=gen, dtype=torch.float64)
+    observed = truth + noise_dn / 255.0 * torch.randn(P, T, 3, generator=gen, dtype=torch.float64)
+    return truth, observed
+
+
+def test_texels_the_model_cannot_explain_are_found_and_noise_alone_flags_none():
+    for noise in (0.0, 0.3, 3.0):  # a noise-free fit, sensor noise, heavy noise
+        predicted, observed = images(noise_dn=noise)
+        P, T, _ = observed.shape
+        fit, estimated = torch.ones(P, T, dtype=torch.bool), torch.ones(T, dtype=torch.bool)
+        assert not misfit_texels(predicted, observed, fit, estimated).any(), noise
+        bad = torch.tensor([3, 77, 401])
+        observed[:6, bad] += 12.0 / 255.0  # half of their images carry light the model has no term for
+        found = misfit_texels(predicted, observed, fit, estimated)
+        assert set(torch.nonzero(found).flatten().tolist()) == set(bad.tolist()), noise
+
+
+def test_only_fitted_observations_of_estimated_texels_are_judged():
+    predicted, observed = images()
+    P, T, _ = observed.shape
+    observed[:, 10] += 20.0 / 255.0
+    fit = torch.ones(P, T, dtype=torch.bool)
+    estimated = torch.ones(T, dtype=torch.bool)
+    estimated[10] = False
+    assert not misfit_texels(predicted, observed, fit, estimated).any()
+    estimated[10] = True
+    fit[:, 10] = False  # only held-out observations: nothing to judge it by
+    assert not misfit_texels(predicted, observed, fit, estimated).any()
