@@ -75,12 +75,15 @@ def fold_capture():
 
 
 def level_for(cfg, capture: Capture, name: str, seed: int):
-    """The level `name` (local, radiosity, photon: every path from photons, photon.diffuse_paths photons;
-    photon_hybrid: the photon.* defaults, diffuse_paths radiosity and specular_gather 64), prepared."""
+    """The level `name` (local, radiosity, photon: every path from photons, photon.diffuse_paths photons with
+    smoothing 1 and specular_smoothing 0; photon_hybrid: the photon.* defaults, diffuse_paths radiosity and
+    specular_gather 64), prepared."""
     c = copy.deepcopy(cfg)
     c.seed = seed
     if name == "photon":
         c.photon.diffuse_paths, c.photon.specular_gather = "photons", 0
+        # pinned: the default kernels (2, 1) bias the photons-only H 3-6 mm from the fold by -4 points (docs/results)
+        c.photon.smoothing, c.photon.specular_smoothing = 1.0, 0.0
     inputs, _ = level_inputs(c, capture, lambda *a: None)
     if name == "local":
         return LocalLevel(inputs)
@@ -334,7 +337,9 @@ def test_hybrid_photon_level_is_the_full_reference(fold, band):
 
 def test_negative_controls_fail(fold):
     """The comparison catches real mistakes: direct light alone against 'full', diffuse interreflection alone
-    against 'full', interreflection 15 % too strong, and Ps scaled by 1.2 (each where the level itself passes)."""
+    against 'full', interreflection 15 % too strong, and Ps scaled by 1.2 (each where the level itself passes).
+    The Ps control is checked in the band with the most compared highlights (at least 20), where a Ps error shows
+    by construction: a band without highlights (the mixed-footprint texels are not compared) cannot catch it."""
     every = (0.0, NEAR_MM)
     local, _ = fold["levels"]["local"]
     rad, rad_se = fold["levels"]["radiosity"]
@@ -342,9 +347,10 @@ def test_negative_controls_fail(fold):
     assert not passes(agreement(fold, local, 0.0, "full", every))
     assert not passes(agreement(fold, rad, rad_se, "full", every))
     assert not passes(agreement(fold, local + 1.15 * (rad - local), rad_se, "diffuse", every))
-    band = BANDS[1]  # 3-6 mm: the most highlights
     hybrid, hybrid_se = fold["levels"]["photon_hybrid"]
-    assert passes(agreement(fold, hybrid, hybrid_se, "full", band))
+    band = max(BANDS, key=lambda b: agreement(fold, hybrid, hybrid_se, "full", b)["highlights"])
+    a = agreement(fold, hybrid, hybrid_se, "full", band)
+    assert a["highlights"] >= 20 and passes(a), (band, a)
     level = level_for(fold["cfg"], fold["capture"], "photon_hybrid", 0)
     scaled = predict_at(level, fold["truth"], ps_scale=1.2)[:, fold["near"]]
     assert not passes(agreement(fold, scaled, hybrid_se, "full", band))
