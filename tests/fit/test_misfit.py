@@ -3,7 +3,7 @@ alone, however large, flags none; held-out and unestimated texels are not judged
 
 import torch
 
-from torchrefl.fit.misfit import misfit_texels
+from torchrefl.fit.misfit import misfit_texels, near_edge
 
 
 def images(P=12, T=500, noise_dn=0.5, seed=0):
@@ -36,3 +36,17 @@ def test_only_fitted_observations_of_estimated_texels_are_judged():
     estimated[10] = True
     fit[:, 10] = False  # only held-out observations: nothing to judge it by
     assert not misfit_texels(predicted, observed, fit, estimated).any()
+
+
+def test_only_texels_next_to_an_edge_or_untrusted_geometry_may_be_misfits():
+    """A 10 x 10 grid with one untrusted texel at (5, 5) and the grid's own border: texels within two of either are
+    candidates; the interior away from both never is (a misfit there is the model's, and must stay in the metrics)."""
+    H, W = 10, 10
+    index = torch.arange(H * W)
+    trusted = torch.ones(H * W, dtype=torch.bool)
+    trusted[5 * W + 5] = False
+    near = near_edge((H, W), index, trusted).view(H, W)
+    assert near[0].all() and near[:, 0].all() and near[3:8, 3:8].all()
+    assert not near[2, 2] and not near[2, 7] and not near[7, 2]
+    off_surface = near_edge((H, W), index[index != 0], torch.ones(H * W - 1, dtype=torch.bool))
+    assert off_surface[:2].all()  # (0, 1), (0, 2): next to the missing texel (0, 0)

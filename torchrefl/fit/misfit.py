@@ -4,8 +4,10 @@ The range data miss some mixed footprints (a texel one row inside a plate's 3 mm
 the rim face in some images): one normal cannot explain their observations, the fit pushes their Pd where
 the residual is least bad, and on the non-uniform glossy fold 292 of the 325 measured texels off by more
 than 10 % in Pd were such texels. After the fit, a texel whose RMS residual over its fitted observations
-exceeds the median texel's by MISFIT_DEVIATIONS robust deviations is reported as a misfit (coverage code 6)
-and, like untrusted geometry, has no estimate and is left out of the metrics.
+exceeds the median texel's by MISFIT_DEVIATIONS robust deviations, within NEAR_EDGE texels of the scanned
+surface's edge or of untrusted geometry (where mixed footprints are), is reported as a misfit (coverage code 6)
+and, like untrusted geometry, has no estimate and is left out of the metrics. Interior texels are never
+dropped: a misfit there is the model's, and the metrics must show it.
 """
 
 from __future__ import annotations
@@ -16,6 +18,20 @@ import torch
 MISFIT_DEVIATIONS = 8.0
 #: the deviation is at least this many 8-bit DN (a noise-free synthetic fit has a near-zero spread)
 MIN_DEVIATION_DN = 0.1
+#: texels within this many texels (grid distance) of an edge or of untrusted geometry may be misfits
+NEAR_EDGE = 2
+
+
+def near_edge(grid_shape: tuple, texel_index: torch.Tensor, trusted: torch.Tensor) -> torch.Tensor:
+    """(T,) bool: texels within NEAR_EDGE grid texels of a grid cell that is not a trusted texel (off the surface,
+    or untrusted geometry). texel_index (T,) flat grid indices; trusted (T,) bool."""
+    H, W = grid_shape
+    good = torch.zeros(H * W, dtype=torch.float64)
+    good[texel_index] = trusted.to(torch.float64)
+    k = 2 * NEAR_EDGE + 1
+    outside = torch.nn.functional.pad(1.0 - good.view(1, 1, H, W), (NEAR_EDGE,) * 4, value=1.0)  # off the grid: edge
+    bad = torch.nn.functional.max_pool2d(outside, k, stride=1)
+    return bad.view(-1)[texel_index] > 0.5
 
 
 def misfit_texels(

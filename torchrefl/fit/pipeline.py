@@ -19,7 +19,7 @@ from torchrefl.core.progress import Stages, bar
 from torchrefl.errors import ConfigError
 from torchrefl.fit.emitter_fill import nearest_fitted
 from torchrefl.fit.initialise import COVER_MISFIT, initialise_local, mark_untrusted
-from torchrefl.fit.misfit import MISFIT_DEVIATIONS, misfit_texels
+from torchrefl.fit.misfit import MISFIT_DEVIATIONS, misfit_texels, near_edge
 from torchrefl.fit.observe import observe
 from torchrefl.fit.reestimate import reestimate
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
@@ -173,10 +173,13 @@ def fit_result(pd, ps, sigma, predicted, history, seen, init, level: TransportLe
     )
 
 
-def drop_misfits(result: FitResult, intensity: torch.Tensor, log) -> None:
-    """Texels the fitted model cannot explain (torchrefl.fit.misfit) lose their estimate: coverage code 6, out of
-    the masks every metric uses."""
-    bad = misfit_texels(result.predicted, intensity, result.fit_mask, result.estimated)
+def drop_misfits(result: FitResult, capture: Capture, log) -> None:
+    """Texels next to an edge or untrusted geometry that the fitted model cannot explain (torchrefl.fit.misfit)
+    lose their estimate: coverage code 6, out of the masks every metric uses."""
+    s = capture.surface
+    trusted = torch.ones(s.num_texels, dtype=torch.bool) if capture.untrusted is None else ~capture.untrusted.bool()
+    edge = near_edge(s.grid_shape, s.texel_index, trusted)
+    bad = misfit_texels(result.predicted, capture.obs.intensity, result.fit_mask, result.estimated) & edge
     result.misfit = int(bad.sum())
     if not result.misfit:
         return
@@ -186,7 +189,8 @@ def drop_misfits(result: FitResult, intensity: torch.Tensor, log) -> None:
     result.coverage = torch.where(bad, torch.full_like(result.coverage, COVER_MISFIT), result.coverage)
     log(
         f"{result.misfit} texels the fitted model cannot explain (RMS residual over {MISFIT_DEVIATIONS:g} robust "
-        "deviations above the median texel's: mixed footprints the range data missed) have no estimate"
+        "deviations above the median texel's, next to an edge or untrusted geometry: mixed footprints the range "
+        "data missed) have no estimate"
     )
 
 
@@ -217,7 +221,7 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
     log(f"refinement ({cfg.fit.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
     result = fit_result(pd, ps, sigma, predicted, history, seen, init, level)
     result.coverage = mark_untrusted(result.coverage, capture.untrusted)
-    drop_misfits(result, capture.obs.intensity, log)
+    drop_misfits(result, capture, log)
     if capture.stats.get("preprocessing"):  # the geometry the level's choice rests on (geometry.median_size)
         result.model_reason += f"; geometry: {capture.stats['preprocessing']}"
     return result
