@@ -167,7 +167,7 @@ def test_the_photon_level_gathers_the_radiosity_radiance_when_asked():
 
 
 def test_the_photon_level_logs_the_damping_it_uses():
-    """photon.damping reaches the outer loop and the log: the default 0.5, and an explicit value."""
+    """photon.damping reaches the outer loop and the log: the default 0, and an explicit value."""
     from conftest import fold_surface
 
     s = fold_surface(6, 12, dtype=torch.float32)
@@ -179,7 +179,7 @@ def test_the_photon_level_logs_the_damping_it_uses():
         dtype=torch.float32,
     )
     said = {}
-    for damping in (None, 0.0):
+    for damping in (None, 0.3):
         cfg = Config()
         cfg.fit.model = "photon"
         cfg.fit.iterations = 2
@@ -193,5 +193,5 @@ def test_the_photon_level_logs_the_damping_it_uses():
         log = []
         fit_capture(cfg, Capture(s, obs), Stages(), log.append, torch.device("cpu"))
         said[damping] = [l for l in log if "Pd damping" in l][0]
-    assert said[None].endswith("Pd damping 0.5 between refreshes")
-    assert said[0.0].endswith("Pd damping 0 between refreshes")
+    assert said[None].endswith("Pd damping 0 between refreshes")
+    assert said[0.3].endswith("Pd damping 0.3 between refreshes")
