@@ -305,7 +305,7 @@ class PhotonConfig:
     specular_gather: int = opt(
         64,
         "with diffuse_paths radiosity: lobe directions per texel that gather the specular reflection of diffuse light "
-        "(0 = off)",
+        "(0 = off; unused with photons)",
         low=0,
     )
 

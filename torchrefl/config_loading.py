@@ -137,13 +137,6 @@ def _validate(cfg, where_of) -> None:
             "synthetic.indirect_samples: 0 "
             "(the interreflection renderer is Lambertian)"
         )
-    if cfg.photon.specular_gather > 0 and cfg.photon.diffuse_paths != "radiosity":
-        raise ConfigError(
-            f"{where_of('photon.specular_gather')}: key 'photon.specular_gather' ({cfg.photon.specular_gather}) "
-            "gathers the radiosity "
-            f"level's light and needs photon.diffuse_paths: radiosity (it is '{cfg.photon.diffuse_paths}'); "
-            "set photon.diffuse_paths: radiosity or photon.specular_gather: 0"
-        )
     if cfg.reflectance.theta_specular_deg >= cfg.reflectance.theta_diffuse_deg:
         raise ConfigError(
             f"{where_of('reflectance.theta_specular_deg')}: reflectance.theta_specular_deg must be < "

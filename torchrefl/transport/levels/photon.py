@@ -101,7 +101,7 @@ class PhotonLevel(TransportLevel):
         view = obs.view_dirs_full() if obs.view_dir.dim() == 3 else obs.view_dir
         keep = inp.fit_mask | inp.eval_mask
         gather = None
-        if pc.specular_gather > 0:
+        if pc.specular_gather > 0 and self.hybrid:  # it gathers the radiosity level's light: unused with photons
             gather = SpecularGather(
                 ptracer,
                 view.double().numpy(),
