@@ -36,3 +36,46 @@ def test_code_tables_follow_grbl_csv():
     assert error_message(22).startswith("error:22 (Undefined feed rate)")
     assert alarm_message(2).startswith("ALARM:2 (Soft limit): Soft limit alarm.")
     assert "unknown" in error_message(99) and "unknown" in alarm_message(42)
+
+
+class VanishingPort:
+    """A pyserial port whose device has gone: every operation raises what that call raises then (pyserial's
+    flush is termios.tcdrain, which raises termios.error, not an OSError; reads raise SerialException)."""
+
+    def __init__(self, error):
+        self.error = error
+
+    def write(self, data):
+        return len(data)
+
+    def flush(self):
+        raise self.error
+
+    @property
+    def in_waiting(self):
+        raise self.error
+
+    def read(self, n):
+        raise self.error
+
+    def close(self):
+        raise self.error
+
+
+@pytest.mark.parametrize("kind", ["termios", "oserror", "serial"])
+def test_a_port_that_vanishes_mid_call_is_a_port_lost_whatever_it_raises(kind):
+    import termios
+
+    import serial
+
+    error = {
+        "termios": termios.error(5, "Input/output error"),
+        "oserror": OSError(5, "Input/output error"),
+        "serial": serial.SerialException("device reports readiness to read but returned no data"),
+    }[kind]
+    for call in (lambda link: link.write(b"?"), lambda link: link.readline(0.05)):
+        link = SerialLink("loop://")
+        link._port = VanishingPort(error)
+        with pytest.raises(PortLost, match="serial port loop:// failed during"):
+            call(link)
+        assert not link.is_open  # closed, although closing raised too

@@ -9,6 +9,13 @@ import serial
 
 from torchrefl.errors import RigError
 
+try:  # POSIX: pyserial's flush (tcdrain) raises termios.error, not an OSError, when a USB port vanishes
+    import termios
+
+    PORT_ERRORS: tuple = (termios.error,)
+except ImportError:  # pragma: no cover - Windows
+    PORT_ERRORS = ()
+
 
 class PortLost(RigError):
     """The serial port failed under us (unplugged, device gone); `SerialLink.reopen` may bring it back."""
@@ -38,7 +45,7 @@ class SerialLink:
     def open(self) -> "SerialLink":
         try:
             self._port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=self.poll_s)
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except (serial.SerialException, OSError, ValueError, *PORT_ERRORS) as exc:
             self._port = None
             raise RigError(f"cannot open serial port {self.url} at {self.baudrate} baud: {exc}") from None
         self._buf.clear()
@@ -54,7 +61,7 @@ class SerialLink:
         if port is not None:
             try:
                 port.close()
-            except (serial.SerialException, OSError):
+            except (serial.SerialException, OSError, *PORT_ERRORS):
                 pass
 
     def reopen(self, within_s: float, interval_s: float = 0.05) -> None:
@@ -97,7 +104,7 @@ class SerialLink:
         try:
             port.write(bytes(data))
             port.flush()
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, *PORT_ERRORS) as exc:
             raise self._lost(f"write of {bytes(data)[:40]!r}", exc) from None
 
     def _fill(self) -> bool:
@@ -106,7 +113,7 @@ class SerialLink:
         try:
             n = port.in_waiting
             chunk = port.read(n if n > 0 else 1)
-        except (serial.SerialException, OSError, TypeError) as exc:
+        except (serial.SerialException, OSError, TypeError, *PORT_ERRORS) as exc:
             raise self._lost("read", exc) from None
         if chunk:
             self._buf.extend(chunk)
@@ -119,7 +126,7 @@ class SerialLink:
         try:
             n = port.in_waiting
             chunk = port.read(n) if n > 0 else b""
-        except (serial.SerialException, OSError, TypeError) as exc:
+        except (serial.SerialException, OSError, TypeError, *PORT_ERRORS) as exc:
             raise self._lost("read", exc) from None
         self._buf.extend(chunk)
 
