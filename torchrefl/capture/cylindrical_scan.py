@@ -43,8 +43,8 @@ from torchrefl.core.surface import Surface
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.geometry.cylindrical import cylindrical_points
-from torchrefl.geometry.footprint import mixed_footprints, range_noise_mm
-from torchrefl.geometry.range_image import RangeGeometry, preprocess_range_image
+from torchrefl.geometry.footprint import mixed_footprints
+from torchrefl.geometry.range_image import RangeGeometry, median_note, preprocess_range_image
 from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
 
 DEFAULT_SATURATION = 0.995
@@ -62,20 +62,6 @@ class ScanGeometry:
     mixed: np.ndarray | None = None  # (T,) bool: texels whose footprint is mixed (geometry.footprint); None: none
     median_size: int = 1  # the median window the preprocessing applied (1 = none)
     noise_mm: float = 0.0  # the range noise it estimated, mm
-
-    def preprocessing_note(self, configured: int | None) -> str:
-        """One sentence on the median filter: what was applied and, when chosen automatically, why."""
-        if configured is not None:
-            return f"range median {self.median_size} x {self.median_size} (geometry.median_size)"
-        if self.median_size == 1:
-            return (
-                f"no range median: the range image's noise ({self.noise_mm:.3g} mm) tilts normals by under "
-                "a quarter degree, and a median would round its folds (geometry.median_size: auto)"
-            )
-        return (
-            f"range median {self.median_size} x {self.median_size} against {self.noise_mm:.3g} mm of range noise "
-            "(geometry.median_size: auto)"
-        )
 
     def texel_angles(self) -> np.ndarray:
         """(T,) scan angle of each valid texel's column."""
@@ -173,14 +159,13 @@ def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, r
     s = torch.from_numpy(rig.angle0 + rig.angle_step * np.arange(W))
     t = torch.from_numpy(rig.height0 + rig.height_step * np.arange(H))
     measured = cylindrical_points(torch.from_numpy(np.where(valid, r, np.nan)), s, t).numpy()
-    fitted = geo.r_smoothed.double().numpy()
     ok = geo.valid.numpy() & valid
     return mixed_footprints(
         measured,
         geo.points.double().numpy(),
         geo.normals.double().numpy(),
         ok,
-        noise_mm=range_noise_mm(r, fitted, ok),
+        noise_mm=geo.noise_mm,
         wrap=rig.covers_full_turn(),
     )
 
@@ -479,7 +464,7 @@ class CylindricalScanLoader(CaptureLoader):
         )
         stats["range_noise_mm"] = geom.noise_mm
         stats["range_median_size"] = geom.median_size
-        stats["preprocessing"] = geom.preprocessing_note(g.median_size)
+        stats["preprocessing"] = median_note(geom.median_size, geom.noise_mm, g.median_size)
         log(f"geometry: {stats['preprocessing']}")
         if stats["crease_texels_excluded"]:
             log(

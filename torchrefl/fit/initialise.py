@@ -100,22 +100,7 @@ def initialise_local(
             if shared_lobe is not None:
                 note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, "
                 note += f"sigma {float(shared_lobe[1][0]):.4f}"
-    object_lobe = torch.zeros(surface.num_texels, dtype=torch.bool)  # filled with the measured texels' median lobe
-    if known.any():
-        grid_vals = surface.to_grid(torch.cat([ps, sigma[:, None]], 1).double())
-        filled, how = fill_undetermined(
-            torch.from_numpy(grid_vals),
-            torch.from_numpy(surface.to_grid(known.numpy(), fill=False)),
-            torch.from_numpy(surface.to_grid(defined.numpy(), fill=False)),
-            window=window,
-        )
-        flat = surface.from_grid(filled.numpy()).to(ps.dtype)
-        ps = torch.where(known[:, None], ps, flat[:, :-1])
-        sigma = torch.where(known, sigma, flat[:, -1])
-        object_lobe = surface.from_grid(how.numpy() == FILL_MEDIAN) & ~known
-    else:
-        ps = torch.full_like(ps, 1e-3)
-        sigma = torch.full_like(sigma, 0.5 * (sigma_min + sigma_max))
+    ps, sigma, object_lobe = fill_lobes(surface, ps, sigma, known, defined, window, sigma_min, sigma_max)
     ps = ps.clamp(0, ps_max)
     sigma = sigma.clamp(sigma_min, sigma_max)
     coverage = torch.full((surface.num_texels,), COVER_NONE, dtype=torch.int8)
@@ -143,3 +128,22 @@ def mark_untrusted(coverage: torch.Tensor, untrusted: torch.Tensor | None) -> to
     out = coverage.clone()
     out[untrusted.to(torch.bool) & (coverage == COVER_NONE)] = COVER_UNTRUSTED
     return out
+
+
+def fill_lobes(surface: Surface, ps, sigma, known, defined, window: int, sigma_min: float, sigma_max: float):
+    """Ps (T, C), sigma (T,) with the texels not `known` filled (torchrefl.fit.interpolate), and (T,) bool: the
+    texels that took the measured texels' median lobe. Without any known texel: a faint mid-range lobe."""
+    if not known.any():
+        none = torch.zeros(surface.num_texels, dtype=torch.bool)
+        return torch.full_like(ps, 1e-3), torch.full_like(sigma, 0.5 * (sigma_min + sigma_max)), none
+    grid_vals = surface.to_grid(torch.cat([ps, sigma[:, None]], 1).double())
+    filled, how = fill_undetermined(
+        torch.from_numpy(grid_vals),
+        torch.from_numpy(surface.to_grid(known.numpy(), fill=False)),
+        torch.from_numpy(surface.to_grid(defined.numpy(), fill=False)),
+        window=window,
+    )
+    flat = surface.from_grid(filled.numpy()).to(ps.dtype)
+    ps = torch.where(known[:, None], ps, flat[:, :-1])
+    sigma = torch.where(known, sigma, flat[:, -1])
+    return ps, sigma, surface.from_grid(how.numpy() == FILL_MEDIAN) & ~known

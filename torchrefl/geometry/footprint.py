@@ -8,8 +8,9 @@ crease or a depth step, the colour mixes faces that the one normal cannot model:
 The test needs only the range image. For a texel 0 and each of its 8 grid neighbours 1, two rises are measured:
 s0, the neighbour's scanned point (the range as measured, before smoothing) above texel 0's tangent plane (its
 smoothed point and normal), and s1, texel 0's scanned point above the neighbour's tangent plane. Range noise
-is forgiven first: NOISE_ALLOWANCE robust deviations of the scan's own range noise (range_noise_mm) come off
-both rises, so noisy or quantised scans are not flagged for their noise. Then, with d the distance between
+is forgiven first: NOISE_ALLOWANCE times the scan's own range noise (RangeGeometry.noise_mm, from the
+quadratic fits' median residual) comes off both rises, so noisy or quantised scans are not flagged for
+their noise. Then, with d the distance between
 the two texels' points:
 
 - a crease (s0 and s1 of one sign: each point lies on the same side of the other's plane, a fold or a rim):
@@ -39,19 +40,6 @@ CREASE_FRACTION = 1.0 / 3.0
 NOISE_ALLOWANCE = 5.0
 #: The 8 grid neighbours (row, column offsets).
 NEIGHBOURS = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
-
-
-def range_noise_mm(r: np.ndarray, r_fit: np.ndarray, valid: np.ndarray) -> float:
-    """Robust standard deviation (1.4826 x the median absolute deviation) of the measured range r (H, W) about
-    the fitted range r_fit (H, W), over the valid (H, W) pixels: the scan's range noise in mm (0 for exact
-    ranges). No valid pixel: 0."""
-    r, r_fit, valid = np.asarray(r, dtype=np.float64), np.asarray(r_fit, dtype=np.float64), np.asarray(valid, bool)
-    if r.shape != r_fit.shape or r.shape != valid.shape:
-        raise GeometryError(
-            f"range_noise_mm: 'r' {r.shape}, 'r_fit' {r_fit.shape} and 'valid' {valid.shape} must be one (H, W) grid"
-        )
-    dev = np.abs(r - r_fit)[valid & np.isfinite(r) & np.isfinite(r_fit)]
-    return float(1.4826 * np.median(dev)) if dev.size else 0.0
 
 
 def _neighbour(a: np.ndarray, dr: int, dc: int, wrap: bool) -> np.ndarray:
@@ -108,7 +96,7 @@ def mixed_footprints(
 
     measured (H, W, 3): points of the range as scanned (NaN where none); points, normals (H, W, 3): the texels'
     smoothed points and unit normals (NaN where none); valid (H, W) bool; noise_mm >= 0: the range noise
-    (range_noise_mm); wrap: columns wrap around (a full turn).
+    (RangeGeometry.noise_mm); wrap: columns wrap around (a full turn).
     """
     measured, points, normals = _check_points(measured, points, normals, noise_mm)
     valid = np.asarray(valid, dtype=bool)

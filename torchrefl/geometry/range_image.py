@@ -265,6 +265,20 @@ def auto_median_size(noise_mm: float, r: torch.Tensor, valid: torch.Tensor, ds: 
     return 1 if tilt_deg < NOISE_FREE_NORMAL_DEG else AUTO_MEDIAN_SIZE
 
 
+def median_note(median_size: int, noise_mm: float, configured: int | None) -> str:
+    """One sentence on the median filter applied (median_size) and, when chosen automatically (configured None),
+    why."""
+    if configured is not None:
+        return f"range median {median_size} x {median_size} (geometry.median_size)"
+    if median_size == 1:
+        return (
+            f"no range median: the range image's noise ({noise_mm:.3g} mm) tilts normals by under a quarter degree, "
+            "and a median would round its folds (geometry.median_size: auto)"
+        )
+    auto = "(geometry.median_size: auto)"
+    return f"range median {median_size} x {median_size} against {noise_mm:.3g} mm of range noise {auto}"
+
+
 def _check_wrap(wrap: bool, W: int, ds: float) -> None:
     if wrap and abs(W * ds - 2 * math.pi) > 0.01 * ds:
         raise GeometryError(

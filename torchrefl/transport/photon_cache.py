@@ -435,29 +435,30 @@ def indirect_radiance(
     """(P, T, 3) sensor value of the reflected indirect light for pd (T, 3), ps (T, C), sigma (T,);
     differentiable in all three."""
     H = cache.irradiance_at(pd)
-    P, T, _ = H.shape
+    T = H.shape[1]
     out = (pd[None] / math.pi) * H
     if cache.entry_obs.numel():
-        t = cache.entry_obs % T
         # index_select, not sigma[t]: the backward of advanced indexing (index_put_ with accumulate) sums the
         # entries' gradients in a thread-dependent order on CPU, which made fits differ from run to run
-        D = brdf_mod.specular_lobe(cache.brdf, cache.entry_theta_h, sigma.index_select(0, t))
-        S = torch.zeros(P * T, 3, dtype=H.dtype, device=H.device).index_add(
-            0, cache.entry_obs, D[:, None] * cache.entry_weight
-        )
-        out = out + ps[None] * S.view(P, T, 3)
+        out = out + ps[None] * _specular_sum(cache, sigma.index_select(0, cache.entry_obs % T))
     return kappa * out
+
+
+def _specular_sum(cache: PhotonCache, entry_sigma: torch.Tensor) -> torch.Tensor:
+    """(P, T, 3) S: the specular entries' lobe-weighted sum per observation, each entry's lobe at entry_sigma
+    (per entry, or one value for all); the cached specular light is kappa Ps S."""
+    P, T, _ = cache.irradiance.shape
+    D = brdf_mod.specular_lobe(cache.brdf, cache.entry_theta_h, entry_sigma)
+    S = torch.zeros(P * T, 3, dtype=cache.irradiance.dtype, device=cache.irradiance.device)
+    return S.index_add(0, cache.entry_obs, D[:, None] * cache.entry_weight).view(P, T, 3)
 
 
 def specular_per_unit_ps(cache: PhotonCache, kappa: torch.Tensor, sigma: float) -> torch.Tensor:
     """(P, T, 3) the sensor value of the cached specular interreflection per unit Ps, every texel's lobe at sigma
     (what indirect_radiance adds as ps * kappa * S)."""
-    P, T, _ = cache.irradiance.shape
-    S = torch.zeros(P * T, 3, dtype=cache.irradiance.dtype, device=cache.irradiance.device)
-    if cache.entry_obs.numel():
-        D = brdf_mod.specular_lobe(cache.brdf, cache.entry_theta_h, torch.tensor(sigma, dtype=S.dtype))
-        S = S.index_add(0, cache.entry_obs, D[:, None] * cache.entry_weight)
-    return kappa * S.view(P, T, 3)
+    if not cache.entry_obs.numel():
+        return torch.zeros_like(cache.irradiance)
+    return kappa * _specular_sum(cache, torch.tensor(sigma, dtype=cache.irradiance.dtype))
 
 
 def indirect_radiance_reference(
