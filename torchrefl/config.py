@@ -265,7 +265,7 @@ class PhotonConfig:
     """The photon level (Method III): photon tracing, the indirect-light cache, the outer loop."""
 
     photons_per_light: int = opt(
-        400_000, "photons traced per light and cache refresh (shared by its light maps)", low=1
+        1_600_000, "photons traced per light and cache refresh (shared by its light maps)", low=1
     )
     light_maps: int = opt(
         8,
@@ -289,7 +289,7 @@ class PhotonConfig:
         high=0.95,
     )
     smoothing: float = opt(
-        2.0,
+        4.0,
         "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel "
         "grid (0 = each texel's own photons)",
         low=0.0,
@@ -300,7 +300,9 @@ class PhotonConfig:
         choices=("photons", "radiosity"),
     )
     specular_smoothing: float = opt(
-        1.0, "std in texels of the 3 x 3 Gaussian that spreads each photon's specular entry (0 = per texel)", low=0.0
+        3.0,
+        "std in texels of the Gaussian (radius round(std)) that spreads each photon's specular entry (0 = per texel)",
+        low=0.0,
     )
     specular_gather: int = opt(
         64,
