@@ -288,10 +288,10 @@ class PhotonConfig:
         low=0.0,
         high=0.95,
     )
-    smoothing: float = opt(
-        4.0,
-        "density estimation: std in texels of the Gaussian that smooths the cached indirect irradiance over the texel "
-        "grid (0 = each texel's own photons)",
+    smoothing: Optional[float] = opt(
+        None,
+        "std in texels of the Gaussian that smooths the cached indirect irradiance over the texel grid (0 = each "
+        "texel's own photons); null = auto: the kernel holds about 10,000 of a light's photons",
         low=0.0,
     )
     diffuse_paths: str = opt(
@@ -299,9 +299,10 @@ class PhotonConfig:
         "source of the all-diffuse paths' indirect light: photons, or radiosity (the radiosity solution, noise-free)",
         choices=("photons", "radiosity"),
     )
-    specular_smoothing: float = opt(
-        3.0,
-        "std in texels of the Gaussian (radius round(std)) that spreads each photon's specular entry (0 = per texel)",
+    specular_smoothing: Optional[float] = opt(
+        None,
+        "std in texels of the Gaussian (radius round(std)) that spreads each photon's specular entry (0 = per "
+        "texel); null = auto: the kernel holds about 5,000 of a light's photons",
         low=0.0,
     )
     specular_gather: int = opt(

@@ -16,6 +16,27 @@ import torch
 from torchrefl.core.lobe_sampling import column_dot
 from torchrefl.core.texel_grid import TexelGrid
 
+KERNEL_PHOTONS = 10_000  # photons of one light under the automatic irradiance kernel (photon.smoothing: null)
+SPECULAR_KERNEL_PHOTONS = 5_000  # the same for the spread of the specular entries (photon.specular_smoothing: null)
+# the automatic kernels' largest std in texels: the operators hold (2 ceil(3 std) + 1)^2 and (2 round(std) + 1)^2
+# neighbours per texel and entry
+MAX_AUTO_SMOOTHING = 4.0
+MAX_AUTO_SPECULAR_SMOOTHING = 3.0
+
+
+def kernel_std(configured: float | None, photons_per_light: int, texels: int, kernel_photons: int) -> float:
+    """The density kernel's std in texels: `configured` when set, else the std of the Gaussian whose area
+    4 pi std^2 holds kernel_photons of a light's photons_per_light spread over `texels` (a photon map's gather
+    of a fixed photon count, made global: resolution-free, and narrower the more photons are traced)."""
+    if configured is not None:
+        return float(configured)
+    return math.sqrt(kernel_photons * texels / (4.0 * math.pi * max(photons_per_light, 1)))
+
+
+def photons_for_kernel(std: float, texels: int, kernel_photons: int) -> int:
+    """photons_per_light at which the automatic kernel (kernel_std) has std `std` texels."""
+    return int(math.ceil(kernel_photons * texels / (4.0 * math.pi * std * std)))
+
 
 def smooth_on_grid(
     values: torch.Tensor,

@@ -77,15 +77,13 @@ def fold_capture():
 def level_for(cfg, capture: Capture, name: str, seed: int):
     """The level `name` (local, radiosity, photon: every path from photons, photon.diffuse_paths photons with
     smoothing 1 and specular_smoothing 0; photon_hybrid: the photon.* defaults, diffuse_paths radiosity and
-    specular_gather 64, with the density kernels as wide in mm as the defaults' on a full-size scan), prepared."""
+    specular_gather 64, automatic density kernels), prepared."""
     c = copy.deepcopy(cfg)
     c.seed = seed
     if name == "photon":
         c.photon.diffuse_paths, c.photon.specular_gather = "photons", 0
         # pinned: the default kernels (2, 1) bias the photons-only H 3-6 mm from the fold by -4 points (docs/results)
         c.photon.smoothing, c.photon.specular_smoothing = 1.0, 0.0
-    if name == "photon_hybrid":  # the defaults' kernels (4, 3 texels) are 2.2 / 1.7 mm on 0.56 mm texels; these are 2.24 mm
-        c.photon.smoothing, c.photon.specular_smoothing = 1.0, 0.75
     inputs, _ = level_inputs(c, capture, lambda *a: None)
     if name == "local":
         return LocalLevel(inputs)

@@ -24,6 +24,14 @@ from torchrefl.core.rays import RayTracer
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, RefitStep, TransportLevel
 from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
 from torchrefl.transport.photon_cache import indirect_radiance, light_sources, specular_per_unit_ps
+from torchrefl.transport.photon_density import (
+    KERNEL_PHOTONS,
+    MAX_AUTO_SMOOTHING,
+    MAX_AUTO_SPECULAR_SMOOTHING,
+    SPECULAR_KERNEL_PHOTONS,
+    kernel_std,
+    photons_for_kernel,
+)
 from torchrefl.transport.photon_refresh import PhotonRefresh
 from torchrefl.transport.photon_trace import PhotonTracer
 from torchrefl.transport.specular_gather import SpecularGather
@@ -55,6 +63,7 @@ class PhotonLevel(TransportLevel):
         self.scores: list[float] = []
         self.cache = None
         self.refresher: PhotonRefresh | None = None
+        self.smoothing = self.specular_smoothing = 0.0  # the density kernels' std in texels, set by prepare
         self._best = (math.inf, -1, None, None)
 
     @property
@@ -112,6 +121,7 @@ class PhotonLevel(TransportLevel):
                 rc.sigma_max,
                 seed=cfg.seed,
             )
+        kernel_note = self._kernels(surface.num_texels)
         self.refresher = PhotonRefresh(
             ptracer,
             sources,
@@ -123,10 +133,10 @@ class PhotonLevel(TransportLevel):
             cfg.seed,
             obs.intensity.dtype,
             inp.device,
-            smoothing=pc.smoothing,
+            smoothing=self.smoothing,
             grid=(surface.texel_index, surface.grid_shape, surface.normals.double()),
             smoothing_normal=SMOOTHING_NORMAL,
-            specular_smoothing=pc.specular_smoothing,
+            specular_smoothing=self.specular_smoothing,
             radiosity_irradiance=self.radiosity.indirect if self.hybrid else None,
             specular_gather=gather,
             radiosity_radiance=self.radiosity.radiance if gather is not None else None,
@@ -140,8 +150,27 @@ class PhotonLevel(TransportLevel):
                 if self.hybrid
                 else "every path from photons"
             )
-            + f", Pd damping {pc.damping:g} between refreshes"
+            + f", Pd damping {pc.damping:g} between refreshes; {kernel_note}"
         )
+
+    def _kernels(self, texels: int) -> str:
+        """Set the density kernels' std in texels (photon.smoothing, specular_smoothing; null: automatic, capped);
+        returns the log's note on them."""
+        pc = self.inputs.cfg.photon
+        n = pc.photons_per_light
+        auto = kernel_std(pc.smoothing, n, texels, KERNEL_PHOTONS)
+        auto_s = kernel_std(pc.specular_smoothing, n, texels, SPECULAR_KERNEL_PHOTONS)
+        self.smoothing = min(auto, MAX_AUTO_SMOOTHING) if pc.smoothing is None else auto
+        self.specular_smoothing = min(auto_s, MAX_AUTO_SPECULAR_SMOOTHING) if pc.specular_smoothing is None else auto_s
+        note = f"density kernels {self.smoothing:.2f} texels (irradiance), {self.specular_smoothing:.2f} (specular)"
+        if pc.smoothing is None and auto > MAX_AUTO_SMOOTHING:
+            need = photons_for_kernel(MAX_AUTO_SMOOTHING, texels, KERNEL_PHOTONS)
+            note += (
+                f"; warning: at {n} photons per light the automatic kernel would be {auto:.1f} texels, capped at "
+                f"{MAX_AUTO_SMOOTHING:g}, so the cache is noisier than the default target: "
+                f"photon.photons_per_light: {need} reaches it"
+            )
+        return note
 
     def predict(self, pd, ps, sigma):
         kappa = self.inputs.obs.kappa.to(pd.device)
@@ -230,4 +259,10 @@ class PhotonLevel(TransportLevel):
         self.inputs.log(f"photon level: kept the parameters of refresh {k_best} (image difference {score:.4f} DN)")
 
     def report(self) -> dict:
-        return {"image_difference_per_refresh": self.scores, "kept_refresh": self._best[1], "cache": self.cache.stats}
+        return {
+            "image_difference_per_refresh": self.scores,
+            "kept_refresh": self._best[1],
+            "smoothing_texels": self.smoothing,
+            "specular_smoothing_texels": self.specular_smoothing,
+            "cache": self.cache.stats,
+        }
