@@ -161,3 +161,29 @@ def test_damping_moves_pd_part_of_the_way_and_leaves_the_lobe(scene):
     torch.testing.assert_close(pd_half, 0.5 * 0.9 + 0.5 * pd0, rtol=0, atol=1e-6)
     # Ps (truth 0) stays where the refit put it: damping does not re-floor it at the starting floor 0.01
     assert float((ends[0.5][0].ps().detach() < 0.01).double().mean()) > 0.9
+
+
+def test_the_automatic_kernels_follow_the_photon_count_and_warn_when_capped(scene):
+    """photon.smoothing / specular_smoothing null: the kernels narrow as photons_per_light grows; with too few
+    photons for the capped kernel the log says so and names a photon count that reaches the target."""
+    s, obs, _ = scene
+    logs = []
+    cfg = Config()
+    cfg.output.progress = False
+    cfg.reflectance.brdf = "lambertian"
+    cfg.photon.smoothing = cfg.photon.specular_smoothing = None
+    cfg.photon.diffuse_paths, cfg.photon.specular_gather = "photons", 0
+    cfg.photon.photons_per_light = 1000
+    inputs, _ = level_inputs(cfg, Capture(s, obs), logs.append)
+    few = PhotonLevel(inputs, RadiosityLevel(inputs))
+    few.prepare()
+    assert (few.smoothing, few.specular_smoothing) == (4.0, 3.0)
+    warning = [m for m in logs if "capped at 4" in m]
+    assert warning and "photon.photons_per_light:" in warning[0]
+    cfg.photon.photons_per_light = 400_000
+    logs.clear()
+    inputs, _ = level_inputs(cfg, Capture(s, obs), logs.append)
+    many = PhotonLevel(inputs, RadiosityLevel(inputs))
+    many.prepare()
+    assert 0 < many.smoothing < 4.0 and 0 < many.specular_smoothing < 3.0
+    assert not any("capped" in m for m in logs)

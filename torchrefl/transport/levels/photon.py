@@ -163,7 +163,7 @@ class PhotonLevel(TransportLevel):
         self.smoothing = min(auto, MAX_AUTO_SMOOTHING) if pc.smoothing is None else auto
         self.specular_smoothing = min(auto_s, MAX_AUTO_SPECULAR_SMOOTHING) if pc.specular_smoothing is None else auto_s
         note = f"density kernels {self.smoothing:.2f} texels (irradiance), {self.specular_smoothing:.2f} (specular)"
-        if pc.smoothing is None and auto > MAX_AUTO_SMOOTHING:
+        if pc.smoothing is None and auto > 1.25 * MAX_AUTO_SMOOTHING:  # under 64 % of the kernel's photons
             need = photons_for_kernel(MAX_AUTO_SMOOTHING, texels, KERNEL_PHOTONS)
             note += (
                 f"; warning: at {n} photons per light the automatic kernel would be {auto:.1f} texels, capped at "
