@@ -137,3 +137,61 @@ def test_bad_arguments_are_named():
         mixed_footprints(p, p, p, valid, noise_mm=-1.0)
     with pytest.raises(GeometryError, match="'valid'"):
         mixed_footprints(p, p, p, np.ones((3, 3), bool))
+
+
+def fitted(r: np.ndarray):
+    """preprocess_range_image of a range image r (H, W) mm (NaN: no scan) on a 0.7 degree x 0.56 mm grid."""
+    from torchrefl.geometry.range_image import preprocess_range_image
+
+    valid = np.isfinite(r)
+    return preprocess_range_image(
+        torch.from_numpy(np.where(valid, r, 0.0)),
+        torch.from_numpy(valid),
+        s0=0.0,
+        ds=np.radians(0.7),
+        t0=0.0,
+        dt=0.56,
+        median_size=None,
+        window=5,
+        noise_tolerance=2.0,
+    )
+
+
+def unfit(r: np.ndarray) -> np.ndarray:
+    from torchrefl.geometry.footprint import unfit_windows
+
+    geo = fitted(r)
+    return unfit_windows(geo.fit_rms_mm.numpy(), geo.valid.numpy(), geo.spacing_mm, geo.noise_mm)
+
+
+def plate_with_end_face(rows=40, cols=40, face_rows=3) -> np.ndarray:
+    """A plate leaning back (range grows 0.6 mm per mm of height) up to a crease on row rows - 5 - face_rows, then
+    its end face (range falls 3 mm per mm) on the face_rows - 1 rows up to the scan's edge: a strip narrower than
+    the fitting window."""
+    dt = 0.56
+    r = np.full((rows, cols), np.nan)
+    plate = rows - 5 - face_rows
+    for i in range(rows - 5):
+        r[i] = 60.0 + 0.6 * dt * min(i, plate) - 3.0 * dt * max(i - plate, 0)
+    return r
+
+
+def test_a_strip_narrower_than_the_fitting_window_is_untrusted_and_the_plate_is_not():
+    flags = unfit(plate_with_end_face())
+    assert flags[33:35, 5:-5].all()  # the end face; the crease row 32 is the footprint test's
+    assert not flags[:26].any()  # every window of these rows lies on the plate
+
+
+def test_smooth_surfaces_are_not_untrusted_with_or_without_range_noise():
+    rows, cols = np.mgrid[0:40, 0:40].astype(np.float64)
+    smooth = 60.0 + 3.0 * np.cos(rows * 0.56 / 10.0) * np.cos(cols * np.radians(0.7) * 5.0)
+    assert not unfit(smooth).any()
+    noisy = smooth + np.random.default_rng(0).normal(0.0, 0.05, smooth.shape)
+    assert not unfit(noisy).any()
+
+
+def test_unfit_windows_names_a_bad_spacing():
+    from torchrefl.geometry.footprint import unfit_windows
+
+    with pytest.raises(GeometryError, match="spacing_mm"):
+        unfit_windows(np.zeros((3, 3)), np.ones((3, 3), bool), 0.0)

@@ -43,7 +43,7 @@ from torchrefl.core.surface import Surface
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.geometry.cylindrical import cylindrical_points
-from torchrefl.geometry.footprint import mixed_footprints
+from torchrefl.geometry.footprint import mixed_footprints, unfit_windows
 from torchrefl.geometry.range_image import RangeGeometry, median_note, preprocess_range_image
 from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
 
@@ -154,13 +154,14 @@ def rig_from_yaml(doc: dict, shape) -> CylindricalRig:
 
 def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, rig: CylindricalRig) -> np.ndarray:
     """(H, W) bool: texels of the preprocessed range image geo whose footprint the scanned range r (H, W) mm
-    (valid (H, W)) shows to be mixed (torchrefl.geometry.footprint), the range noise estimated from r itself."""
+    (valid (H, W)) shows to be mixed, or whose every fitting window spans a crease or an edge
+    (torchrefl.geometry.footprint), the range noise estimated from r itself."""
     H, W = r.shape
     s = torch.from_numpy(rig.angle0 + rig.angle_step * np.arange(W))
     t = torch.from_numpy(rig.height0 + rig.height_step * np.arange(H))
     measured = cylindrical_points(torch.from_numpy(np.where(valid, r, np.nan)), s, t).numpy()
     ok = geo.valid.numpy() & valid
-    return mixed_footprints(
+    mixed = mixed_footprints(
         measured,
         geo.points.double().numpy(),
         geo.normals.double().numpy(),
@@ -168,6 +169,7 @@ def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, r
         noise_mm=geo.noise_mm,
         wrap=rig.covers_full_turn(),
     )
+    return mixed | unfit_windows(geo.fit_rms_mm.double().numpy(), ok, geo.spacing_mm, geo.noise_mm)
 
 
 def load_scan_geometry(

@@ -24,6 +24,13 @@ the two texels' points:
   end seen against what is behind it): where between the two samples the wall stands the range cannot say,
   so texel 0 is mixed when its neighbour rises from its plane by more than MIXED_ANGLE_DEG (asin(|s0| / d)):
   a wall at least as steep as that within one texel.
+
+A texel can also be untrusted for its normal alone (unfit_windows): where every fitting window that contains it
+spans a crease or an edge (a strip of a plate's end face narrower than the window, the first texels beyond a rim),
+the chosen quadratic leaves a residual no smooth surface leaves and the fitted normal extrapolates across the
+crease (6-20 degrees on the fold's end faces, Pd 10-30 % off). A quadratic describes a smooth surface over a
+window to far under UNFIT_FRACTION of the grid spacing, so a texel whose window's rms residual exceeds that plus
+NOISE_ALLOWANCE times the range noise is untrusted.
 """
 
 from __future__ import annotations
@@ -38,6 +45,9 @@ MIXED_ANGLE_DEG = 30.0
 CREASE_FRACTION = 1.0 / 3.0
 #: Rise (along the normal) forgiven as range noise, in robust standard deviations of the range noise.
 NOISE_ALLOWANCE = 5.0
+#: A fitting window's rms residual above this fraction of the grid spacing (plus the noise allowance) is no smooth
+#: surface: the window spans a crease or an edge.
+UNFIT_FRACTION = 0.01
 #: The 8 grid neighbours (row, column offsets).
 NEIGHBOURS = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
 
@@ -112,3 +122,14 @@ def mixed_footprints(
         distance = np.linalg.norm(their_measured - measured, axis=-1)
         mixed |= _mixed_towards(rise0, rise1, distance, NOISE_ALLOWANCE * noise_mm)
     return valid & mixed
+
+
+def unfit_windows(fit_rms_mm: np.ndarray, valid: np.ndarray, spacing_mm: float, noise_mm: float = 0.0) -> np.ndarray:
+    """(H, W) bool: valid texels whose quadratic fit window (RangeGeometry.fit_rms_mm, mm) leaves an rms residual
+    over UNFIT_FRACTION * spacing_mm + NOISE_ALLOWANCE * noise_mm (the module docstring)."""
+    rms = np.asarray(fit_rms_mm, dtype=np.float64)
+    if not np.isfinite(spacing_mm) or spacing_mm <= 0:
+        raise GeometryError(f"unfit_windows: 'spacing_mm' must be a positive number, got {spacing_mm!r}")
+    limit = UNFIT_FRACTION * spacing_mm + NOISE_ALLOWANCE * noise_mm
+    with np.errstate(invalid="ignore"):
+        return np.asarray(valid, dtype=bool) & (rms > limit)

@@ -80,6 +80,9 @@ class RangeGeometry:
     valid: (H, W) bool, pixels with a measured range and a quadratic fit.
     r_smoothed: (H, W) float, the fitted range r_hat (median filter + quadratic fit), mm; NaN where not valid.
     median_size: the median window applied (1 = none); noise_mm: the range noise estimated before it (mm).
+    fit_rms_mm: (H, W) float, rms residual of the quadratic fit's chosen window, mm (NaN where not valid); None:
+    not computed.
+    spacing_mm: the grid's smaller spacing on the surface, mm: the row step or the median arc step r ds.
     """
 
     points: torch.Tensor
@@ -88,6 +91,8 @@ class RangeGeometry:
     r_smoothed: torch.Tensor
     median_size: int = 1
     noise_mm: float = 0.0
+    fit_rms_mm: torch.Tensor | None = None
+    spacing_mm: float = 0.0
 
 
 # ----------------------------------------------------------------------------- checks
@@ -252,14 +257,18 @@ def estimate_range_noise(r: torch.Tensor, valid: torch.Tensor, window: int = 5, 
     return float((res[full] / (k * k - 6)).median().clamp_min(0).sqrt())
 
 
+def grid_spacing(r: torch.Tensor, valid: torch.Tensor, ds: float, dt: float) -> float:
+    """The grid's smaller spacing on the surface (mm): the row step dt or the median arc step r ds."""
+    arc = float(r[valid].double().median()) * ds if bool(valid.any()) else dt
+    return min(dt, arc)
+
+
 def auto_median_size(noise_mm: float, r: torch.Tensor, valid: torch.Tensor, ds: float, dt: float, window: int) -> int:
     """AUTO_MEDIAN_SIZE, or 1 where noise_mm tilts the window's fitted normals by under NOISE_FREE_NORMAL_DEG.
 
     The slope of a least-squares quadratic over a k x k window of spacing h has a standard deviation of about
-    noise / (h sqrt(sum u^2)), sum u^2 = k^2 (k^2 - 1) / 12 (column offsets u in pixels); h is the smaller of the
-    height step and the median arc step r ds."""
-    arc = float(r[valid].double().median()) * ds if bool(valid.any()) else dt
-    h = min(dt, arc)
+    noise / (h sqrt(sum u^2)), sum u^2 = k^2 (k^2 - 1) / 12 (column offsets u in pixels); h is grid_spacing."""
+    h = grid_spacing(r, valid, ds, dt)
     spread = math.sqrt(window * window * (window * window - 1) / 12.0)
     tilt_deg = math.degrees(noise_mm / max(h * spread, 1e-12))
     return 1 if tilt_deg < NOISE_FREE_NORMAL_DEG else AUTO_MEDIAN_SIZE
@@ -474,4 +483,6 @@ def preprocess_range_image(
         r_smoothed=torch.where(ok, fit.r_hat, nan),
         median_size=int(median_size),
         noise_mm=noise,
+        fit_rms_mm=torch.where(ok, (fit.residual.clamp_min(0) / (window * window)).sqrt(), nan),
+        spacing_mm=grid_spacing(r, valid, ds, dt),
     )
