@@ -193,5 +193,5 @@ def test_the_photon_level_logs_the_damping_it_uses():
         log = []
         fit_capture(cfg, Capture(s, obs), Stages(), log.append, torch.device("cpu"))
         said[damping] = [l for l in log if "Pd damping" in l][0]
-    assert said[None].endswith("Pd damping 0 between refreshes")
-    assert said[0.3].endswith("Pd damping 0.3 between refreshes")
+    assert "Pd damping 0 between refreshes;" in said[None]
+    assert "Pd damping 0.3 between refreshes;" in said[0.3]

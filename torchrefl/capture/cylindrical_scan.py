@@ -60,6 +60,7 @@ class ScanGeometry:
     meta: dict
     folder: Path
     mixed: np.ndarray | None = None  # (T,) bool: texels whose footprint is mixed (geometry.footprint); None: none
+    unfit: np.ndarray | None = None  # (T,) bool: texels no range-fitting window describes (footprint.unfit_windows)
     median_size: int = 1  # the median window the preprocessing applied (1 = none)
     noise_mm: float = 0.0  # the range noise it estimated, mm
 
@@ -154,14 +155,13 @@ def rig_from_yaml(doc: dict, shape) -> CylindricalRig:
 
 def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, rig: CylindricalRig) -> np.ndarray:
     """(H, W) bool: texels of the preprocessed range image geo whose footprint the scanned range r (H, W) mm
-    (valid (H, W)) shows to be mixed, or whose every fitting window spans a crease or an edge
-    (torchrefl.geometry.footprint), the range noise estimated from r itself."""
+    (valid (H, W)) shows to be mixed (torchrefl.geometry.footprint), the range noise estimated from r itself."""
     H, W = r.shape
     s = torch.from_numpy(rig.angle0 + rig.angle_step * np.arange(W))
     t = torch.from_numpy(rig.height0 + rig.height_step * np.arange(H))
     measured = cylindrical_points(torch.from_numpy(np.where(valid, r, np.nan)), s, t).numpy()
     ok = geo.valid.numpy() & valid
-    mixed = mixed_footprints(
+    return mixed_footprints(
         measured,
         geo.points.double().numpy(),
         geo.normals.double().numpy(),
@@ -169,7 +169,6 @@ def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, r
         noise_mm=geo.noise_mm,
         wrap=rig.covers_full_turn(),
     )
-    return mixed | unfit_windows(geo.fit_rms_mm.double().numpy(), ok, geo.spacing_mm, geo.noise_mm)
 
 
 def load_scan_geometry(
@@ -223,7 +222,8 @@ def load_scan_geometry(
     )
     tracer = RayTracer(verts, faces, threads=threads)
     mixed = mixed_footprint_grid(r, valid, geo, rig).ravel()[idx]
-    return ScanGeometry(surface, rig, tracer, doc, folder, mixed, geo.median_size, geo.noise_mm)
+    unfit = unfit_windows(geo.fit_rms_mm.double().numpy(), ok, geo.spacing_mm, geo.noise_mm).ravel()[idx]
+    return ScanGeometry(surface, rig, tracer, doc, folder, mixed, unfit, geo.median_size, geo.noise_mm)
 
 
 def observation_geometry(
@@ -305,7 +305,8 @@ def _read_textures(geom: ScanGeometry, lights: list, where: str, threads: int) -
 def untrusted_geometry(geom: ScanGeometry, edge_width: int, crease_angle_deg) -> dict:
     """Texels whose geometry cannot be trusted, {reason: (T,) bool}: 'edge' within edge_width texels of the mesh
     boundary (range_mesh.boundary_texels), 'crease' on a crease sharper than crease_angle_deg
-    (range_mesh.crease_texels; None: none), 'mixed' a mixed footprint (geom.mixed, geometry.footprint)."""
+    (range_mesh.crease_texels; None: none), 'mixed' a mixed footprint (geom.mixed, geometry.footprint), 'unfit' no
+    range-fitting window describes it (geom.unfit)."""
     H, W = geom.surface.grid_shape
     idx = geom.surface.texel_index.numpy()
     edge = boundary_texels(geom.surface.mesh_faces, (H, W), idx, edge_width)
@@ -316,8 +317,10 @@ def untrusted_geometry(geom: ScanGeometry, edge_width: int, crease_angle_deg) ->
         idx,
         crease_angle_deg,
     )
-    mixed = np.zeros(idx.size, dtype=bool) if geom.mixed is None else np.asarray(geom.mixed, dtype=bool)
-    return {"edge": edge, "crease": crease, "mixed": mixed}
+    none = np.zeros(idx.size, dtype=bool)
+    mixed = none if geom.mixed is None else np.asarray(geom.mixed, dtype=bool)
+    unfit = none if geom.unfit is None else np.asarray(geom.unfit, dtype=bool)
+    return {"edge": edge, "crease": crease, "mixed": mixed, "unfit": unfit}
 
 
 def _excluded_observations(
@@ -338,6 +341,7 @@ def _excluded_observations(
         f"edge texels (geometry.edge_width {edge_width})": every(texels["edge"]),
         "crease texels (geometry.crease_angle_deg)": every(texels["crease"]),
         "mixed-footprint texels (rims, thin edges, depth steps in the range image)": every(texels["mixed"]),
+        "texels no range-fitting window describes (strips narrower than the window)": every(texels["unfit"]),
     }
     return removed, saturated, texels
 
@@ -419,6 +423,7 @@ def load_scan_observations(
         "edge_texels_excluded": int(edge.sum()),
         "crease_texels_excluded": int((crease & ~edge).sum()),
         "mixed_footprint_texels_excluded": int((texels["mixed"] & ~edge & ~crease).sum()),
+        "unfit_range_texels_excluded": int((texels["unfit"] & ~texels["mixed"] & ~edge & ~crease).sum()),
         "warnings": warnings,
     }
     return obs, stats
@@ -477,6 +482,12 @@ class CylindricalScanLoader(CaptureLoader):
             log(
                 f"geometry: {stats['mixed_footprint_texels_excluded']} texels whose footprint the range image shows "
                 "to be mixed (rims, thin edges, depth steps) are not fitted"
+            )
+        if stats["unfit_range_texels_excluded"]:
+            log(
+                f"geometry: {stats['unfit_range_texels_excluded']} texels that no range-fitting window describes "
+                "(every window spans a crease, an edge or a turn too fast for a quadratic: their normals are "
+                "extrapolated) are not fitted"
             )
         warnings = stats.pop("warnings")
         untrusted = np.logical_or.reduce(list(untrusted_geometry(geom, g.edge_width, g.crease_angle_deg).values()))
