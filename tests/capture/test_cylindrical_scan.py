@@ -219,3 +219,29 @@ def test_saturated_pixels_are_excluded_and_counted(tmp_path):
     assert stats["saturated_observations"] > 0
     assert not (obs.valid & obs.saturated).any()
     assert int(obs.saturated.sum()) >= stats["saturated_observations"]
+
+
+def test_a_strip_no_fitting_window_describes_is_excluded_and_counted(scan_folder, tmp_path):
+    """The ellipsoid cut at its equator, with two rows bent 45 degrees back below the cut (a plate's end face
+    narrower than the 5 x 5 fitting window): their normals are extrapolated across the crease, so they are
+    untrusted (ScanGeometry.unfit), none of their observations is valid, and the statistics count them."""
+    folder, _ = scan_folder
+    strip = tmp_path / "strip"
+    shutil.copytree(folder, strip)
+    r = np.load(strip / "range.npy")
+    m = r.shape[0] // 2
+    dt = float(yaml.safe_load((strip / "scan.yaml").read_text())["grid"]["height_step_mm"])
+    r[m + 1] = r[m] - 1.0 * dt
+    r[m + 2] = r[m] - 2.0 * dt
+    r[m + 3 :] = np.nan
+    np.save(strip / "range.npy", r)
+    geom = load_scan_geometry(strip, threads=1, dtype=torch.float64)
+    grid = np.zeros(r.size, bool)
+    grid[geom.surface.texel_index.numpy()] = geom.unfit
+    grid = grid.reshape(r.shape)
+    centre = slice(r.shape[1] // 2 - 10, r.shape[1] // 2 + 10)
+    assert grid[m + 1 : m + 3, centre].all()
+    assert not grid[m - 12 : m - 2, centre].any()  # the equatorial band (the caps turn too fast at 2 mm rows)
+    obs, stats = load_scan_observations(geom, threads=1, dtype=torch.float64)
+    unfit = torch.from_numpy(geom.unfit & ~geom.mixed)
+    assert not obs.valid[:, unfit].any() and stats["unfit_range_texels_excluded"] == int(unfit.sum()) > 0

@@ -35,6 +35,7 @@ from torchrefl.capture.images import read_images
 from torchrefl.capture.scan_yaml import read_manifest, read_scan_yaml  # noqa: F401  (the loader's readers)
 from torchrefl.capture.truth import TRUTH
 from torchrefl.capture.truth import load_truth as read_truth
+from torchrefl.capture.untrusted_texels import mixed_footprint_grid, untrusted_geometry
 from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.core.point_light import point_light
@@ -42,10 +43,9 @@ from torchrefl.core.rays import RayTracer
 from torchrefl.core.surface import Surface
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import CaptureError, GeometryError
-from torchrefl.geometry.cylindrical import cylindrical_points
-from torchrefl.geometry.footprint import mixed_footprints, unfit_windows
-from torchrefl.geometry.range_image import RangeGeometry, median_note, preprocess_range_image
-from torchrefl.geometry.range_mesh import boundary_texels, crease_texels, grid_triangulation, texel_areas
+from torchrefl.geometry.footprint import unfit_windows
+from torchrefl.geometry.range_image import median_note, preprocess_range_image
+from torchrefl.geometry.range_mesh import grid_triangulation, texel_areas
 
 DEFAULT_SATURATION = 0.995
 
@@ -150,24 +150,6 @@ def rig_from_yaml(doc: dict, shape) -> CylindricalRig:
         height_step=float(g["height_step_mm"]),
         camera_distance=float(c["distance_mm"]),
         camera_height=float(c["height_mm"]),
-    )
-
-
-def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, rig: CylindricalRig) -> np.ndarray:
-    """(H, W) bool: texels of the preprocessed range image geo whose footprint the scanned range r (H, W) mm
-    (valid (H, W)) shows to be mixed (torchrefl.geometry.footprint), the range noise estimated from r itself."""
-    H, W = r.shape
-    s = torch.from_numpy(rig.angle0 + rig.angle_step * np.arange(W))
-    t = torch.from_numpy(rig.height0 + rig.height_step * np.arange(H))
-    measured = cylindrical_points(torch.from_numpy(np.where(valid, r, np.nan)), s, t).numpy()
-    ok = geo.valid.numpy() & valid
-    return mixed_footprints(
-        measured,
-        geo.points.double().numpy(),
-        geo.normals.double().numpy(),
-        ok,
-        noise_mm=geo.noise_mm,
-        wrap=rig.covers_full_turn(),
     )
 
 
@@ -300,27 +282,6 @@ def _read_textures(geom: ScanGeometry, lights: list, where: str, threads: int) -
         where,
     )
     return intensity, bits, warnings
-
-
-def untrusted_geometry(geom: ScanGeometry, edge_width: int, crease_angle_deg) -> dict:
-    """Texels whose geometry cannot be trusted, {reason: (T,) bool}: 'edge' within edge_width texels of the mesh
-    boundary (range_mesh.boundary_texels), 'crease' on a crease sharper than crease_angle_deg
-    (range_mesh.crease_texels; None: none), 'mixed' a mixed footprint (geom.mixed, geometry.footprint), 'unfit' no
-    range-fitting window describes it (geom.unfit)."""
-    H, W = geom.surface.grid_shape
-    idx = geom.surface.texel_index.numpy()
-    edge = boundary_texels(geom.surface.mesh_faces, (H, W), idx, edge_width)
-    crease = crease_texels(
-        geom.surface.mesh_vertices,
-        geom.surface.mesh_faces,
-        geom.surface.normals.double().numpy(),
-        idx,
-        crease_angle_deg,
-    )
-    none = np.zeros(idx.size, dtype=bool)
-    mixed = none if geom.mixed is None else np.asarray(geom.mixed, dtype=bool)
-    unfit = none if geom.unfit is None else np.asarray(geom.unfit, dtype=bool)
-    return {"edge": edge, "crease": crease, "mixed": mixed, "unfit": unfit}
 
 
 def _excluded_observations(
