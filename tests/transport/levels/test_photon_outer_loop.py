@@ -178,7 +178,7 @@ def test_the_automatic_kernels_follow_the_photon_count_and_warn_when_capped(scen
     few = PhotonLevel(inputs, RadiosityLevel(inputs))
     few.prepare()
     assert (few.smoothing, few.specular_smoothing) == (4.0, 3.0)
-    warning = [m for m in logs if "capped at 4" in m]
+    warning = [m for m in logs if m.startswith("warning:") and "capped at 4" in m]
     assert warning and "photon.photons_per_light:" in warning[0]
     cfg.photon.photons_per_light = 400_000
     logs.clear()

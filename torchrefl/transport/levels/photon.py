@@ -121,7 +121,7 @@ class PhotonLevel(TransportLevel):
                 rc.sigma_max,
                 seed=cfg.seed,
             )
-        kernel_note = self._kernels(surface.num_texels)
+        kernel_note, kernel_warning = self._kernels(surface.num_texels)
         self.refresher = PhotonRefresh(
             ptracer,
             sources,
@@ -152,10 +152,12 @@ class PhotonLevel(TransportLevel):
             )
             + f", Pd damping {pc.damping:g} between refreshes; {kernel_note}"
         )
+        if kernel_warning:
+            inp.log(kernel_warning)
 
-    def _kernels(self, texels: int) -> str:
+    def _kernels(self, texels: int) -> tuple[str, str | None]:
         """Set the density kernels' std in texels (photon.smoothing, specular_smoothing; null: automatic, capped);
-        returns the log's note on them."""
+        returns the log's note on them and a warning when the cap leaves the cache noisier than the target."""
         pc = self.inputs.cfg.photon
         n = pc.photons_per_light
         auto = kernel_std(pc.smoothing, n, texels, KERNEL_PHOTONS)
@@ -165,12 +167,12 @@ class PhotonLevel(TransportLevel):
         note = f"density kernels {self.smoothing:.2f} texels (irradiance), {self.specular_smoothing:.2f} (specular)"
         if pc.smoothing is None and auto > 1.25 * MAX_AUTO_SMOOTHING:  # under 64 % of the kernel's photons
             need = photons_for_kernel(MAX_AUTO_SMOOTHING, texels, KERNEL_PHOTONS)
-            note += (
-                f"; warning: at {n} photons per light the automatic kernel would be {auto:.1f} texels, capped at "
-                f"{MAX_AUTO_SMOOTHING:g}, so the cache is noisier than the default target: "
+            return note, (
+                f"warning: at {n} photons per light the automatic density kernel would be {auto:.1f} texels, capped "
+                f"at {MAX_AUTO_SMOOTHING:g}, so the photon cache is noisier than the default target: "
                 f"photon.photons_per_light: {need} reaches it"
             )
-        return note
+        return note, None
 
     def predict(self, pd, ps, sigma):
         kappa = self.inputs.obs.kappa.to(pd.device)
