@@ -27,6 +27,7 @@ import pytest
 import torch
 from reference.path_tracer import ReferenceRenderer, cosine_weighted_brdf, scatter
 
+from torchrefl.capture import cylindrical_scan
 from torchrefl.capture.base import Capture
 from torchrefl.config import Config
 from torchrefl.core.params import TexelParams
@@ -164,7 +165,11 @@ def build(
     cfg.radiosity.patch_size = patch_size
     for key, value in (geometry or {}).items():
         setattr(cfg.geometry, key, value)
-    capture, _ = synthetic_capture(cfg, folder, Stages(), lambda *a: None)
+    # the transport is compared on the capture's mesh, which the reference renderer shares: keep the rounded fold's
+    # texels that the loader leaves out because no range-fitting window describes them (tests/geometry tests that)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(cylindrical_scan, "unfit_windows", lambda rms, valid, *a, **k: np.zeros(np.shape(valid), bool))
+        capture, _ = synthetic_capture(cfg, folder, Stages(), lambda *a: None)
     truth = tuple(capture.truth[k].double() for k in ("pd", "ps", "sigma"))
     if pd_only:
         truth = (truth[0], torch.zeros_like(truth[1]), truth[2])
