@@ -25,8 +25,8 @@ from torchrefl.transport.local import LocalTerms, predict
 
 #: coverage codes (params.npz `coverage`, docs/outputs.md): none; Pd with Ps/sigma interpolated from neighbours;
 #: Pd with Ps/sigma measured (the texel's own T_spec observations); Pd from its upper bound only (Ps/sigma
-#: interpolated); untrusted geometry (edges, creases, mixed footprints: not fitted); Pd with the object's lobe (the
-#: shared one, or the measured texels' median lobe far from every measured texel)
+#: interpolated); untrusted geometry (edges, creases, mixed footprints, unfit range: not fitted); Pd with the
+#: object's lobe (the shared one, or the measured texels' median lobe far from every measured texel)
 #: and misfit (the fitted model cannot explain its observations: torchrefl.fit.misfit; no estimate)
 COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND, COVER_UNTRUSTED, COVER_SHARED, COVER_MISFIT = range(7)
 

@@ -20,7 +20,7 @@ def _coverage_lines(coverage: dict, source: dict) -> list[str]:
     if isinstance(coverage.get("untrusted_geometry"), int) and coverage["untrusted_geometry"]:
         lines.append(
             f"  untrusted geometry: {coverage['untrusted_geometry']} texels not fitted "
-            "(edges, creases, mixed footprints)"
+            "(edges, creases, mixed footprints, strips no range-fitting window describes)"
         )
     return lines
 
