@@ -1,0 +1,115 @@
+"""How much of a synthetic capture's per-texel Pd error the photon level's cache noise explains.
+
+For a capture folder written by a synthetic config (its truth.npz beside the textures), at the TRUE parameters:
+
+1. the capture's own indirect light: a noise-free render of the same lights minus a direct-only render;
+2. the photon level's indirect light (its cache traced at the truth) for each setting given, its rms error
+   against (1) and the rms difference between two photon seeds (the cache's noise);
+3. per-texel local fits started at the truth on the capture minus each indirect estimate (the true one first),
+   and the share of texels with at least two T_spec observations whose Pd lands within 2 % of the truth.
+
+    python scripts/photon_noise_at_truth.py configs/fold.yaml <run>/capture \
+        --setting photon.photons_per_light=400000,photon.smoothing=2,photon.specular_smoothing=1 --setting ""
+
+Each --setting is a comma-separated list of overrides (empty: the defaults). The renders use the config's
+synthetic.indirect_samples, so their own Monte Carlo noise enters the "true" row (0.18 DN rms at the fold's 160 paths
+and 3 x 3 sub-samples; on a 256 x 225 fold at 64 paths and 2 x 2 it lowers that row below the defaults' own).
+docs/results/fold.md ("Photon noise") has the fold's numbers. Slow: two renders of the capture's lights and two
+caches per setting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+import numpy as np
+import torch
+import yaml
+
+from torchrefl.capture.base import loader_for
+from torchrefl.config import load_config
+from torchrefl.core.observation_classes import T_SPEC
+from torchrefl.fit.pipeline import level_inputs
+from torchrefl.synthetic.path_tracer import IndirectRenderer
+from torchrefl.synthetic.scan import SyntheticScan
+from torchrefl.transport.levels.auto import named_level, prepare
+from torchrefl.transport.photon_cache import indirect_radiance
+
+
+def renders(cfg, capture_path: str, surface, indirect: bool, seed: int) -> torch.Tensor:
+    """(P, T, 3) noise-free sensor values of the capture's lights, with or without interreflection."""
+    positions = np.array([e["position_mm"] for e in yaml.safe_load(open(f"{capture_path}/scan.yaml"))["lights"]])
+    syn = cfg.synthetic if indirect else dataclasses.replace(cfg.synthetic, indirect_samples=0)
+    scan = SyntheticScan(syn, cfg.selection.grid, seed=cfg.seed, kappa=cfg.capture.kappa, threads=cfg.threads)
+    scan._gi = IndirectRenderer(scan.tracer, scan._normal_at, scan._material_at, syn.brdf, offset=0.01, seed=seed)
+    images = scan.radiance_images(positions)
+    return torch.stack([surface.from_grid(img) for img in images]).double()
+
+
+def local_fit_within(inputs, target, truth, measured) -> float:
+    """Share of `measured` texels whose Pd, fitted per texel by the local model from the truth, is within 2 %."""
+    local = inputs.local_predict()
+    fit = inputs.fit_mask
+    pd0, ps0, sg0 = truth
+    lp, ls, lg = (torch.log(x.clone()).requires_grad_() for x in (pd0, ps0[:, :1], sg0))
+    opt = torch.optim.LBFGS([lp, ls, lg], max_iter=300, line_search_fn="strong_wolfe", tolerance_grad=1e-12)
+
+    def closure():
+        opt.zero_grad()
+        pred = local(lp.exp().float(), ls.exp().expand(-1, 3).float(), lg.exp().float()).double()
+        loss = (((pred - target) ** 2).sum(-1) * fit).sum() * 255**2 / fit.sum()
+        loss.backward()
+        return loss
+
+    for _ in range(3):
+        opt.step(closure)
+    rel = (lp.exp().detach() - pd0).mean(-1) / pd0.mean(-1)
+    return float((rel[measured].abs() < 0.02).double().mean())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("config", help="the synthetic config that wrote the capture (its synthetic.* block)")
+    ap.add_argument("capture", help="the capture folder (cylindrical_scan with truth.npz)")
+    ap.add_argument("--setting", action="append", default=[], help="comma-separated overrides; repeatable")
+    args = ap.parse_args()
+    base = ["capture.kind=cylindrical_scan", f"capture.path={args.capture}", "fit.model=photon"]
+    base.append("output.progress=false")
+    cfg = load_config(args.config, base)
+    cap = loader_for(cfg.capture.kind).load(args.capture, cfg, lambda m: None)
+    s = cap.surface
+    truth = tuple(cap.truth[k].double() for k in ("pd", "ps", "sigma"))
+    true_indirect = renders(cfg, args.capture, s, True, 100) - renders(cfg, args.capture, s, False, 100)
+    intensity = cap.obs.intensity.double()
+    inputs, _ = level_inputs(cfg, cap, lambda m: None)
+    keep = inputs.fit_mask
+    rms = lambda x: float((x.mean(-1)[keep] ** 2).mean().sqrt() * 255)
+    rows = [("true indirect light", true_indirect, None, None)]
+    for setting in args.setting or [""]:
+        over = [o for o in setting.split(",") if o]
+        c = load_config(args.config, base + over)
+        inputs, _ = level_inputs(c, cap, lambda m: None)
+        level = named_level(inputs)
+        prepare(level)
+        level.refresher.emitter_source = level.radiosity.emitter_source = None  # every texel emits its truth
+        pd, ps, sg = (x.float() for x in truth)
+        with torch.no_grad():
+            est = [
+                indirect_radiance(level.refresher.cache(pd, ps, sg, refresh=r), inputs.obs.kappa, pd, ps, sg).double()
+                for r in (0, 1)
+            ]
+        rows.append((setting or "defaults", est[0], rms(est[0] - true_indirect), rms(est[0] - est[1]) / 2**0.5))
+    inputs, _ = level_inputs(cfg, cap, lambda m: None)  # the fits' observations: the config's own
+    measured = ((inputs.classes == T_SPEC) & inputs.fit_mask).sum(0) >= 2
+    print(f"{int(measured.sum())} texels with two T_spec observations; true indirect light {rms(true_indirect):.2f} DN")
+    print("indirect light removed | rms error vs the true one (DN) | seed-to-seed noise (DN) | within 2 %")
+    for name, ind, err, noise in rows:
+        share = local_fit_within(inputs, intensity - ind, truth, measured)
+        e = "-" if err is None else f"{err:.2f}"
+        n = "-" if noise is None else f"{noise:.2f}"
+        print(f"{name} | {e} | {n} | {share:.1%}")
+
+
+if __name__ == "__main__":
+    main()
