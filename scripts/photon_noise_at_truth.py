@@ -31,7 +31,6 @@ from torchrefl.capture.base import loader_for
 from torchrefl.config import load_config
 from torchrefl.core.observation_classes import T_SPEC
 from torchrefl.fit.pipeline import level_inputs
-from torchrefl.synthetic.path_tracer import IndirectRenderer
 from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.transport.levels.auto import named_level, prepare
 from torchrefl.transport.photon_cache import indirect_radiance
@@ -42,7 +41,7 @@ def renders(cfg, capture_path: str, surface, indirect: bool, seed: int) -> torch
     positions = np.array([e["position_mm"] for e in yaml.safe_load(open(f"{capture_path}/scan.yaml"))["lights"]])
     syn = cfg.synthetic if indirect else dataclasses.replace(cfg.synthetic, indirect_samples=0)
     scan = SyntheticScan(syn, cfg.selection.grid, seed=cfg.seed, kappa=cfg.capture.kappa, threads=cfg.threads)
-    scan._gi = IndirectRenderer(scan.tracer, scan._normal_at, scan._material_at, syn.brdf, offset=0.01, seed=seed)
+    scan.path_seed = seed  # not the capture's own paths
     images = scan.radiance_images(positions)
     return torch.stack([surface.from_grid(img) for img in images]).double()
 

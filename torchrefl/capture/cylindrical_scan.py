@@ -35,7 +35,7 @@ from torchrefl.capture.images import read_images
 from torchrefl.capture.scan_yaml import read_manifest, read_scan_yaml  # noqa: F401  (the loader's readers)
 from torchrefl.capture.truth import TRUTH
 from torchrefl.capture.truth import load_truth as read_truth
-from torchrefl.capture.untrusted_texels import mixed_footprint_grid, untrusted_geometry
+from torchrefl.capture.untrusted_texels import mixed_footprint_grid, untrusted_counts, untrusted_geometry
 from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.core.point_light import point_light
@@ -328,7 +328,8 @@ def load_scan_observations(
     edge_width: observations of texels within this many texels of the mesh boundary (silhouettes,
     depth discontinuities: mixed pixels) are not valid (counted in the statistics); crease_angle_deg:
     neither are those of texels on a crease sharper than this (range_mesh.crease_texels; None: none), nor those
-    of texels whose footprint the range image shows to be mixed (geom.mixed: rims, thin edges, depth steps)."""
+    of texels whose footprint the range image shows to be mixed (geom.mixed) or that no range-fitting window
+    describes (geom.unfit)."""
     doc = read_scan_yaml(geom.folder)
     where = str(geom.folder / "scan.yaml")
     if not doc["lights"]:
@@ -345,7 +346,6 @@ def load_scan_observations(
     removed, saturated, texels = _excluded_observations(
         geom, og, intensity, saturation_level, edge_width, crease_angle_deg
     )
-    edge, crease = texels["edge"], texels["crease"]
     valid = ~np.logical_or.reduce(list(removed.values()))
     observations_left(valid, removed, where)
     Y = np.array([e.get("intensity", doc["light"]["intensity"]) for e in lights], dtype=np.float64)
@@ -381,10 +381,7 @@ def load_scan_observations(
         "saturated_observations": int((saturated & og["seen"][None] & og["lit"]).sum()),
         "shadowed_observations": int(og["shadowed"].sum()),
         "valid_observations": int(valid.sum()),
-        "edge_texels_excluded": int(edge.sum()),
-        "crease_texels_excluded": int((crease & ~edge).sum()),
-        "mixed_footprint_texels_excluded": int((texels["mixed"] & ~edge & ~crease).sum()),
-        "unfit_range_texels_excluded": int((texels["unfit"] & ~texels["mixed"] & ~edge & ~crease).sum()),
+        **untrusted_counts(texels),
         "warnings": warnings,
     }
     return obs, stats

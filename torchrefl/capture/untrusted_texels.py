@@ -51,3 +51,14 @@ def untrusted_geometry(geom, edge_width: int, crease_angle_deg) -> dict:
     mixed = none if geom.mixed is None else np.asarray(geom.mixed, dtype=bool)
     unfit = none if geom.unfit is None else np.asarray(geom.unfit, dtype=bool)
     return {"edge": edge, "crease": crease, "mixed": mixed, "unfit": unfit}
+
+
+def untrusted_counts(texels: dict) -> dict:
+    """The loader statistics of untrusted_geometry's masks: each kind counts the texels the kinds before it did not."""
+    edge, crease, mixed = texels["edge"], texels["crease"], texels["mixed"]
+    return {
+        "edge_texels_excluded": int(edge.sum()),
+        "crease_texels_excluded": int((crease & ~edge).sum()),
+        "mixed_footprint_texels_excluded": int((mixed & ~edge & ~crease).sum()),
+        "unfit_range_texels_excluded": int((texels["unfit"] & ~mixed & ~edge & ~crease).sum()),
+    }

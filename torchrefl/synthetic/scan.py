@@ -58,6 +58,7 @@ class SyntheticScan:
         self.cfg = cfg
         self.grid = grid or LightGridConfig()
         self.seed = seed
+        self.path_seed = seed  # the interreflection paths' random numbers (a second render of a scene: another seed)
         self.kappa = np.asarray(kappa, dtype=np.float64)
         self.threads = threads
         self.saturation_level = 0.995  # written to scan.yaml (synthetic runs: capture.saturation_level)
@@ -312,7 +313,7 @@ class SyntheticScan:
         if self._gi is None:
             cfg = self.cfg
             self._gi = IndirectRenderer(
-                self.tracer, self._normal_at, self._material_at, cfg.brdf, offset=0.01, seed=self.seed
+                self.tracer, self._normal_at, self._material_at, cfg.brdf, offset=0.01, seed=self.path_seed
             )
         return self._gi
 

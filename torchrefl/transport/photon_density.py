@@ -24,12 +24,10 @@ MAX_AUTO_SMOOTHING = 4.0
 MAX_AUTO_SPECULAR_SMOOTHING = 3.0
 
 
-def kernel_std(configured: float | None, photons_per_light: int, texels: int, kernel_photons: int) -> float:
-    """The density kernel's std in texels: `configured` when set, else the std of the Gaussian whose area
-    4 pi std^2 holds kernel_photons of a light's photons_per_light spread over `texels` (a photon map's gather
-    of a fixed photon count, made global: resolution-free, and narrower the more photons are traced)."""
-    if configured is not None:
-        return float(configured)
+def kernel_std(photons_per_light: int, texels: int, kernel_photons: int) -> float:
+    """The automatic density kernel's std in texels: the Gaussian whose area 4 pi std^2 holds kernel_photons of a
+    light's photons_per_light spread over `texels` (a photon map's gather of a fixed photon count, made global:
+    resolution-free, and narrower the more photons are traced)."""
     return math.sqrt(kernel_photons * texels / (4.0 * math.pi * max(photons_per_light, 1)))
 
 

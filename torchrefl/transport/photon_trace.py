@@ -6,17 +6,15 @@ systematic sampling), at a uniform point of the face,
     a_f = A_f max(n_f.l, 0) vis_f / |L - c_f|^2          (at the centroid c_f; vis by an Embree shadow ray),
 which is the density of a ray from L whose first hit is f, so every photon carries the same
     Phi = Y * sum_f a_f / N                              (N photons of that source),
-and no photon is wasted on directions that miss. The first hit is not stored (direct light is
-computed analytically by the local terms) and needs no ray: the photon starts on the face with
-wi = l. (Starting at the texel vertex about the smoothed texel normal, as before, misplaced the light next to a
-fold: part went into the faces around the vertex, and the bent faces' own direct light was missing.)
-Later hits are found with Embree; a hit's texel is the nearest mesh vertex (mesh vertices
-are texel grid points). From the first hit on, the photon is scattered about the normal of the face it is on
-(no photon re-enters the face it leaves, as the reference path tracer) by the current BRDF of the
-texel it hit, g = f cos_l = g_diffuse + g_specular (torchrefl.core.brdf; non-reciprocal lobes are evaluated
-with the light on the incident side, the way the fitter and the renderer use them), by one-sample
-component selection: with probability q = mean(Ps) / (mean(Pd) + mean(Ps)) a direction wo from the
-specular lobe, otherwise a cosine-weighted one, each with the weight of its own component
+and no photon is wasted on directions that miss. The first hit is not stored (direct light is computed analytically
+by the local terms) and needs no ray: the photon starts on the face with wi = l (docs/results/reference_check.md:
+why not from the texel vertex). Later hits are found with Embree; a hit's texel is the nearest mesh vertex (mesh
+vertices are texel grid points). From the first hit on, the photon is scattered about the normal of the face it is
+on (no photon re-enters the face it leaves, as the reference path tracer) by the current BRDF of the texel it hit,
+g = f cos_l = g_diffuse + g_specular (torchrefl.core.brdf; non-reciprocal lobes are evaluated with the light on the
+incident side, the way the fitter and the renderer use them), by one-sample component selection: with probability
+q = mean(Ps) / (mean(Pd) + mean(Ps)) a direction wo from the specular lobe, otherwise a cosine-weighted one, each
+with the weight of its own component
     w = g_c(n, l=wi, v=wo) cos(n, wo) / (cos(n, wi) P(c) pdf_c(wo))    (Pd / (1 - q) for the diffuse one),
 then Russian roulette with survival s = min(0.95, max_c w) and Phi <- Phi w / s (PhotonTracer.scatter).
 Every later hit on the front side of the mesh
@@ -160,10 +158,8 @@ class PhotonTracer:
         self._face_area, self._centroids = fa, verts[faces].mean(1) if faces.size else np.zeros((0, 3))
         corners = verts[faces] if faces.size else np.zeros((0, 3, 3))
         self._corner3 = [np.ascontiguousarray(corners[:, c].T, dtype=np.float32) for c in range(3)]  # 3 x (3, F)
-        # a corner of a face collects for its texel only where the face lies along the texel's surface
-        # (normals within ~25 deg): faces that cut across a fold or a crease (their normal between the two
-        # sides) still scatter photons but do not count in the fold texels' density, which would
-        # otherwise average the crease strip's (higher) irradiance into the plates'
+        # a face's corner collects for its texel only where the face lies along the texel's surface (normals within
+        # ~25 deg): faces across a fold scatter photons but do not average the crease strip's irradiance in
         corner_texel = self.vertex_texel[faces] if faces.size else np.zeros((0, 3), dtype=np.int64)
         self.collects = (
             np.einsum("fi,fci->fc", self.face_normals, self.normals[corner_texel]) > COLLECT_COS
@@ -398,8 +394,7 @@ class PhotonTracer:
         rays = back = 0
         for depth in range(self.max_bounces + 1):
             if depth > 0:
-                # the work units of `trace` run on tracer.threads threads; inside a unit, rays go through Embree
-                # on that unit's thread
+                # work units run on tracer.threads threads; a unit's rays go through Embree on its own thread
                 prim, bu, bv, dist = self.tracer.first_hits(np.stack(tuple(origin), -1), np.stack(tuple(d), -1))
                 rays += origin.shape[1]
                 # hits on the front (towards the photon) of the mesh only: the back of the scanned surface absorbs
@@ -410,8 +405,7 @@ class PhotonTracer:
                     break
                 prim = np.take(prim, k)
                 dk = _take3(d, k)
-                # the nearest corner: the fold rule (direction given) handed hits on a fold's faces to the far side's
-                # texels, whose collecting area does not include them (+37 % in the row next to a rounded fold)
+                # the nearest corner, whose texel's collecting area holds the hit (not fold_hits' rule: +37 % at a fold)
                 texel, collects = self.hit_texels(prim, np.take(bu, k), np.take(bv, k))
                 y = _take3(origin, k) + np.take(dist, k) * dk
                 wi = -dk

@@ -187,3 +187,10 @@ def test_the_automatic_kernels_follow_the_photon_count_and_warn_when_capped(scen
     many.prepare()
     assert 0 < many.smoothing < 4.0 and 0 < many.specular_smoothing < 3.0
     assert not any("capped" in m for m in logs)
+    cfg.photon.photons_per_light, cfg.photon.smoothing, cfg.photon.specular_smoothing = 1000, 2.5, 0.0
+    logs.clear()
+    inputs, _ = level_inputs(cfg, Capture(s, obs), logs.append)
+    set_ = PhotonLevel(inputs, RadiosityLevel(inputs))
+    set_.prepare()
+    assert (set_.smoothing, set_.specular_smoothing) == (2.5, 0.0)  # a value set is used as it is
+    assert not any("capped" in m for m in logs)

@@ -160,10 +160,12 @@ class PhotonLevel(TransportLevel):
         returns the log's note on them and a warning when the cap leaves the cache noisier than the target."""
         pc = self.inputs.cfg.photon
         n = pc.photons_per_light
-        auto = kernel_std(pc.smoothing, n, texels, KERNEL_PHOTONS)
-        auto_s = kernel_std(pc.specular_smoothing, n, texels, SPECULAR_KERNEL_PHOTONS)
-        self.smoothing = min(auto, MAX_AUTO_SMOOTHING) if pc.smoothing is None else auto
-        self.specular_smoothing = min(auto_s, MAX_AUTO_SPECULAR_SMOOTHING) if pc.specular_smoothing is None else auto_s
+        auto = kernel_std(n, texels, KERNEL_PHOTONS)
+        auto_s = kernel_std(n, texels, SPECULAR_KERNEL_PHOTONS)
+        self.smoothing = min(auto, MAX_AUTO_SMOOTHING) if pc.smoothing is None else float(pc.smoothing)
+        self.specular_smoothing = (
+            min(auto_s, MAX_AUTO_SPECULAR_SMOOTHING) if pc.specular_smoothing is None else float(pc.specular_smoothing)
+        )
         note = f"density kernels {self.smoothing:.2f} texels (irradiance), {self.specular_smoothing:.2f} (specular)"
         if pc.smoothing is None and auto > 1.25 * MAX_AUTO_SMOOTHING:  # under 64 % of the kernel's photons
             need = photons_for_kernel(MAX_AUTO_SMOOTHING, texels, KERNEL_PHOTONS)
