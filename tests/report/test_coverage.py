@@ -52,6 +52,17 @@ def test_unmeasured_patches_are_the_largest_connected_interpolated_texels():
     assert unmeasured_patches(np.full_like(cov, COVER_FULL), est) == []
 
 
+def test_texels_with_the_objects_lobe_are_unmeasured_patches_too():
+    """The texels far from every highlight take the object's lobe (code 5): the largest area without highlights
+    (the fold's lower plate) must be listed, joined with the interpolated texels around it (18 texels set, one
+    without data)."""
+    cov, est = coverage_grid()
+    cov[6:9, 2:8] = np.where(cov[6:9, 2:8] == COVER_FULL, COVER_SHARED, cov[6:9, 2:8])
+    patches = unmeasured_patches(cov, est)
+    assert patches[0] == {"texels": 12 + 1 + 17 + 4, "rows": [2, 8], "columns": [2, 9]}
+    assert len(patches) == 1
+
+
 def test_per_region_shares_where_the_truth_has_regions():
     cov, est = coverage_grid()
     region = np.zeros(cov.shape, dtype=np.int64)

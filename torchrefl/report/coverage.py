@@ -4,8 +4,9 @@ A texel's Ps and sigma are measured (its own T_spec observations gave them: cove
 measured neighbours (codes 1 and 3: no usable highlight) or the object's lobe (code 5: fit.specular shared, or
 the measured texels' median lobe where none is measured within two interpolation windows). The shares are over
 the estimated texels, for the object and per material region where the capture's truth has a region map
-(synthetic captures); for every capture the largest connected patches of interpolated texels are listed with
-their size and bounding box, which says where a real capture lacks highlights.
+(synthetic captures); for every capture the largest connected patches of texels whose Ps and sigma are not
+measured (interpolated or the object's lobe) are listed with their size and bounding box, which says where a real
+capture lacks highlights.
 """
 
 from __future__ import annotations
@@ -34,10 +35,11 @@ def source_counts(coverage: np.ndarray, estimated: np.ndarray) -> dict:
 
 
 def unmeasured_patches(coverage: np.ndarray, estimated: np.ndarray, largest: int = PATCHES) -> list[dict]:
-    """The `largest` 8-connected patches of estimated texels with interpolated Ps and sigma on the (H, W) grid,
-    largest first: {texels, rows: [first, last], columns: [first, last]} (inclusive, texel coordinates)."""
-    interpolated = np.asarray(estimated, dtype=bool) & np.isin(coverage, SOURCES["interpolated"])
-    labels, n = label(interpolated, structure=np.ones((3, 3), dtype=bool))
+    """The `largest` 8-connected patches of estimated texels whose Ps and sigma are not measured (interpolated or the
+    object's lobe) on the (H, W) grid, largest first: {texels, rows: [first, last], columns: [first, last]}
+    (inclusive, texel coordinates)."""
+    unmeasured = np.asarray(estimated, dtype=bool) & np.isin(coverage, SOURCES["interpolated"] + SOURCES["shared"])
+    labels, n = label(unmeasured, structure=np.ones((3, 3), dtype=bool))
     if not n:
         return []
     sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:]
