@@ -223,6 +223,29 @@ def merge_entries(
     return np.take(e_obs, first), mean_theta, wsum
 
 
+def spread_and_merge(e_obs, theta_h, weight, spread, sigma, T: int, theta_bin: float, bin_per_sigma: float):
+    """merge_entries of the specular entries after spread (obs -> (copies' obs, source entry, weight); None: no
+    spread), one light at a time: a light's copies stay among its own observations, so the pieces are the global
+    merge in its order, and the copies (a kernel's worth per entry) are never all held at once. Returns the merged
+    (entry_obs, theta_h, weight) and the number of (spread) entries merged."""
+    light = e_obs // T
+    order = np.argsort(light, kind="stable")
+    ends = np.searchsorted(np.take(light, order), np.arange(int(light.max()) + 1), side="right")
+    parts, count, begin = [], 0, 0
+    for end in ends:
+        idx = order[begin:end]
+        begin = end
+        if not idx.size:
+            continue
+        obs, th, w = np.take(e_obs, idx), np.take(theta_h, idx), np.take(weight, idx, axis=1)
+        if spread is not None:
+            obs, src, k = spread(obs)
+            th, w = np.take(th, src), np.take(w, src, axis=1) * k
+        count += int(obs.size)
+        parts.append(merge_entries(obs, th, w, sigma, T, theta_bin, bin_per_sigma))
+    return tuple(np.concatenate([part[i] for part in parts]) for i in range(3)), count
+
+
 def build_cache(
     hits: PhotonHits,
     sources: LightSources,
@@ -282,14 +305,14 @@ def build_cache(
         ).select(sel, flux)
         if specular_smoothing > 0 and grid is None:
             raise ConfigError("photon.specular_smoothing > 0 needs the texel grid (texel_index, grid_shape)")
-        if e_obs.size and specular_smoothing > 0:
+        spread = None
+        if specular_smoothing > 0:
             index, shape, gnormals = _grid_parts(grid)
-            e_obs, src, k = spread_on_grid(e_obs, T, index, shape, specular_smoothing, gnormals, smoothing_normal)
-            theta_h, weight = np.take(theta_h, src), np.take(weight, src, axis=1) * k
+            spread = lambda obs: spread_on_grid(obs, T, index, shape, specular_smoothing, gnormals, smoothing_normal)
         if e_obs.size:
-            merged = merge_entries(e_obs, theta_h, weight, sigma, T, theta_bin, bin_per_sigma)
+            merged, count = spread_and_merge(e_obs, theta_h, weight, spread, sigma, T, theta_bin, bin_per_sigma)
             empty = (torch.from_numpy(merged[0]), *(torch.from_numpy(x).to(dtype) for x in merged[1:]))
-            stats["specular_photons"] = int(e_obs.size)
+            stats["specular_photons"] = count
     stats["specular_entries"] = int(empty[0].numel())
     irradiance = torch.from_numpy(H.reshape(P, T, 3))
     if smoothing > 0:
