@@ -92,5 +92,8 @@ def test_the_summary_prints_the_measured_share_and_the_untrusted_texels():
     table = summary_table(metrics)
     assert "Ps/sigma measured at 78.5% of 79 estimated texels (interpolated 21.5%, shared lobe 0.0%)" in table
     assert "untrusted geometry: 40 texels not fitted" in table
+    assert "largest area without a highlight of its own: 13 texels, rows 2-5, columns 2-6" in table
+    metrics["specular_source"] = specular_sources(np.where(est, COVER_FULL, cov), est)
+    assert "without a highlight" not in summary_table(metrics)
     del metrics["specular_source"], metrics["coverage"]
     assert "measured at" not in summary_table(metrics)

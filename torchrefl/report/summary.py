@@ -8,14 +8,21 @@ def _share(value) -> str:
 
 
 def _coverage_lines(coverage: dict, source: dict) -> list[str]:
-    """Where Ps and sigma come from (the share measured rather than interpolated or shared) and the texels left
-    unfitted for their geometry."""
+    """Where Ps and sigma come from (the share measured rather than interpolated or shared, and the largest patch
+    without a highlight of its own) and the texels left unfitted for their geometry."""
     lines = []
     if isinstance(source.get("estimated"), int):
         share = {k: _share(source.get(f"{k}_share")) for k in ("measured", "interpolated", "shared")}
         lines.append(
             f"  Ps/sigma measured at {share['measured']} of {source['estimated']} estimated texels "
             f"(interpolated {share['interpolated']}, shared lobe {share['shared']})"
+        )
+    patches = source.get("unmeasured_patches") or []
+    if patches and isinstance(patches[0].get("texels"), int):
+        p = patches[0]
+        lines.append(
+            f"  largest area without a highlight of its own: {p['texels']} texels, rows {p['rows'][0]}-{p['rows'][1]}, "
+            f"columns {p['columns'][0]}-{p['columns'][1]} (a light giving it highlights would measure its Ps, sigma)"
         )
     if isinstance(coverage.get("untrusted_geometry"), int) and coverage["untrusted_geometry"]:
         lines.append(
