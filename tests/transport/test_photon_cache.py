@@ -16,8 +16,6 @@ from torchrefl.transport.photon_cache import (
     indirect_radiance,
     indirect_radiance_reference,
     light_sources,
-    merge_entries,
-    spread_and_merge,
     texel_light_positions,
 )
 from torchrefl.transport.photon_density import smooth_on_grid, spread_on_grid
@@ -323,32 +321,6 @@ def test_spreading_keeps_a_constant_field_and_does_not_cross_the_fold():
     assert floor[to[w > 1e-12]].all()
     to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.texel_index, s.grid_shape, 1.0)
     assert not floor[to[w > 1e-3]].all()  # the plain kernel does cross
-
-
-def test_specular_entries_arespread_and_merged_per_light_as_all_at_once():
-    """build_cache spreads and merges the specular entries one light at a time (to bound memory): the result is
-    the merge of all entries spread at once, in its order, for lights in any order and a light with no entry."""
-    s = fold_surface(10, 20)
-    T = s.num_texels
-    rng = np.random.default_rng(3)
-    M = 4000
-    e_obs = rng.choice([0, 1, 3], M) * T + rng.integers(0, T, M)  # lights 0, 1 and 3 (none for light 2), shuffled
-    theta_h = rng.uniform(0.0, 0.6, M)
-    weight = rng.uniform(0.0, 1.0, (3, M))
-    sigma = rng.uniform(0.05, 0.4, T)
-    spread = lambda obs: spread_on_grid(obs, T, s.texel_index, s.grid_shape, 1.5, s.normals, 0.1)
-    (obs, th, w), count = spread_and_merge(e_obs, theta_h, weight, spread, sigma, T, 0.004, 0.25)
-    to, src, k = spread(e_obs)
-    ref = merge_entries(to, theta_h[src], weight[:, src] * k, sigma, T, 0.004, 0.25)
-    assert count == to.size
-    np.testing.assert_array_equal(obs, ref[0])
-    np.testing.assert_allclose(th, ref[1], rtol=1e-12)
-    np.testing.assert_allclose(w, ref[2], rtol=1e-12)
-    (obs, th, w), count = spread_and_merge(e_obs, theta_h, weight, None, sigma, T, 0.004, 0.25)
-    ref = merge_entries(e_obs, theta_h, weight, sigma, T, 0.004, 0.25)
-    assert count == M
-    np.testing.assert_array_equal(obs, ref[0])
-    np.testing.assert_allclose(w, ref[2], rtol=1e-12)
 
 
 def test_specular_spreading_needs_the_grid(traced):

@@ -63,9 +63,8 @@ from torchrefl.core.threads import thread_map
 from torchrefl.errors import ConfigError
 from torchrefl.transport.photon_density import apply_on_grid, smoothing_matrix, spread_on_grid
 from torchrefl.transport.photon_trace import PhotonHits
+from torchrefl.transport.specular_bins import BIN_PER_SIGMA, THETA_BIN, spread_and_merge
 
-THETA_BIN = 0.004  # radians; merged photons differ in theta_h by less than this, or by
-BIN_PER_SIGMA = 0.25  # less than this fraction of the receiving texel's current roughness where that is wider
 LOBE_CUTOFF = 1e-7
 
 
@@ -192,58 +191,6 @@ class PhotonCache:
 def _grid_parts(grid: tuple) -> tuple:
     """(texel_index, grid_shape, normals or None) of a grid tuple (texel_index, grid_shape[, normals])."""
     return grid[0], grid[1], (grid[2] if len(grid) > 2 else None)
-
-
-def merge_entries(
-    e_obs: np.ndarray,
-    theta_h: np.ndarray,
-    weight: np.ndarray,
-    sigma,
-    T: int,
-    theta_bin: float = THETA_BIN,
-    bin_per_sigma: float = BIN_PER_SIGMA,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Merge specular entries (flat observation e_obs = p T + t (M,), theta_h (M,), weight (3, M)) whose theta_h fall
-    in the same bin of the same observation: bins max(theta_bin, bin_per_sigma * sigma_t) wide for the texel's
-    roughness sigma (T,); merging entries whose theta_h differ by a fraction of the lobe's width changes
-    sum_k w_k D(theta_k) by < 0.5 % (second order in the spread within a bin). Returns (entry_obs (E,), the
-    weight-averaged theta_h (E,), summed weight (E, 3)), sorted by observation and bin."""
-    width = np.maximum(theta_bin, bin_per_sigma * np.take(np.asarray(sigma, dtype=np.float64), e_obs % T))
-    bins = np.floor(theta_h / width).astype(np.int64)
-    key = e_obs * (int(math.pi / 2 / theta_bin) + 2) + bins
-    uniq, inv = torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)
-    uniq, inv = uniq.numpy(), inv.numpy()
-    m = weight.mean(0)
-    wsum = np.stack([np.bincount(inv, weights=weight[c], minlength=len(uniq)) for c in range(3)], -1)
-    msum = np.bincount(inv, weights=m, minlength=len(uniq))
-    tsum = np.bincount(inv, weights=m * theta_h, minlength=len(uniq))
-    first = np.zeros(len(uniq), dtype=np.int64)
-    first[inv[::-1]] = np.arange(len(inv))[::-1]
-    mean_theta = np.where(msum > 0, tsum / np.where(msum > 0, msum, 1.0), np.take(theta_h, first))
-    return np.take(e_obs, first), mean_theta, wsum
-
-
-def spread_and_merge(e_obs, theta_h, weight, spread, sigma, T: int, theta_bin: float, bin_per_sigma: float):
-    """merge_entries of the specular entries after spread (obs -> (copies' obs, source entry, weight); None: no
-    spread), one light at a time: a light's copies stay among its own observations, so the pieces are the global
-    merge in its order, and the copies (a kernel's worth per entry) are never all held at once. Returns the merged
-    (entry_obs, theta_h, weight) and the number of (spread) entries merged."""
-    light = e_obs // T
-    order = np.argsort(light, kind="stable")
-    ends = np.searchsorted(np.take(light, order), np.arange(int(light.max()) + 1), side="right")
-    parts, count, begin = [], 0, 0
-    for end in ends:
-        idx = order[begin:end]
-        begin = end
-        if not idx.size:
-            continue
-        obs, th, w = np.take(e_obs, idx), np.take(theta_h, idx), np.take(weight, idx, axis=1)
-        if spread is not None:
-            obs, src, k = spread(obs)
-            th, w = np.take(th, src), np.take(w, src, axis=1) * k
-        count += int(obs.size)
-        parts.append(merge_entries(obs, th, w, sigma, T, theta_bin, bin_per_sigma))
-    return tuple(np.concatenate([part[i] for part in parts]) for i in range(3)), count
 
 
 def build_cache(

@@ -18,7 +18,7 @@ stay bounded), each traced with Embree to the texel u_k it hits:
 
 (the photon level's specular entry in expectation: Ps D G is the specular part of f cos_l, torchrefl.core.brdf).
 The samples are emitted as entries of the photon cache's format (observation p T + t, theta_h, weight
-G L / (N pdf)), merged per theta_h bin with the bins of the photons' (photon_level.merge_entries), so D stays
+G L / (N pdf)), merged per theta_h bin with the bins of the photons' (specular_bins.merge_entries), so D stays
 differentiable in sigma_t and the product with Ps in Ps; L is fixed until the next refresh, like the photons'.
 The photons then keep only the paths with a specular scattering in their specular entries
 (build_cache(specular_paths_only=True)), so every path is counted once.
@@ -30,7 +30,6 @@ light on the backs either). Directions: a scrambled Sobol set with a random toro
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,8 +39,9 @@ from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.lobe_sampling import row_dot, sample_mixture
 from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.errors import ConfigError
-from torchrefl.transport.photon_cache import BIN_PER_SIGMA, LOBE_CUTOFF, THETA_BIN
+from torchrefl.transport.photon_cache import LOBE_CUTOFF
 from torchrefl.transport.photon_trace import PhotonTracer
+from torchrefl.transport.specular_bins import BINS_PER_OBSERVATION, theta_bins
 
 WIDEN = 1.25  # sampling roughness over the texel's roughness at the refresh
 
@@ -166,7 +166,7 @@ class SpecularGather:
         (P, K, T, 3) of every texel with light p at map k's source, map_weights (K, T) (each texel's weights
         over the maps: photon_level.map_weights), and sigma (T,) (the merge bins' widths).
 
-        The samples of a texel are grouped per theta_h bin (the bins of photon_level.merge_entries) once for all
+        The samples of a texel are grouped per theta_h bin (the bins of specular_bins.merge_entries) once for all
         lights; per light a group's weight is the sum of its samples' G L / (N pdf) and its theta_h their mean
         weighted by that (as merge_entries weighs photons). Sorted by light, texel and bin."""
         R = np.asarray(radiance, dtype=np.float64)
@@ -179,9 +179,9 @@ class SpecularGather:
         empty = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3))
         if not t.size:
             return empty
-        width = np.maximum(THETA_BIN, BIN_PER_SIGMA * np.take(np.asarray(sigma, dtype=np.float64), t))
-        nb = int(math.pi / 2 / THETA_BIN) + 2
-        key = (t * nb + np.floor(samples.theta_h / width).astype(np.int64)) * (P + 1) + (samples.view_light + 1)
+        nb = BINS_PER_OBSERVATION
+        bins = theta_bins(samples.theta_h, np.take(np.asarray(sigma, dtype=np.float64), t))
+        key = (t * nb + bins) * (P + 1) + (samples.view_light + 1)
         uniq, group = torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)
         uniq, group = uniq.numpy(), group.numpy()
         G = len(uniq)

@@ -1,0 +1,78 @@
+"""The theta_h bins of the photon cache's specular entries, and the merge of the entries that share one.
+
+An entry (observation p T + t, theta_h, weight) stands for light that texel t reflects towards the camera in light
+p's image with Ps_t D(theta_h; sigma_t) times the weight. Entries of one observation whose theta_h differ by a
+fraction of the lobe's width can be summed into one at their weighted mean theta_h: sum_k w_k D(theta_k) changes
+by < 0.5 % (second order in the spread within a bin), and D stays differentiable in sigma. Used by the photons'
+entries (photon_cache.build_cache) and the gathered ones (specular_gather).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+THETA_BIN = 0.004  # radians; merged photons differ in theta_h by less than this, or by
+BIN_PER_SIGMA = 0.25  # less than this fraction of the receiving texel's current roughness where that is wider
+#: bins per texel and observation: theta_h in [0, pi / 2] in bins at least THETA_BIN wide
+BINS_PER_OBSERVATION = int(math.pi / 2 / THETA_BIN) + 2
+
+
+def theta_bins(theta_h, sigma_t, theta_bin: float = THETA_BIN, bin_per_sigma: float = BIN_PER_SIGMA) -> np.ndarray:
+    """(M,) int64 bin of each entry's theta_h (M,) at its receiving texel's roughness sigma_t (M,): bins
+    max(theta_bin, bin_per_sigma * sigma_t) wide."""
+    width = np.maximum(theta_bin, bin_per_sigma * np.asarray(sigma_t, dtype=np.float64))
+    return np.floor(np.asarray(theta_h) / width).astype(np.int64)
+
+
+def merge_entries(
+    e_obs: np.ndarray,
+    theta_h: np.ndarray,
+    weight: np.ndarray,
+    sigma,
+    T: int,
+    theta_bin: float = THETA_BIN,
+    bin_per_sigma: float = BIN_PER_SIGMA,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge specular entries (flat observation e_obs = p T + t (M,), theta_h (M,), weight (3, M)) whose theta_h fall
+    in the same bin of the same observation: bins max(theta_bin, bin_per_sigma * sigma_t) wide for the texel's
+    roughness sigma (T,); merging entries whose theta_h differ by a fraction of the lobe's width changes
+    sum_k w_k D(theta_k) by < 0.5 % (second order in the spread within a bin). Returns (entry_obs (E,), the
+    weight-averaged theta_h (E,), summed weight (E, 3)), sorted by observation and bin."""
+    bins = theta_bins(theta_h, np.take(np.asarray(sigma, dtype=np.float64), e_obs % T), theta_bin, bin_per_sigma)
+    key = e_obs * (int(math.pi / 2 / theta_bin) + 2) + bins
+    uniq, inv = torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)
+    uniq, inv = uniq.numpy(), inv.numpy()
+    m = weight.mean(0)
+    wsum = np.stack([np.bincount(inv, weights=weight[c], minlength=len(uniq)) for c in range(3)], -1)
+    msum = np.bincount(inv, weights=m, minlength=len(uniq))
+    tsum = np.bincount(inv, weights=m * theta_h, minlength=len(uniq))
+    first = np.zeros(len(uniq), dtype=np.int64)
+    first[inv[::-1]] = np.arange(len(inv))[::-1]
+    mean_theta = np.where(msum > 0, tsum / np.where(msum > 0, msum, 1.0), np.take(theta_h, first))
+    return np.take(e_obs, first), mean_theta, wsum
+
+
+def spread_and_merge(e_obs, theta_h, weight, spread, sigma, T: int, theta_bin: float, bin_per_sigma: float):
+    """merge_entries of the specular entries after spread (obs -> (copies' obs, source entry, weight); None: no
+    spread), one light at a time: a light's copies stay among its own observations, so the pieces are the global
+    merge in its order, and the copies (a kernel's worth per entry) are never all held at once. Returns the merged
+    (entry_obs, theta_h, weight) and the number of (spread) entries merged."""
+    light = e_obs // T
+    order = np.argsort(light, kind="stable")
+    ends = np.searchsorted(np.take(light, order), np.arange(int(light.max()) + 1), side="right")
+    parts, count, begin = [], 0, 0
+    for end in ends:
+        idx = order[begin:end]
+        begin = end
+        if not idx.size:
+            continue
+        obs, th, w = np.take(e_obs, idx), np.take(theta_h, idx), np.take(weight, idx, axis=1)
+        if spread is not None:
+            obs, src, k = spread(obs)
+            th, w = np.take(th, src), np.take(w, src, axis=1) * k
+        count += int(obs.size)
+        parts.append(merge_entries(obs, th, w, sigma, T, theta_bin, bin_per_sigma))
+    return tuple(np.concatenate([part[i] for part in parts]) for i in range(3)), count
