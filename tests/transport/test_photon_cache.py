@@ -16,6 +16,7 @@ from torchrefl.transport.photon_cache import (
     indirect_radiance,
     indirect_radiance_reference,
     light_sources,
+    specular_per_unit_ps,
     texel_light_positions,
 )
 from torchrefl.transport.photon_density import smooth_on_grid, spread_on_grid
@@ -94,6 +95,21 @@ def test_the_linear_cache_is_exact_at_the_traced_pd(traced):
     a = indirect_radiance(cache_of(traced, 0.004), obs.kappa, pd, ps, sigma)
     b = indirect_radiance(cache_of(traced, 0.004, linear=True), obs.kappa, pd, ps, sigma)
     torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-9 * float(a.abs().max()))
+
+
+def test_specular_per_unit_ps_takes_one_sigma_per_texel(traced):
+    """What the sigma search evaluates: with sigma (T,) each texel's entries at its own sigma, texel by texel the same
+    as every texel at that one value, and Ps times it is the cache's specular light (indirect_radiance)."""
+    s, obs, pt, src, hits, pd, ps, sigma = traced
+    cache = cache_of(traced, 0.004)
+    per_texel = specular_per_unit_ps(cache, obs.kappa, sigma)
+    for t in (0, 7, s.num_texels - 1):
+        one = specular_per_unit_ps(cache, obs.kappa, float(sigma[t]))
+        torch.testing.assert_close(per_texel[:, t], one[:, t], rtol=1e-12, atol=1e-15)
+    zero = torch.zeros_like(pd)
+    spec = indirect_radiance(cache, obs.kappa, zero, ps, sigma)
+    torch.testing.assert_close(ps[None] * per_texel, spec, rtol=1e-10, atol=1e-14)
+    assert float(per_texel.abs().max()) > 0
 
 
 def test_the_linear_cache_follows_the_emitters_pd():

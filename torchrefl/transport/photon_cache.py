@@ -423,12 +423,16 @@ def _specular_sum(cache: PhotonCache, entry_sigma: torch.Tensor) -> torch.Tensor
     return S.index_add(0, cache.entry_obs, D[:, None] * cache.entry_weight).view(P, T, 3)
 
 
-def specular_per_unit_ps(cache: PhotonCache, kappa: torch.Tensor, sigma: float) -> torch.Tensor:
-    """(P, T, 3) the sensor value of the cached specular interreflection per unit Ps, every texel's lobe at sigma
-    (what indirect_radiance adds as ps * kappa * S)."""
+def specular_per_unit_ps(cache: PhotonCache, kappa: torch.Tensor, sigma) -> torch.Tensor:
+    """(P, T, 3) the sensor value of the cached specular interreflection per unit Ps, every texel's lobe at sigma:
+    one value (a float or a 0-d tensor) or one per texel ((T,) tensor); what indirect_radiance adds as
+    ps * kappa * S."""
     if not cache.entry_obs.numel():
         return torch.zeros_like(cache.irradiance)
-    return kappa * _specular_sum(cache, torch.tensor(sigma, dtype=cache.irradiance.dtype))
+    sigma = torch.as_tensor(sigma, dtype=cache.irradiance.dtype, device=cache.irradiance.device)
+    if sigma.dim():
+        sigma = sigma.index_select(0, cache.entry_obs % cache.irradiance.shape[1])
+    return kappa * _specular_sum(cache, sigma)
 
 
 def indirect_radiance_reference(

@@ -65,11 +65,12 @@ class LevelInputs:
 @dataclass
 class IndirectTerms:
     """A level's indirect light at the current parameters as linear factors of each texel's own Pd and Ps:
-    diffuse (P, T, 3), the sensor value per unit Pd; specular(sigma: float) -> (P, T, 3), the sensor value per
-    unit Ps with every texel's lobe at sigma. Held fixed while one texel's parameters vary."""
+    diffuse (P, T, 3), the sensor value per unit Pd; specular(sigma) -> (P, T, 3), the sensor value per
+    unit Ps with every texel's lobe at sigma (a 0-d tensor, or (T,) one value per texel). Held fixed while one
+    texel's parameters vary."""
 
     diffuse: torch.Tensor
-    specular: Callable[[float], torch.Tensor]
+    specular: Callable[[torch.Tensor], torch.Tensor]
 
 
 @dataclass

@@ -1,0 +1,71 @@
+"""The sigma search by variable projection (torchrefl.fit.profile_search): the grid finds each texel's basin, the
+golden-section steps narrow sigma between the grid values, and the result is never worse than the grid's."""
+
+import pytest
+import torch
+from conftest import dome_scene, point_light_observations
+
+from torchrefl.fit.profile_search import profile_search, sigma_grid
+from torchrefl.transport.local import local_terms, predict
+
+T = 120
+
+
+def scene(noise: float = 0.0):
+    nrm, pos, lights, cam = dome_scene(T=T, seed=4)
+    obs = point_light_observations(nrm, pos, lights[::2], cam, intensity=2.0e4)
+    terms = local_terms("torrance_sparrow", torch.as_tensor(nrm), obs)
+    g = torch.Generator().manual_seed(5)
+    truth = (
+        0.2 + 0.5 * torch.rand(T, 3, generator=g, dtype=torch.float64),
+        0.1 + 0.4 * torch.rand(T, 1, generator=g, dtype=torch.float64).expand(T, 3),
+        0.06 + 0.3 * torch.rand(T, generator=g, dtype=torch.float64),
+    )
+    intensity = predict(terms, *truth)
+    intensity = intensity + noise * torch.randn(intensity.shape, generator=g, dtype=torch.float64)
+    return terms, intensity, obs.valid, truth
+
+
+def relative(a, b):
+    return ((a - b).abs() / b).median()
+
+
+def test_narrowed_search_lands_on_the_truth_between_grid_values():
+    terms, intensity, mask, (pd, ps, sigma) = scene()
+    grid = sigma_grid(0.01, 0.6, 32)  # values 14 % apart
+    pd_g, ps_g, sg_g, _ = profile_search(terms, intensity, mask, grid, golden_steps=0)
+    pd_n, ps_n, sg_n, _ = profile_search(terms, intensity, mask, grid)
+    assert relative(sg_g, sigma) > 0.02  # the grid alone is a grid step off
+    assert relative(sg_n, sigma) < 0.003
+    assert relative(ps_n, ps) < 0.005
+    assert relative(pd_n, pd) < 0.001
+
+
+@pytest.mark.parametrize("ps_channels", [1, 3])
+def test_narrowing_never_raises_the_error_over_the_grid(ps_channels):
+    terms, intensity, mask, _ = scene(noise=0.01)
+    grid = sigma_grid(0.01, 0.6, 16)
+    *_, err_g = profile_search(terms, intensity, mask, grid, ps_channels, golden_steps=0)
+    *_, err_n = profile_search(terms, intensity, mask, grid, ps_channels)
+    assert (err_n <= err_g + 1e-12).all()
+    assert (err_n < err_g * (1 - 1e-4)).float().mean() > 0.5
+
+
+def test_shared_lobe_is_narrowed_too():
+    terms, intensity, mask, (pd, _, _) = scene()
+    intensity = predict(terms, pd, torch.full((T, 3), 0.3, dtype=torch.float64), torch.full((T,), 0.137).double())
+    grid = sigma_grid(0.01, 0.6, 32)
+    _, ps_s, sg_s, _ = profile_search(terms, intensity, mask, grid, shared=True)
+    assert torch.allclose(sg_s, sg_s[:1].expand(T)) and torch.allclose(ps_s, ps_s[:1].expand_as(ps_s))
+    assert abs(float(sg_s[0]) / 0.137 - 1) < 0.003
+    assert (ps_s / 0.3 - 1).abs().max() < 0.005
+
+
+def test_a_texel_whose_truth_is_at_the_grid_bound_stays_in_bounds():
+    terms, intensity, mask, (pd, ps, _) = scene()
+    at_bound = torch.full((T,), 0.6, dtype=torch.float64)
+    intensity = predict(terms, pd, ps, at_bound)
+    _, _, sg, err = profile_search(terms, intensity, mask, sigma_grid(0.01, 0.6, 32))
+    assert (sg <= 0.6 + 1e-12).all() and (sg >= 0.01 - 1e-12).all()
+    assert relative(sg, at_bound) < 1e-3
+    assert torch.isfinite(err).all()
