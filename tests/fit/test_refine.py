@@ -7,7 +7,7 @@ from conftest import dome_scene, point_light_observations
 from torchrefl.core.observation_classes import classify
 from torchrefl.core.params import TexelParams
 from torchrefl.fit.closed_form import closed_form
-from torchrefl.fit.refine import Objective, grid_neighbours, refine, robust_loss
+from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine, robust_loss
 from torchrefl.transport.local import local_terms, predict
 
 
@@ -73,3 +73,28 @@ def test_grid_neighbours():
     idx = torch.tensor([0, 1, 3, 4, 8])  # 3 x 3 grid, texels 0,1,3,4,8 valid
     pairs = {tuple(p) for p in grid_neighbours(idx, (3, 3)).tolist()}
     assert pairs == {(0, 1), (2, 3), (0, 2), (1, 3)}
+
+
+def test_gradcheck_objective_with_priors_and_smoothness_float64():
+    obs, terms, (pd, ps, sigma) = noisy_scene(T=6, seed=4)
+    mask = torch.tensor([True, False, True, True, False, True])
+    priors = [Prior(mask, ps * 1.2, sigma * 0.9, 0.7)]
+    pairs = torch.tensor([[0, 1], [2, 3], [4, 5], [1, 2]])
+    obj = Objective(
+        lambda a, b, c: predict(terms, a, b, c),
+        obs.intensity,
+        obs.valid,
+        priors=priors,
+        smoothness=0.3,
+        neighbours=pairs,
+    )
+    params = TexelParams(pd, ps, sigma, 0.01, 0.6, ps_max=4.0)
+    names = [n for n, _ in params.named_parameters()]
+    inputs = [q.detach().clone().requires_grad_(True) for q in params.parameters()]
+
+    def at(*raws):
+        for n, x in zip(names, raws):
+            params._parameters[n] = x  # the objective reads the raw tensors through params.values()
+        return obj(params)
+
+    assert torch.autograd.gradcheck(at, inputs, eps=1e-6, atol=1e-6)
