@@ -222,7 +222,10 @@ class FitConfig:
     holdout: list = opt([], "light indices excluded from fitting and evaluated afterwards")
     interpolation_window: int = opt(5, "W: window for interpolating undetermined texels (W x W)", low=1)
     sigma_search: int = opt(
-        32, "sigma values of the variable-projection search that can replace the closed-form start (0 = off)", low=0
+        32,
+        "grid values of the variable-projection sigma search, narrowed between them, that can replace the closed-form "
+        "start (0 = off)",
+        low=0,
     )
     specular: str = opt(
         "texel",
