@@ -47,3 +47,17 @@ def test_a_large_gap_takes_the_median_of_the_determined_texels_not_a_stray_row_v
     assert (how[3] == 2).all() and (how[6, :10] == 4).all()  # one pass of a 3 x 3 window reaches one row
     assert torch.allclose(out[6, :10], torch.tensor([0.3, 0.3], dtype=torch.float64))
     assert torch.allclose(out[9, 0], torch.tensor([0.3, 0.3], dtype=torch.float64))  # not the stray row's value
+
+
+def test_one_extreme_determined_texel_does_not_spread_into_its_neighbours():
+    """A measured texel with an extreme lobe (Ps at its bound, sigma narrow) beside ordinary ones: the texels filled
+    from that window take the ordinary lobe (the window's median), not a mix with the extreme one (its mean)."""
+    grid = torch.zeros(9, 9, 2, dtype=torch.float64)
+    grid[..., 0], grid[..., 1] = 0.3, 0.15
+    known = torch.zeros(9, 9, dtype=torch.bool)
+    known[:, :3] = True  # a measured band on the left, the rest to fill
+    grid[4, 2] = torch.tensor([4.0, 0.011], dtype=torch.float64)
+    inside = torch.ones(9, 9, dtype=torch.bool)
+    out, how = fill_undetermined(grid, known, inside, window=5)
+    assert (how[:, 3:5] == 2).all()
+    torch.testing.assert_close(out[:, 3:5], grid[:1, :1].expand(9, 2, 2), rtol=0, atol=1e-12)

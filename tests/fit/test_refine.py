@@ -98,3 +98,36 @@ def test_gradcheck_objective_with_priors_and_smoothness_float64():
         return obj(params)
 
     assert torch.autograd.gradcheck(at, inputs, eps=1e-6, atol=1e-6)
+
+
+def test_per_texel_shares_sum_to_the_objective():
+    obs, terms, (pd, ps, sigma) = noisy_scene(T=40, seed=5)
+    mask = torch.arange(40) % 3 == 0
+    obj = Objective(
+        lambda a, b, c: predict(terms, a, b, c), obs.intensity, obs.valid, priors=[Prior(mask, ps * 1.3, sigma, 0.5)]
+    )
+    params = TexelParams(pd * 0.9, ps, sigma * 1.1, 0.01, 0.6)
+    with torch.no_grad():
+        torch.testing.assert_close(obj.per_texel(params).sum(), obj(params), rtol=1e-10, atol=0)
+
+
+@pytest.mark.parametrize("guarded", [True, False])
+def test_no_texel_ends_a_refinement_worse_than_it_started(guarded):
+    """An optimiser that overshoots (Adam at a far too large rate) leaves some texels worse than their start; the
+    guard gives them their start back. The control: a smoothness term too small to matter turns the guard off."""
+    obs, terms, (pd, ps, sigma) = noisy_scene(T=60, seed=6)
+    pairs = None if guarded else grid_neighbours(torch.arange(60), (6, 10))
+    obj = Objective(
+        lambda a, b, c: predict(terms, a, b, c),
+        obs.intensity,
+        obs.valid,
+        smoothness=0.0 if guarded else 1e-12,
+        neighbours=pairs,
+    )
+    params = TexelParams(pd * 1.05, ps * 0.95, sigma * 1.05, 0.01, 0.6)
+    with torch.no_grad():
+        before = obj.per_texel(params)
+    refine(params, obj, "adam", 15, learning_rate=2.0)
+    with torch.no_grad():
+        worse = obj.per_texel(params) > before * (1 + 1e-9)
+    assert (not bool(worse.any())) if guarded else int(worse.sum()) > 5
