@@ -46,6 +46,13 @@ class Prior:
     weight: float
 
 
+def _pull(prior: Prior, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+    """(masked texels,) the prior's squared log differences of Ps (summed over channels) and sigma."""
+    m = prior.mask
+    d_ps = torch.log(ps[m] + _LOG_EPS) - torch.log(prior.ps[m] + _LOG_EPS)
+    return (d_ps**2).sum(-1) + torch.log(sigma[m] / prior.sigma[m]) ** 2
+
+
 @dataclass
 class Objective:
     """Everything the objective needs besides the parameters.
@@ -84,27 +91,22 @@ class Objective:
         pd, ps, sigma = params.values()
         r = (self.predict(pd, ps, sigma) - self.intensity) * 255.0
         out = (robust_loss(r, self.loss, self.loss_scale_8bit) * self._w).sum((0, 2)) / self._count
-        for prior in self.priors:
-            if prior.weight <= 0 or not prior.mask.any():
-                continue
-            m = prior.mask
-            d_ps = torch.log(ps[m] + _LOG_EPS) - torch.log(prior.ps[m] + _LOG_EPS)
-            d_sg = torch.log(sigma[m] / prior.sigma[m])
-            out = out.index_add(0, m.nonzero()[:, 0], prior.weight * ((d_ps**2).sum(-1) + d_sg**2) / int(m.sum()))
+        for prior in self._active_priors():
+            out = out.index_add(
+                0, prior.mask.nonzero()[:, 0], prior.weight * _pull(prior, ps, sigma) / int(prior.mask.sum())
+            )
         return out
+
+    def _active_priors(self) -> list:
+        return [p for p in self.priors if p.weight > 0 and bool(p.mask.any())]
 
     def __call__(self, params: TexelParams) -> torch.Tensor:
         pd, ps, sigma = params.values()
         pred = self.predict(pd, ps, sigma)
         r = (pred - self.intensity) * 255.0
         total = (robust_loss(r, self.loss, self.loss_scale_8bit) * self._w).sum() / self._count
-        for prior in self.priors:
-            if prior.weight <= 0 or not prior.mask.any():
-                continue
-            m = prior.mask
-            d_ps = torch.log(ps[m] + _LOG_EPS) - torch.log(prior.ps[m] + _LOG_EPS)
-            d_sg = torch.log(sigma[m] / prior.sigma[m])
-            total = total + prior.weight * ((d_ps**2).sum(-1) + d_sg**2).mean()
+        for prior in self._active_priors():
+            total = total + prior.weight * _pull(prior, ps, sigma).mean()
         if self.couples_texels:
             i, j = self.neighbours[:, 0], self.neighbours[:, 1]
             lp = torch.log(ps + _LOG_EPS)
