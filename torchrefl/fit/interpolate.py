@@ -46,7 +46,7 @@ def fill_undetermined(
         can = todo & (den[0, 0] > 1e-9)
         if not can.any():
             break
-        values = torch.where(can[None, None], _window_median(values, k, window), values)
+        values = _fill_window_median(values, k, can, window)
         k = torch.where(can[None, None], torch.ones_like(k), k)
         how[can] = 2
     out = values[0].permute(1, 2, 0).clone()
@@ -59,11 +59,15 @@ def fill_undetermined(
     return out.to(grid.dtype), how
 
 
-def _window_median(values: torch.Tensor, k: torch.Tensor, window: int) -> torch.Tensor:
-    """(1, C, H, W) median of the determined (k > 0) values in each texel's W x W window (NaN where none)."""
-    _, C, H, W = values.shape
+def _fill_window_median(values: torch.Tensor, k: torch.Tensor, can: torch.Tensor, window: int) -> torch.Tensor:
+    """values (1, C, H, W) with the texels in can (H, W) set to the median of the determined (k > 0) values in their
+    W x W window (each channel apart); only those texels' windows are gathered."""
     r = window // 2
     known = torch.where(k > 0, values, torch.full_like(values, float("nan")))
-    padded = torch.nn.functional.pad(known, (r, r, r, r), value=float("nan"))
-    patches = padded.unfold(2, window, 1).unfold(3, window, 1)  # (1, C, H, W, window, window)
-    return patches.reshape(1, C, H, W, window * window).nanmedian(-1).values
+    padded = torch.nn.functional.pad(known, (r, r, r, r), value=float("nan"))[0]
+    windows = padded.unfold(1, window, 1).unfold(2, window, 1)  # (C, H, W, window, window), a view
+    rows, cols = can.nonzero(as_tuple=True)
+    median = windows[:, rows, cols].reshape(values.shape[1], -1, window * window).nanmedian(-1).values
+    out = values.clone()
+    out[0, :, rows, cols] = median
+    return out

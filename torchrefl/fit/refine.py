@@ -89,8 +89,7 @@ class Objective:
         """(T,) each texel's share of the objective without the smoothness term: its observations' robust loss and
         its priors."""
         pd, ps, sigma = params.values()
-        r = (self.predict(pd, ps, sigma) - self.intensity) * 255.0
-        out = (robust_loss(r, self.loss, self.loss_scale_8bit) * self._w).sum((0, 2)) / self._count
+        out = self._data_loss(pd, ps, sigma).sum((0, 2)) / self._count
         for prior in self._active_priors():
             out = out.index_add(
                 0, prior.mask.nonzero()[:, 0], prior.weight * _pull(prior, ps, sigma) / int(prior.mask.sum())
@@ -100,11 +99,14 @@ class Objective:
     def _active_priors(self) -> list:
         return [p for p in self.priors if p.weight > 0 and bool(p.mask.any())]
 
+    def _data_loss(self, pd, ps, sigma) -> torch.Tensor:
+        """(P, T, 3) the robust loss of each fitted observation's 8-bit residual (0 where not fitted)."""
+        r = (self.predict(pd, ps, sigma) - self.intensity) * 255.0
+        return robust_loss(r, self.loss, self.loss_scale_8bit) * self._w
+
     def __call__(self, params: TexelParams) -> torch.Tensor:
         pd, ps, sigma = params.values()
-        pred = self.predict(pd, ps, sigma)
-        r = (pred - self.intensity) * 255.0
-        total = (robust_loss(r, self.loss, self.loss_scale_8bit) * self._w).sum() / self._count
+        total = self._data_loss(pd, ps, sigma).sum() / self._count
         for prior in self._active_priors():
             total = total + prior.weight * _pull(prior, ps, sigma).mean()
         if self.couples_texels:
