@@ -87,3 +87,29 @@ def fold_surface(H=24, W=48, L=60.0, dtype=torch.float64):
         faces,
         source="fold_surface",
     )
+
+
+def noisy_glossy_scene(T=300, seed=0, outliers=0, noise=0.5):
+    """A dome of T texels with random non-uniform Pd, Ps, sigma under every other dome light, imaged with
+    Gaussian noise of `noise` DN and 8-bit quantisation (noise 0: the exact images), `outliers` pixels set to
+    white; observations that near saturation are not valid. Returns obs, local terms, (pd, ps, sigma)."""
+    from torchrefl.transport.local import local_terms, predict
+
+    nrm, pos, lights, cam = dome_scene(T=T, seed=seed)
+    obs = point_light_observations(nrm, pos, lights[::2], cam, intensity=2.0e4)
+    g = torch.Generator().manual_seed(seed)
+    pd = 0.2 + 0.5 * torch.rand(T, 3, generator=g, dtype=torch.float64)
+    ps = 0.1 + 0.3 * torch.rand(T, 3, generator=g, dtype=torch.float64)
+    sigma = 0.08 + 0.15 * torch.rand(T, generator=g, dtype=torch.float64)
+    terms = local_terms("torrance_sparrow", torch.as_tensor(nrm), obs)
+    clean = predict(terms, pd, ps, sigma)
+    images = clean
+    if noise:
+        images = clean + torch.randn(clean.shape, generator=g, dtype=torch.float64) * (noise / 255)
+        images = (images * 255).round().clamp(0, 255) / 255
+    if outliers:
+        idx = torch.randint(0, images.numel(), (outliers,), generator=g)
+        images.view(-1)[idx] = 1.0
+    obs.intensity = images
+    obs.valid &= clean.max(-1).values < 0.99
+    return obs, terms, (pd, ps, sigma)

@@ -214,8 +214,16 @@ class FitConfig:
         choices=("local", "radiosity", "photon", "auto"),
     )
     noise_floor_dn: float = opt(0.5, "auto: interreflection below this many 8-bit DN is not modelled", low=0.0)
-    optimizer: str = opt("lbfgs", "refinement optimiser", choices=("lbfgs", "adam", "none"))
-    iterations: int = opt(60, "refinement iterations (LBFGS outer steps or Adam steps)", low=0)
+    optimizer: str = opt(
+        "lm",
+        "refinement optimiser: lm (Levenberg-Marquardt per texel; lbfgs where texels are coupled), lbfgs, adam, none",
+        choices=("lm", "lbfgs", "adam", "none"),
+    )
+    iterations: int = opt(
+        60,
+        "refinement steps per refit: at most this many LM steps (they stop on convergence), LBFGS or Adam steps",
+        low=0,
+    )
     learning_rate: float = opt(0.05, "Adam learning rate (LBFGS uses a strong-Wolfe line search)", low=0.0)
     loss: str = opt("huber", "robust loss on 8-bit residuals", choices=("l2", "huber", "cauchy"))
     loss_scale_8bit: float = opt(3.0, "robust loss scale, in 8-bit digital numbers", low=1e-6)

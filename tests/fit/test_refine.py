@@ -2,32 +2,13 @@
 
 import pytest
 import torch
-from conftest import dome_scene, point_light_observations
+from conftest import noisy_glossy_scene as noisy_scene
 
 from torchrefl.core.observation_classes import classify
 from torchrefl.core.params import TexelParams
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine, robust_loss
-from torchrefl.transport.local import local_terms, predict
-
-
-def noisy_scene(T=300, seed=0, outliers=0):
-    nrm, pos, lights, cam = dome_scene(T=T, seed=seed)
-    obs = point_light_observations(nrm, pos, lights[::2], cam, intensity=2.0e4)
-    g = torch.Generator().manual_seed(seed)
-    pd = 0.2 + 0.5 * torch.rand(T, 3, generator=g, dtype=torch.float64)
-    ps = 0.1 + 0.3 * torch.rand(T, 3, generator=g, dtype=torch.float64)
-    sigma = 0.08 + 0.15 * torch.rand(T, generator=g, dtype=torch.float64)
-    terms = local_terms("torrance_sparrow", torch.as_tensor(nrm), obs)
-    clean = predict(terms, pd, ps, sigma)
-    noisy = clean + torch.randn(clean.shape, generator=g, dtype=torch.float64) * (0.5 / 255)
-    noisy = (noisy * 255).round().clamp(0, 255) / 255
-    if outliers:
-        idx = torch.randint(0, noisy.numel(), (outliers,), generator=g)
-        noisy.view(-1)[idx] = 1.0
-    obs.intensity = noisy
-    obs.valid &= clean.max(-1).values < 0.99
-    return obs, terms, (pd, ps, sigma)
+from torchrefl.transport.local import predict
 
 
 def fit(obs, terms, optimizer, loss="huber", iterations=80, lr=0.05):

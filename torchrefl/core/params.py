@@ -78,12 +78,20 @@ class TexelParams(nn.Module):
         return softplus_b(self.raw_pd)
 
     def ps(self) -> torch.Tensor:
-        ps = softplus_b(self.raw_ps) if self.ps_max == float("inf") else self.ps_max * torch.sigmoid(self.raw_ps)
+        ps = self.ps_of(self.raw_ps)
         return ps.expand(self.num_texels, -1) if self.shared_specular else ps
 
     def sigma(self) -> torch.Tensor:
-        sigma = self.sigma_min + (self.sigma_max - self.sigma_min) * torch.sigmoid(self.raw_sigma)
+        sigma = self.sigma_of(self.raw_sigma)
         return sigma.expand(self.num_texels) if self.shared_specular else sigma
+
+    def ps_of(self, raw_ps: torch.Tensor) -> torch.Tensor:
+        """Ps for raw values raw_ps (this module's bounds, not its tensors)."""
+        return softplus_b(raw_ps) if self.ps_max == float("inf") else self.ps_max * torch.sigmoid(raw_ps)
+
+    def sigma_of(self, raw_sigma: torch.Tensor) -> torch.Tensor:
+        """sigma for raw values raw_sigma (this module's bounds, not its tensors)."""
+        return self.sigma_min + (self.sigma_max - self.sigma_min) * torch.sigmoid(raw_sigma)
 
     def values(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return self.pd(), self.ps(), self.sigma()

@@ -24,6 +24,7 @@ from torchrefl.fit.observe import observe
 from torchrefl.fit.reestimate import reestimate
 from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
 from torchrefl.fit.result import FitResult
+from torchrefl.fit.texel_lm import levenberg_marquardt
 from torchrefl.transport.levels.auto import choose, named_level, prepare
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
@@ -88,6 +89,16 @@ def objective_factory(cfg: Config, inputs: LevelInputs, init):
     )
 
 
+def refinement_optimizer(name: str, params: TexelParams, objective: Objective, log) -> str:
+    """fit.optimizer, except lbfgs for lm where the objective couples texels (a shared lobe, fit.smoothness): the
+    per-texel solver needs independent texels. Logs the substitution once per objective."""
+    if name != "lm" or not (params.shared_specular or objective.couples_texels):
+        return name
+    why = "one lobe for the whole object (fit.specular: shared)" if params.shared_specular else "fit.smoothness > 0"
+    log(f"fit.optimizer lm: {why} couples the texels, refined with lbfgs instead")
+    return "lbfgs"
+
+
 def refit(level: TransportLevel, params: TexelParams, make_objective, cfg: Config) -> list[float]:
     """The refinement loop every level shares (transport.levels.base); returns the loss history."""
     fc, history = cfg.fit, []
@@ -101,16 +112,17 @@ def refit(level: TransportLevel, params: TexelParams, make_objective, cfg: Confi
             )
         for step in level.steps(k):
             train = None if step.train is None else [getattr(params, name) for name in step.train]
+            objective = make_objective(level.predict, step.mask)
+            optimizer = refinement_optimizer(fc.optimizer, params, objective, level.inputs.log)
             with bar(step.iterations, step.label, cfg.output.progress) as pb:
-                history += refine(
-                    params,
-                    make_objective(level.predict, step.mask),
-                    fc.optimizer,
-                    step.iterations,
-                    fc.learning_rate,
-                    progress=pb,
-                    train=train,
-                )
+                if optimizer == "lm":
+                    history += levenberg_marquardt(
+                        params, objective, level.texel_model, step.iterations, progress=pb, train=train
+                    )
+                else:
+                    history += refine(
+                        params, objective, optimizer, step.iterations, fc.learning_rate, progress=pb, train=train
+                    )
         level.refresh(params, k + 1)
     level.finish(params)
     if not history:  # no refit (e.g. photon.outer_iterations 0): the start's loss
@@ -217,7 +229,7 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
         history = refit(level, params, objective_factory(cfg, inputs, init), cfg)
         with torch.no_grad():
             pd, ps, sigma = (x.detach() for x in params.values())
-            predicted = level.predict(pd, ps, sigma).cpu()
+            predicted = level.render(pd, ps, sigma).cpu()
     log(f"refinement ({cfg.fit.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
     result = fit_result(pd, ps, sigma, predicted, history, seen, init, level)
     result.coverage = mark_untrusted(result.coverage, capture.untrusted)

@@ -394,3 +394,27 @@ if __name__ == "__main__":  # docs/results/reference_check.md: PYTHONPATH=.:test
         print(f"\n== {title}")
         pairs = (("radiosity", "diffuse"), ("photon", "full"), ("photon_hybrid", "full"))
         print_table(build(Path(tempfile.mkdtemp()), **options), fine, pairs)
+
+
+@pytest.mark.parametrize("name", ["local", "radiosity", "photon_hybrid"])
+def test_texel_model_is_predict_with_the_indirect_light_held(fold, name):
+    """TransportLevel.texel_model(pd0): at pd0 it equals predict; changing one texel's parameters changes that
+    texel's images only (the per-texel solver's premise), while the radiosity level's predict also changes its
+    neighbours' through the interreflection (the photon level's cache holds it between refreshes)."""
+    level = level_for(fold["cfg"], fold["capture"], name, 0)
+    pd, ps, sigma = fold["truth"]
+    predict_at(level, fold["truth"])  # the photon level's cache traced at the truth
+    pd0 = pd * 0.8
+    with torch.no_grad():
+        model = level.texel_model(pd0)
+        torch.testing.assert_close(model(pd0, ps, sigma), level.predict(pd0, ps, sigma), rtol=1e-9, atol=1e-12)
+        t = int(fold["near"][len(fold["near"]) // 2])
+        pd1, ps1, sigma1 = pd0.clone(), ps.clone(), sigma.clone()
+        pd1[t] *= 1.5
+        ps1[t] *= 2.0
+        sigma1[t] *= 0.7
+        changed = (model(pd1, ps1, sigma1) - model(pd0, ps, sigma)).abs().amax((0, 2)) > 0
+        assert changed.nonzero().flatten().tolist() == [t]
+        if name == "radiosity":
+            moved = (level.predict(pd1, ps1, sigma1) - level.predict(pd0, ps, sigma)).abs().amax((0, 2)) > 1e-9
+            assert int(moved.sum()) > 1

@@ -194,3 +194,26 @@ def test_the_automatic_kernels_follow_the_photon_count_and_warn_when_capped(scen
     set_.prepare()
     assert (set_.smoothing, set_.specular_smoothing) == (2.5, 0.0)  # a value set is used as it is
     assert not any("capped" in m for m in logs)
+
+
+def test_final_images_average_independent_traces(scene):
+    """render(): the kept cache's prediction averaged with fresh traces at the same parameters scatters about a
+    quarter as much around the level's expectation (the mean of 16 more independent traces) as one cache's
+    prediction, and the kept cache stays the level's cache."""
+    s, obs, _ = scene
+    level = photon_level(s, obs, outer=0)
+    T = s.num_texels
+    pd = torch.full((T, 3), PD, dtype=obs.intensity.dtype)
+    ps, sigma = torch.zeros_like(pd), torch.full((T,), 0.1, dtype=pd.dtype)
+    level.cache = kept = level.refresher.cache(pd, ps, sigma, refresh=0)
+    one = level.predict(pd, ps, sigma)
+    final = level.render(pd, ps, sigma)
+    assert level.cache is kept
+    refs = []
+    for k in range(16):
+        level.cache = level.refresher.cache(pd, ps, sigma, refresh=100 + k)
+        refs.append(level.predict(pd, ps, sigma))
+    expectation = torch.stack(refs).mean(0)
+    spread = lambda images: float((images - expectation)[obs.valid].square().mean())
+    # expected ratio (1 / 4 + 1 / 16) / (1 + 1 / 16) = 0.29 for FINAL_TRACES = 4
+    assert spread(final) < 0.45 * spread(one), (spread(final), spread(one))

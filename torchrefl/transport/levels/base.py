@@ -122,11 +122,26 @@ class TransportLevel(ABC):
         """The indirect light this level predicts at texel Pd (T, 3), as IndirectTerms (default: none)."""
         return None
 
+    def texel_model(self, pd: torch.Tensor) -> Callable:
+        """(pd, ps, sigma) -> (P, T, 3): predict with the indirect light held at texel Pd `pd` (indirect_terms), so
+        that each texel's images depend on its own parameters only; equals predict at pd (the per-texel solver's
+        model, torchrefl.fit.texel_lm)."""
+        terms = self.indirect_terms(pd)
+        if terms is None:  # no indirect light: predict itself is texel by texel
+            return self.predict
+        local = self.inputs.local_predict()
+        return lambda pd, ps, sigma: local(pd, ps, sigma) + pd[None] * terms.diffuse + ps[None] * terms.specular(sigma)
+
     def refresh(self, params, k: int) -> None:
         """Update the level's state for the parameters after k refits (default: nothing to refresh)."""
 
     def finish(self, params) -> None:
         """Called after the last refit (default: nothing)."""
+
+    def render(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+        """(P, T, 3) the final predicted images of the fitted parameters: the held-out and re-rendered images
+        (default: predict)."""
+        return self.predict(pd, ps, sigma)
 
     def report(self) -> dict | None:
         """The level's own block for metrics.json (None: none)."""

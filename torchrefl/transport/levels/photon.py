@@ -38,6 +38,8 @@ from torchrefl.transport.specular_gather import SpecularGather
 
 #: share of photon rays ending on the back of the scanned surface that draws a warning
 BACK_HIT_WARNING = 0.03
+#: independent photon traces whose predictions the final images average (the kept cache and fresh ones)
+FINAL_TRACES = 4
 
 
 def image_score(pred: torch.Tensor, intensity: torch.Tensor, mask: torch.Tensor) -> float:
@@ -261,6 +263,20 @@ class PhotonLevel(TransportLevel):
                 p.copy_(state[n])
         self.cache = cache
         self.inputs.log(f"photon level: kept the parameters of refresh {k_best} (image difference {score:.4f} DN)")
+
+    def render(self, pd, ps, sigma) -> torch.Tensor:
+        """The kept cache's prediction averaged with FINAL_TRACES - 1 caches traced anew at the fitted parameters:
+        independent photons halve the photon noise of the final images without widening the density kernels."""
+        self.inputs.log(f"photon level: the final images average {FINAL_TRACES} independent photon traces")
+        images = self.predict(pd, ps, sigma)
+        kept = self.cache
+        for i in range(1, FINAL_TRACES):
+            self.cache = self.refresher.cache(
+                pd, ps, sigma, refresh=self.refits + i, progress=self.inputs.cfg.output.progress
+            )
+            images = images + self.predict(pd, ps, sigma)
+        self.cache = kept
+        return images / FINAL_TRACES
 
     def report(self) -> dict:
         return {

@@ -1,0 +1,153 @@
+"""Levenberg-Marquardt per texel (fit.optimizer: lm).
+
+With the level's indirect light held at the current Pd (TransportLevel.texel_model), each texel's
+predicted images depend on its own Pd, Ps and sigma only, so the objective (torchrefl.fit.refine:
+robust loss of the 8-bit residuals plus the priors' log pulls) is a sum of independent per-texel
+problems of 5 or 7 unknowns. Each iteration takes one Gauss-Newton step per texel on the raw
+(unconstrained) tensors, with iteratively reweighted residuals for the robust loss and a damping
+lambda of its own: the step is kept where the texel's cost fell (lambda / 3), refused where not
+(lambda * 4). The indirect light is re-evaluated at the new Pd before the next iteration. Joint
+first-order steps over all texels at once (LBFGS) share one line search and left the non-uniform
+glossy fold's objective 1.8 times above this solver's after the same time (docs/results/fold.md).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+
+from torchrefl.core.params import TexelParams, softplus_b
+from torchrefl.errors import FitError
+from torchrefl.fit.refine import _LOG_EPS, Objective, robust_loss
+
+#: the iterations stop once one lowers the total cost by less than this fraction
+TOLERANCE = 1e-3
+_LAMBDA0, _LAMBDA_MIN, _LAMBDA_MAX = 1e-2, 1e-7, 1e7
+
+
+def irls_weight(r: torch.Tensor, kind: str, scale: float) -> torch.Tensor:
+    """w(r) with rho'(r) = w(r) r for the robust losses of torchrefl.fit.refine.robust_loss."""
+    if kind == "l2":
+        return torch.ones_like(r)
+    if kind == "huber":
+        a = r.abs()
+        return torch.where(a <= scale, torch.ones_like(r), scale / a.clamp_min(1e-30))
+    if kind == "cauchy":
+        return 1.0 / (1.0 + (r / scale) ** 2)
+    raise FitError(f"fit.loss: unknown robust loss '{kind}', expected l2, huber or cauchy")
+
+
+class _TexelProblem:
+    """The per-texel residuals of an Objective for a frozen-indirect model, as functions of the raw tensors."""
+
+    def __init__(self, params: TexelParams, objective: Objective, model: Callable):
+        self.params, self.objective, self.model = params, objective, model
+        self.mask = objective.weight.to(objective.intensity.dtype)[..., None]
+        # the objective is (sum of robust losses + sum of prior pulls) / count: per texel, in units of the robust
+        # loss, a prior of weight w over n texels pulls with w * count / n
+        self.priors = [
+            (p, (2.0 * p.weight * objective._count / int(p.mask.sum())) ** 0.5) for p in objective._active_priors()
+        ]
+
+    def residuals(self, raw_pd, raw_ps, raw_sigma) -> tuple[torch.Tensor, torch.Tensor]:
+        """(P, T, 3) data residuals in 8-bit DN (0 where not fitted), and (T, n (C + 1)) the n priors' residuals."""
+        p = self.params
+        pd, ps, sigma = softplus_b(raw_pd), p.ps_of(raw_ps), p.sigma_of(raw_sigma)
+        r = (self.model(pd, ps, sigma) - self.objective.intensity) * 255.0 * self.mask
+        pulls = [r.new_zeros(r.shape[1], 0)]
+        for prior, root in self.priors:
+            m = prior.mask.to(r.dtype)[:, None] * root
+            d_ps = torch.log(ps + _LOG_EPS) - torch.log(prior.ps + _LOG_EPS)
+            d_sigma = torch.log(sigma / prior.sigma)[:, None]
+            pulls.append(torch.cat([d_ps, d_sigma], 1) * m)
+        return r, torch.cat(pulls, 1)
+
+    def cost(self, r: torch.Tensor, pulls: torch.Tensor) -> torch.Tensor:
+        """(T,) each texel's cost: its robust losses plus half its squared prior residuals."""
+        o = self.objective
+        return robust_loss(r, o.loss, o.loss_scale_8bit).sum((0, 2)) + 0.5 * (pulls * pulls).sum(1)
+
+
+def levenberg_marquardt(
+    params: TexelParams,
+    objective: Objective,
+    texel_model: Callable[[torch.Tensor], Callable],
+    iterations: int,
+    progress=None,
+    train=None,
+) -> list[float]:
+    """Minimise the objective per texel in place (see the module docstring); returns the objective after each
+    iteration. texel_model(pd) -> (pd, ps, sigma) -> (P, T, 3) with the indirect light held at pd; train: the raw
+    tensors to solve for (default all), the others stay fixed."""
+    if params.shared_specular or objective.couples_texels:
+        raise FitError("fit.optimizer lm: the objective couples texels (a shared lobe or fit.smoothness); use lbfgs")
+    raws = [params.raw_pd, params.raw_ps, params.raw_sigma]
+    trained = [any(q is t for t in (raws if train is None else train)) for q in raws]
+    columns = [(i, j) for i, q in enumerate(raws) if trained[i] for j in range(1 if q.dim() == 1 else q.shape[1])]
+    T = params.num_texels
+    lam = torch.full((T,), _LAMBDA0, dtype=torch.float64, device=params.raw_pd.device)
+    history: list[float] = []
+    x = [q.detach().clone() for q in raws]
+    for _ in range(iterations):
+        with torch.no_grad():
+            problem = _TexelProblem(params, objective, texel_model(softplus_b(x[0])))
+            r, pulls = problem.residuals(*x)
+            cost = problem.cost(r, pulls)
+        H, g = _normal_equations(problem, x, columns, r, pulls)
+        diag = torch.diagonal(H, dim1=1, dim2=2)
+        A = H + torch.diag_embed(lam[:, None] * diag + 1e-12 * (1.0 + diag.amax(1, keepdim=True)))
+        step = -torch.linalg.solve(A, g[..., None])[..., 0].to(x[0].dtype)
+        trial = [q.clone() for q in x]
+        for k, (i, j) in enumerate(columns):
+            if trial[i].dim() == 1:
+                trial[i] = trial[i] + step[:, k]
+            else:
+                trial[i][:, j] += step[:, k]
+        with torch.no_grad():
+            new_cost = problem.cost(*problem.residuals(*trial))
+        better = new_cost < cost  # NaN compares False: refused
+        for i in range(3):
+            keep = better.view(-1, *([1] * (x[i].dim() - 1)))
+            x[i] = torch.where(keep, trial[i], x[i])
+        lam = torch.where(better, lam / 3.0, lam * 4.0).clamp(_LAMBDA_MIN, _LAMBDA_MAX)
+        total = float(torch.where(better, new_cost, cost).sum()) / objective._count
+        history.append(total)
+        if progress is not None:
+            progress.update(1)
+            progress.set_postfix(loss=f"{total:.4g}")
+        before = float(cost.sum()) / objective._count
+        if not bool(better.any()) or before - total < TOLERANCE * abs(before):
+            break
+    with torch.no_grad():
+        for q, v in zip(raws, x):
+            q.copy_(v)
+    if not all(v == v and abs(v) != float("inf") for v in history):
+        raise FitError("the lm refinement diverged (loss became NaN or inf)")
+    return history
+
+
+def _normal_equations(problem: _TexelProblem, x: list, columns: list, r, pulls) -> tuple[torch.Tensor, torch.Tensor]:
+    """(T, K, K) J^T W J and (T, K) J^T W r per texel (float64), the Jacobian's columns by forward-mode
+    derivatives along each raw component of every texel at once (the texels do not interact)."""
+    o = problem.objective
+    w = irls_weight(r, o.loss, o.loss_scale_8bit)
+    cols, pcols = [], []
+    for i, j in columns:
+        tangent = [torch.zeros_like(q) for q in x]
+        if tangent[i].dim() == 1:
+            tangent[i].fill_(1.0)
+        else:
+            tangent[i][:, j] = 1.0
+        _, (jr, jp) = torch.func.jvp(problem.residuals, tuple(x), tuple(tangent))
+        cols.append(jr)
+        pcols.append(jp)
+    J = torch.stack(cols, -1).double()  # (P, T, 3, K)
+    wd = w.double()
+    H = torch.einsum("ptck,ptc,ptcl->tkl", J, wd, J)
+    g = torch.einsum("ptck,ptc,ptc->tk", J, wd, r.double())
+    if pulls.shape[1]:
+        Jp = torch.stack(pcols, -1).double()  # (T, n (C + 1), K)
+        H = H + torch.einsum("tjk,tjl->tkl", Jp, Jp)
+        g = g + torch.einsum("tjk,tj->tk", Jp, pulls.double())
+    return H, g
