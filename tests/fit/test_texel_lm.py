@@ -6,6 +6,7 @@ import pytest
 import torch
 from conftest import noisy_glossy_scene as glossy_scene
 
+from torchrefl.config import Config
 from torchrefl.core.observation_classes import T_SPEC, classify
 from torchrefl.core.params import TexelParams
 from torchrefl.errors import FitError
@@ -128,11 +129,16 @@ def test_coupled_objectives_are_refused_and_the_pipeline_uses_lbfgs():
     obj = objective(obs, terms)
     with pytest.raises(FitError, match="couples texels"):
         levenberg_marquardt(shared, obj, local_model(terms), 5)
-    logs = []
-    assert refinement_optimizer("lm", shared, obj, logs.append) == "lbfgs" and "shared" in logs[0]
     smooth = Objective(
         obj.predict, obs.intensity, obs.valid, smoothness=1.0, neighbours=grid_neighbours(torch.arange(30), (5, 6))
     )
-    independent = start(obs, terms)
-    assert refinement_optimizer("lm", independent, smooth, logs.append) == "lbfgs" and "smoothness" in logs[1]
-    assert refinement_optimizer("lm", independent, obj, logs.append) == "lm" and len(logs) == 2
+    with pytest.raises(FitError, match="couples texels"):
+        levenberg_marquardt(start(obs, terms), smooth, local_model(terms), 5)
+    cfg = Config()
+    assert cfg.fit.optimizer == "lm"
+    assert refinement_optimizer(cfg, shared) == "lbfgs"
+    assert refinement_optimizer(cfg, start(obs, terms)) == "lm"
+    cfg.fit.smoothness = 1.0
+    assert refinement_optimizer(cfg, start(obs, terms)) == "lbfgs"
+    cfg.fit.optimizer = "adam"
+    assert refinement_optimizer(cfg, shared) == "adam"

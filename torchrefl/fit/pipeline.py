@@ -89,19 +89,17 @@ def objective_factory(cfg: Config, inputs: LevelInputs, init):
     )
 
 
-def refinement_optimizer(name: str, params: TexelParams, objective: Objective, log) -> str:
+def refinement_optimizer(cfg: Config, params: TexelParams) -> str:
     """fit.optimizer, except lbfgs for lm where the objective couples texels (a shared lobe, fit.smoothness): the
-    per-texel solver needs independent texels. Logs the substitution once per objective."""
-    if name != "lm" or not (params.shared_specular or objective.couples_texels):
-        return name
-    why = "one lobe for the whole object (fit.specular: shared)" if params.shared_specular else "fit.smoothness > 0"
-    log(f"fit.optimizer lm: {why} couples the texels, refined with lbfgs instead")
-    return "lbfgs"
+    per-texel solver needs independent texels."""
+    name = cfg.fit.optimizer
+    return "lbfgs" if name == "lm" and (params.shared_specular or cfg.fit.smoothness > 0) else name
 
 
 def refit(level: TransportLevel, params: TexelParams, make_objective, cfg: Config) -> list[float]:
     """The refinement loop every level shares (transport.levels.base); returns the loss history."""
     fc, history = cfg.fit, []
+    optimizer = refinement_optimizer(cfg, params)
     level.refresh(params, 0)
     for k in range(level.refits):
         restarted = reestimate(level, params, cfg)
@@ -113,7 +111,6 @@ def refit(level: TransportLevel, params: TexelParams, make_objective, cfg: Confi
         for step in level.steps(k):
             train = None if step.train is None else [getattr(params, name) for name in step.train]
             objective = make_objective(level.predict, step.mask)
-            optimizer = refinement_optimizer(fc.optimizer, params, objective, level.inputs.log)
             with bar(step.iterations, step.label, cfg.output.progress) as pb:
                 if optimizer == "lm":
                     history += levenberg_marquardt(
@@ -158,7 +155,7 @@ def start_params(cfg: Config, init, dtype: torch.dtype, device: torch.device) ->
     return TexelParams(pd, ps, sigma, rc.sigma_min, rc.sigma_max, shared_specular=shared, ps_max=rc.ps_max).to(device)
 
 
-def fit_result(pd, ps, sigma, predicted, history, seen, init, level: TransportLevel) -> FitResult:
+def fit_result(pd, ps, sigma, predicted, history, seen, init, level: TransportLevel, optimizer: str) -> FitResult:
     """The FitResult of a finished fit: the estimate, what the fit saw (seen), the start (init) and the level."""
     init_counts = {
         "pd_closed_form": int(init.pd_from_diffuse.sum()),
@@ -177,6 +174,7 @@ def fit_result(pd, ps, sigma, predicted, history, seen, init, level: TransportLe
         estimated=init.defined,
         init_counts=init_counts,
         history=history,
+        optimizer=optimizer,
         level=level.name,
         model_reason=level.reason,
         diffuse=seen.diffuse,
@@ -226,12 +224,16 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
     log(f"transport level: {level.name} ({level.reason})")
     with stages.stage("fit"):
         params = start_params(cfg, init, capture.obs.intensity.dtype, device)
+        optimizer = refinement_optimizer(cfg, params)
+        if optimizer != cfg.fit.optimizer:
+            why = "one lobe for the whole object (fit.specular: shared)" if params.shared_specular else "fit.smoothness"
+            log(f"fit.optimizer {cfg.fit.optimizer}: {why} couples the texels, refined with {optimizer} instead")
         history = refit(level, params, objective_factory(cfg, inputs, init), cfg)
         with torch.no_grad():
             pd, ps, sigma = (x.detach() for x in params.values())
             predicted = level.render(pd, ps, sigma).cpu()
-    log(f"refinement ({cfg.fit.optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
-    result = fit_result(pd, ps, sigma, predicted, history, seen, init, level)
+    log(f"refinement ({optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
+    result = fit_result(pd, ps, sigma, predicted, history, seen, init, level, optimizer)
     result.coverage = mark_untrusted(result.coverage, capture.untrusted)
     drop_misfits(result, capture, log)
     if capture.stats.get("preprocessing"):  # the geometry the level's choice rests on (geometry.median_size)

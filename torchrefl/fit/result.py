@@ -38,6 +38,7 @@ class FitResult:
     estimated: torch.Tensor  # (T,) bool: texels with an estimate
     init_counts: dict  # pd_closed_form, spec_closed_form, spec_known: texel counts of the start
     history: list  # loss per evaluation
+    optimizer: str  # the refinement optimiser used (fit.optimizer, or lbfgs for lm where texels are coupled)
     level: str  # the transport level used
     model_reason: str  # why that level, and what it precomputed
     diffuse: DiffuseModel

@@ -72,7 +72,7 @@ def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionRe
         },
         "specular_source": specular_source(cap, res),
         "fit": {
-            "optimizer": cfg.fit.optimizer,
+            "optimizer": res.optimizer,
             "loss_first": res.history[0],
             "loss_last": res.history[-1],
             "evaluations": len(res.history),
