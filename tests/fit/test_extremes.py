@@ -11,6 +11,7 @@ from torchrefl.core.params import TexelParams
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.profile_search import profile_search, sigma_grid
 from torchrefl.fit.refine import Objective, Prior, refine
+from torchrefl.fit.texel_lm import levenberg_marquardt
 from torchrefl.transport.local import local_terms, predict
 
 MODELS = ["torrance_sparrow", "ward", "ward_normalised"]
@@ -73,8 +74,16 @@ def test_objective_and_gradients_finite_at_extremes(model, dtype):
             assert torch.isfinite(p.grad).all()
 
 
+def refine_with(optimizer, params, obj, iterations):
+    """refine, or the per-texel Levenberg-Marquardt on the same (local, texel-by-texel) model."""
+    if optimizer == "lm":
+        return levenberg_marquardt(params, obj, lambda pd: obj.predict, iterations)
+    return refine(params, obj, optimizer, iterations)
+
+
+@pytest.mark.parametrize("optimizer", ["lbfgs", "lm"])
 @pytest.mark.parametrize("model", MODELS)
-def test_whole_local_fit_is_finite_at_extremes(model):
+def test_whole_local_fit_is_finite_at_extremes(model, optimizer):
     obs, n = extreme_scene(torch.float32)
     terms = local_terms(model, n, obs)
     cls = classify(terms.theta_h, obs.valid)
@@ -86,13 +95,14 @@ def test_whole_local_fit_is_finite_at_extremes(model):
         assert torch.isfinite(x).all()
     params = TexelParams(pd, ps, sg, 0.01, 0.6, ps_max=4.0)
     obj = Objective(lambda a, b, c: predict(terms, a, b, c), obs.intensity, obs.valid)
-    hist = refine(params, obj, "lbfgs", 10)
+    hist = refine_with(optimizer, params, obj, 10)
     assert all(map(lambda v: v == v, hist))
     for x in params.values():
         assert torch.isfinite(x).all()
 
 
-def test_float32_fit_agrees_with_float64():
+@pytest.mark.parametrize("optimizer", ["lbfgs", "lm"])
+def test_float32_fit_agrees_with_float64(optimizer):
     out = {}
     for dtype in (torch.float32, torch.float64):
         nrm, pos, lights, cam = dome_scene(T=200, seed=2)
@@ -108,7 +118,8 @@ def test_float32_fit_agrees_with_float64():
         obs.intensity = predict(terms, *truth)
         pd, ps, sg, _ = profile_search(terms, obs.intensity, obs.valid, sigma_grid(0.01, 0.6, 32))
         params = TexelParams(pd, ps, sg, 0.01, 0.6)
-        refine(params, Objective(lambda a, b, c: predict(terms, a, b, c), obs.intensity, obs.valid), "lbfgs", 40)
+        obj = Objective(lambda a, b, c: predict(terms, a, b, c), obs.intensity, obs.valid)
+        refine_with(optimizer, params, obj, 40)
         out[dtype] = [x.detach().double() for x in params.values()]
     for a, b in zip(out[torch.float32], out[torch.float64]):
         assert (a - b).abs().median() < 1e-3

@@ -6,9 +6,8 @@ robust loss of the 8-bit residuals plus the priors' log pulls) is a sum of indep
 problems of 5 or 7 unknowns. Each iteration takes one Gauss-Newton step per texel on the raw
 (unconstrained) tensors, with iteratively reweighted residuals for the robust loss and a damping
 lambda of its own: the step is kept where the texel's cost fell (lambda / 3), refused where not
-(lambda * 4). The indirect light is re-evaluated at the new Pd before the next iteration. Joint
-first-order steps over all texels at once (LBFGS) share one line search and left the non-uniform
-glossy fold's objective 1.8 times above this solver's after the same time (docs/results/fold.md).
+(lambda * 4). The indirect light is re-evaluated at the new Pd before the next iteration. Why not
+joint LBFGS steps: docs/results/fold.md.
 """
 
 from __future__ import annotations
