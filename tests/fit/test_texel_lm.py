@@ -142,3 +142,16 @@ def test_coupled_objectives_are_refused_and_the_pipeline_uses_lbfgs():
     assert refinement_optimizer(cfg, start(obs, terms)) == "lbfgs"
     cfg.fit.optimizer = "adam"
     assert refinement_optimizer(cfg, shared) == "adam"
+
+
+def test_a_texel_nothing_constrains_stays_where_it_is():
+    """No observation and no prior: a zero normal matrix, no step, no error; the other texels still fit."""
+    obs, terms, (pd, _, _) = glossy_scene(T=40, seed=7)
+    obs.valid[:, 3] = False
+    params = start(obs, terms)
+    before = [q.detach().clone() for q in (params.raw_pd, params.raw_ps, params.raw_sigma)]
+    levenberg_marquardt(params, objective(obs, terms), local_model(terms), 20)
+    after = (params.raw_pd, params.raw_ps, params.raw_sigma)
+    assert all(torch.equal(a.detach()[3], b[3]) for a, b in zip(after, before))
+    assert all(torch.isfinite(q).all() for q in after)
+    assert not torch.equal(params.raw_pd.detach()[0], before[0][0])

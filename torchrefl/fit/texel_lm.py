@@ -84,6 +84,8 @@ def levenberg_marquardt(
     raws = [params.raw_pd, params.raw_ps, params.raw_sigma]
     trained = [any(q is t for t in (raws if train is None else train)) for q in raws]
     columns = [(i, j) for i, q in enumerate(raws) if trained[i] for j in range(1 if q.dim() == 1 else q.shape[1])]
+    if not columns:
+        return []
     T = params.num_texels
     lam = torch.full((T,), _LAMBDA0, dtype=torch.float64, device=params.raw_pd.device)
     history: list[float] = []
@@ -96,7 +98,8 @@ def levenberg_marquardt(
         H, g = _normal_equations(problem, x, columns, r, pulls)
         diag = torch.diagonal(H, dim1=1, dim2=2)
         A = H + torch.diag_embed(lam[:, None] * diag + 1e-12 * (1.0 + diag.amax(1, keepdim=True)))
-        step = -torch.linalg.solve(A, g[..., None])[..., 0].to(x[0].dtype)
+        solved, info = torch.linalg.solve_ex(A, g[..., None])
+        step = -torch.where((info == 0)[:, None], solved[..., 0], 0.0).to(x[0].dtype)  # singular: no step
         trial = [q.clone() for q in x]
         for k, (i, j) in enumerate(columns):
             if trial[i].dim() == 1:
