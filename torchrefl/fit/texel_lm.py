@@ -120,6 +120,9 @@ def levenberg_marquardt(
             progress.set_postfix(loss=f"{total:.4g}")
         before = float(cost.sum()) / objective._count
         if not bool(better.any()) or before - total < TOLERANCE * abs(before):
+            if progress is not None:  # converged: the bar ends full
+                progress.total = len(history)
+                progress.refresh()
             break
     with torch.no_grad():
         for q, v in zip(raws, x):
