@@ -91,11 +91,9 @@ def levenberg_marquardt(
     history: list[float] = []
     x = [q.detach().clone() for q in raws]
     for _ in range(iterations):
-        with torch.no_grad():
-            problem = _TexelProblem(params, objective, texel_model(softplus_b(x[0])))
-            r, pulls = problem.residuals(*x)
-            cost = problem.cost(r, pulls)
-        H, g = _normal_equations(problem, x, columns, r, pulls)
+        problem = _TexelProblem(params, objective, texel_model(softplus_b(x[0])))
+        H, g, r, pulls = _normal_equations(problem, x, columns)
+        cost = problem.cost(r, pulls)
         diag = torch.diagonal(H, dim1=1, dim2=2)
         A = H + torch.diag_embed(lam[:, None] * diag + 1e-12 * (1.0 + diag.amax(1, keepdim=True)))
         solved, info = torch.linalg.solve_ex(A, g[..., None])
@@ -132,11 +130,11 @@ def levenberg_marquardt(
     return history
 
 
-def _normal_equations(problem: _TexelProblem, x: list, columns: list, r, pulls) -> tuple[torch.Tensor, torch.Tensor]:
+def _normal_equations(problem: _TexelProblem, x: list, columns: list) -> tuple:
     """(T, K, K) J^T W J and (T, K) J^T W r per texel (float64), the Jacobian's columns by forward-mode
-    derivatives along each raw component of every texel at once (the texels do not interact)."""
+    derivatives along each raw component of every texel at once (the texels do not interact); and the residuals
+    r, pulls at x (the first derivative's primal)."""
     o = problem.objective
-    w = irls_weight(r, o.loss, o.loss_scale_8bit)
     cols, pcols = [], []
     for i, j in columns:
         tangent = [torch.zeros_like(q) for q in x]
@@ -144,9 +142,10 @@ def _normal_equations(problem: _TexelProblem, x: list, columns: list, r, pulls) 
             tangent[i].fill_(1.0)
         else:
             tangent[i][:, j] = 1.0
-        _, (jr, jp) = torch.func.jvp(problem.residuals, tuple(x), tuple(tangent))
+        (r, pulls), (jr, jp) = torch.func.jvp(problem.residuals, tuple(x), tuple(tangent))
         cols.append(jr)
         pcols.append(jp)
+    w = irls_weight(r, o.loss, o.loss_scale_8bit)
     J = torch.stack(cols, -1).double()  # (P, T, 3, K)
     wd = w.double()
     H = torch.einsum("ptck,ptc,ptcl->tkl", J, wd, J)
@@ -155,4 +154,4 @@ def _normal_equations(problem: _TexelProblem, x: list, columns: list, r, pulls) 
         Jp = torch.stack(pcols, -1).double()  # (T, n (C + 1), K)
         H = H + torch.einsum("tjk,tjl->tkl", Jp, Jp)
         g = g + torch.einsum("tjk,tj->tk", Jp, pulls.double())
-    return H, g
+    return H, g, r, pulls
