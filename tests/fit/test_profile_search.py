@@ -5,7 +5,7 @@ import pytest
 import torch
 from conftest import dome_scene, point_light_observations
 
-from torchrefl.fit.profile_search import profile_search, sigma_grid
+from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.local import local_terms, predict
 
 T = 120
@@ -69,3 +69,26 @@ def test_a_texel_whose_truth_is_at_the_grid_bound_stays_in_bounds():
     assert (sg <= 0.6 + 1e-12).all() and (sg >= 0.01 - 1e-12).all()
     assert relative(sg, at_bound) < 1e-3
     assert torch.isfinite(err).all()
+
+
+@pytest.mark.parametrize("ps_channels", [1, 3])
+def test_the_error_is_that_of_the_parameters_returned_also_where_pd_is_held_at_zero(ps_channels):
+    """Black channels (Pd = 0) plus noise make the least-squares Pd negative at some sigma; the search must then
+    hold Pd at 0 and report the error of what it returns, not of the negative Pd (which once won the search)."""
+    terms, intensity, mask, (pd, ps, sigma) = scene()
+    pd = pd.clone()
+    pd[::2, 2] = 0.0  # every other texel black in blue
+    g = torch.Generator().manual_seed(6)
+    intensity = predict(terms, pd, ps, sigma) + 0.01 * torch.randn(intensity.shape, generator=g, dtype=torch.float64)
+    profile = profiled_fit(terms, intensity, mask, ps_channels)
+    held = 0
+    for s in sigma_grid(0.01, 0.6, 12):
+        pd_s, ps_s, err = profile(s)
+        assert (pd_s >= 0).all()
+        held += int((pd_s == 0).sum())
+        own = (predict(terms, pd_s, ps_s.expand(T, 3), s.expand(T)) - intensity) * mask[..., None]
+        assert torch.allclose(err, own.square().sum((0, 2)), rtol=1e-9, atol=1e-12)
+    assert held > 0  # the case was exercised
+    pd_b, ps_b, sg_b, err_b = profile_search(terms, intensity, mask, sigma_grid(0.01, 0.6, 32), ps_channels)
+    own = ((predict(terms, pd_b, ps_b.expand(T, 3), sg_b) - intensity) * mask[..., None]).square().sum((0, 2))
+    assert torch.allclose(err_b, own, rtol=1e-9, atol=1e-12)

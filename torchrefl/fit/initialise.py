@@ -5,7 +5,9 @@
    specular evidence (at least two T_spec observations): it replaces the closed form where its
    squared error is lower (noise or a rough lobe can defeat the two-observation closed form).
    With fit.specular = shared (or pooled) one lobe for the whole object is searched too.
-3. Texels whose Ps and sigma are still undetermined are filled from determined neighbours in a
+3. A measured lobe far from its measured neighbours' takes theirs where they explain its observations as well
+   (torchrefl.fit.lobe_consensus).
+4. Texels whose Ps and sigma are still undetermined are filled from determined neighbours in a
    W x W window (torchrefl.fit.interpolate); the fit keeps them near these values with a prior,
    because their own observations carry (almost) no specular signal.
 """
@@ -20,7 +22,8 @@ import torch
 from torchrefl.core.surface import Surface
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.interpolate import FILL_MEDIAN, fill_undetermined
-from torchrefl.fit.profile_search import profile_search, sigma_grid
+from torchrefl.fit.lobe_consensus import agree_with_neighbours
+from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.local import LocalTerms, predict
 
 #: coverage codes (params.npz `coverage`, docs/outputs.md): none; Pd with Ps/sigma interpolated from neighbours;
@@ -96,7 +99,19 @@ def initialise_local(
             ps = torch.where(take[:, None], ps_s.to(ps.dtype), ps)
             sigma = torch.where(take, sg_s.to(sigma.dtype), sigma)
             known = cf.spec_determined | take
+            adopt, (pd_c, ps_c, sg_c, _) = agree_with_neighbours(
+                surface,
+                sigma,
+                torch.where(take, err_s.to(err0.dtype), err0),
+                known & defined,
+                window,
+                profiled_fit(terms, intensity, fit_mask, ps_channels, ps_max),
+            )
+            pd = torch.where(adopt[:, None], pd_c.to(pd.dtype), pd)
+            ps = torch.where(adopt[:, None], ps_c.to(ps.dtype), ps)
+            sigma = torch.where(adopt, sg_c.to(sigma.dtype), sigma)
             note = f"sigma search kept at {int(take.sum())} texels with specular evidence"
+            note += f", {int(adopt.sum())} took their measured neighbours' lobe"
             if shared_lobe is not None:
                 note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, "
                 note += f"sigma {float(shared_lobe[1][0]):.4f}"

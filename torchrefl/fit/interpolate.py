@@ -46,7 +46,7 @@ def fill_undetermined(
         can = todo & (den[0, 0] > 1e-9)
         if not can.any():
             break
-        values = _fill_window_median(values, k, can, window)
+        values = window_median(values, k, can, window)
         k = torch.where(can[None, None], torch.ones_like(k), k)
         how[can] = 2
     out = values[0].permute(1, 2, 0).clone()
@@ -59,7 +59,7 @@ def fill_undetermined(
     return out.to(grid.dtype), how
 
 
-def _fill_window_median(values: torch.Tensor, k: torch.Tensor, can: torch.Tensor, window: int) -> torch.Tensor:
+def window_median(values: torch.Tensor, k: torch.Tensor, can: torch.Tensor, window: int) -> torch.Tensor:
     """values (1, C, H, W) with the texels in can (H, W) set to the median of the determined (k > 0) values in their
     W x W window (each channel apart); only those texels' windows are gathered."""
     r = window // 2

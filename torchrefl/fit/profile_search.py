@@ -16,7 +16,8 @@ to A and E, so the same search re-estimates every texel against direct plus cach
 Per group g (a texel-channel, a texel, or the whole object), with sums over fitted observations:
     u = i - A S_Ai / S_AA,  v = E - A S_AE / S_AA   (E = D B; Pd eliminated per texel and channel)
     Ps = clamp(sum(u v) / sum(v v), 0, ps_max),  error = sum(u u) - 2 Ps sum(u v) + Ps^2 sum(v v)
-    Pd = (S_Ai - Ps S_AE) / S_AA.
+    Pd = (S_Ai - Ps S_AE) / S_AA;
+a channel whose Pd comes out negative is held at Pd = 0 (its u, v become i, E) and Ps is solved again.
 """
 
 from __future__ import annotations
@@ -53,29 +54,45 @@ class _Profile:
         self.A = A
         self.S_AA = (A * A).sum(0).clamp_min(1e-30)  # (T, 3)
         self.S_Ai = (A * self.i).sum(0)
-        self.uu = (self.i * self.i).sum(0) - self.S_Ai * self.S_Ai / self.S_AA
+        self.ii = (self.i * self.i).sum(0)
+        self.uu = self.ii - self.S_Ai * self.S_Ai / self.S_AA
 
     def __call__(self, sigma: torch.Tensor):
-        """(pd (T, 3), ps (T, C), error (T,)) at sigma: a 0-d tensor, or (T,) one value per texel."""
+        """(pd (T, 3), ps (T, C), error (T,)) at sigma: a 0-d tensor, or (T,) one value per texel. The error is that of
+        the Pd and Ps returned: a channel whose least-squares Pd would be negative takes Pd = 0 and Ps is solved again
+        with that channel's whole sums (Pd >= 0 is the model's; the unconstrained error of a negative Pd, far below
+        reachable one where a broad lobe nearly repeats the diffuse term, won the search: docs/results/vase.md)."""
         dt, terms = self.dt, self.terms
         E = specular_lobe(terms.brdf, terms.theta_h, sigma.to(dt))[..., None] * terms.specular
         if self.indirect is not None:
             E = E + self.indirect.specular(sigma).to(dt)
         E = E * self.w
-        S_AE = (self.A * E).sum(0)
-        uv = (E * self.i).sum(0) - S_AE * self.S_Ai / self.S_AA
-        vv = ((E * E).sum(0) - S_AE * S_AE / self.S_AA).clamp_min(0)
-        red = (lambda x: x.sum(0, keepdim=True)) if self.shared else (lambda x: x)  # (1, 3) or (T, 3)
-        g_uv, g_vv = red(uv), red(vv)
-        if self.ps_channels == 1:
-            g_uv, g_vv = g_uv.sum(-1, keepdim=True), g_vv.sum(-1, keepdim=True)
-        ps = (g_uv / g_vv.clamp_min(1e-30)).clamp(0, self.ps_max)
-        ps = torch.where(g_vv > 0, ps, torch.zeros_like(ps))
+        S_AE, S_Ei, S_EE = (self.A * E).sum(0), (E * self.i).sum(0), (E * E).sum(0)
+        uv = S_Ei - S_AE * self.S_Ai / self.S_AA
+        vv = (S_EE - S_AE * S_AE / self.S_AA).clamp_min(0)
         T = uv.shape[0]
+        ps = self._ps(uv, vv)
+        pd = (self.S_Ai - ps.expand(T, 3) * S_AE) / self.S_AA
+        zero = pd < 0  # (T, 3): these channels' Pd is held at 0 and Ps solved against their whole sums
+        if bool(zero.any()):
+            ps = self._ps(torch.where(zero, S_Ei, uv), torch.where(zero, S_EE, vv))
+            pd = torch.where(zero, torch.zeros_like(pd), (self.S_Ai - ps.expand(T, 3) * S_AE) / self.S_AA)
+            zero = zero | (pd < 0)
+            pd = pd.clamp_min(0)
         ps_full = ps.expand(T, 3)
-        err = (self.uu - 2 * ps_full * uv + ps_full * ps_full * vv).sum(-1)  # (T,)
-        pd = ((self.S_Ai - ps_full * S_AE) / self.S_AA).clamp_min(0)
+        free = self.uu - 2 * ps_full * uv + ps_full * ps_full * vv  # Pd at its least squares for this Ps
+        held = self.ii - 2 * ps_full * S_Ei + ps_full * ps_full * S_EE  # Pd = 0
+        err = torch.where(zero, held, free).sum(-1)  # (T,)
         return pd, ps.expand(T, ps.shape[-1]).clone(), err
+
+    def _ps(self, num: torch.Tensor, den: torch.Tensor) -> torch.Tensor:
+        """(T or 1, C) Ps = num / den summed per group (and over channels for one Ps), within [0, ps_max]."""
+        if self.shared:
+            num, den = num.sum(0, keepdim=True), den.sum(0, keepdim=True)
+        if self.ps_channels == 1:
+            num, den = num.sum(-1, keepdim=True), den.sum(-1, keepdim=True)
+        ps = (num / den.clamp_min(1e-30)).clamp(0, self.ps_max)
+        return torch.where(den > 0, ps, torch.zeros_like(ps))
 
 
 class _Best:
@@ -97,6 +114,19 @@ class _Best:
         for j, new in enumerate((pd, ps, sigma, err)):
             cond = better[:, None] if new.dim() == 2 else better
             self.values[j] = torch.where(cond, new, self.values[j])
+
+
+def profiled_fit(
+    terms: LocalTerms,
+    intensity: torch.Tensor,
+    mask: torch.Tensor,
+    ps_channels: int = 3,
+    ps_max: float = float("inf"),
+    indirect: Optional[IndirectTerms] = None,
+):
+    """sigma ((T,) or 0-d) -> (pd (T, 3), ps (T, C), error (T,)): each texel's Pd and Ps in closed form at that sigma
+    and the squared error of its fitted observations with them (the search's profile, one texel at a time)."""
+    return _Profile(terms, intensity, mask, ps_channels, False, ps_max, indirect)
 
 
 def profile_search(

@@ -7,7 +7,8 @@ the specular interreflection is strong (the non-uniform glossy fold: per-texel P
 at the truth the same fit stays within 2-3 %). Before each refit the sigma search runs again, per texel,
 on the local model plus the level's indirect light held at the current parameters
 (TransportLevel.indirect_terms), and texels with specular evidence restart from its result where it
-fits their observations better.
+fits their observations better; a measured lobe far from its measured neighbours' takes theirs where they explain its
+observations as well (torchrefl.fit.lobe_consensus).
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import torch
 from torchrefl.config import Config
 from torchrefl.core.observation_classes import T_SPEC
 from torchrefl.core.params import TexelParams
-from torchrefl.fit.profile_search import profile_search, sigma_grid
+from torchrefl.fit.lobe_consensus import agree_with_neighbours
+from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.levels.base import IndirectTerms, TransportLevel
 
 
@@ -42,11 +44,23 @@ def reestimate(level: TransportLevel, params: TexelParams, cfg: Config) -> int:
         residual = (level.predict(pd, ps, sigma).cpu() - intensity) * mask[..., None]
         err0 = residual.square().sum((0, 2))
         take = evidence & (err_s < err0)
+        pd_new = torch.where(take[:, None], pd_s.to(pd.dtype), pd.cpu())
+        ps_new = torch.where(take[:, None], ps_s.to(ps.dtype), ps.cpu())
+        sigma_new = torch.where(take, sg_s.to(sigma.dtype), sigma.cpu())
+        adopt, (pd_c, ps_c, sg_c, _) = agree_with_neighbours(
+            inp.surface,
+            sigma_new,
+            torch.where(take, err_s.to(err0.dtype), err0),
+            evidence,
+            fc.interpolation_window,
+            profiled_fit(inp.terms, intensity, mask, rc.ps_channels, ps_max=rc.ps_max, indirect=cpu),
+        )
+        take = take | adopt
         if not bool(take.any()):
             return 0
         dev = params.raw_pd.device
-        pd_new = torch.where(take[:, None], pd_s.to(pd.dtype), pd.cpu()).to(dev)
-        ps_new = torch.where(take[:, None], ps_s.to(ps.dtype), ps.cpu()).to(dev)
-        sigma_new = torch.where(take, sg_s.to(sigma.dtype), sigma.cpu()).to(dev)
+        pd_new = torch.where(adopt[:, None], pd_c.to(pd.dtype), pd_new).to(dev)
+        ps_new = torch.where(adopt[:, None], ps_c.to(ps.dtype), ps_new).to(dev)
+        sigma_new = torch.where(adopt, sg_c.to(sigma.dtype), sigma_new).to(dev)
         params.assign(pd_new, ps_new, sigma_new)
     return int(take.sum())

@@ -1,0 +1,60 @@
+"""Measured lobes that disagree with their measured neighbours while the neighbours' lobe explains them as well.
+
+A texel's profiled error over sigma (torchrefl.fit.profile_search) can have two basins of nearly equal depth:
+where all of a texel's highlights fall at small half-angles, a broad lobe (sigma about 0.4, Ps several times the
+truth) with a low Pd repeats its diffuse reflection and its highlight about as well as the true lobe does, and
+noise or the level's photon noise decides which basin wins. On the glossy vase 14 of the 510 texels of one scan
+row, whose geometry all share, took the broad basin and their Pd came out 0.3-0.6 low (docs/results/vase.md).
+Such a texel is an outlier in the map of measured lobes. Here a measured texel whose sigma lies more than a factor
+OUTLIER_RATIO from the median sigma of the measured texels in its W x W window is evaluated at that median (Pd
+and Ps in closed form) and takes it where the error grows by no more than its measured neighbours' own best fits
+leave (the window median of their errors): its observations then do not tell the two lobes apart, and the
+neighbours do. A texel whose observations do tell them apart (a border between materials) keeps its own.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import torch
+
+from torchrefl.core.surface import Surface
+from torchrefl.fit.interpolate import window_median
+
+#: a measured sigma further than this factor from its measured neighbours' median is an outlier of the lobe map
+OUTLIER_RATIO = 1.5
+
+
+def neighbour_median(surface: Surface, values: torch.Tensor, measured: torch.Tensor, window: int) -> torch.Tensor:
+    """(T,) the median of values (T,) over the measured (T,) texels in each measured texel's W x W window (itself
+    included); NaN at the texels that are not measured."""
+    grid = torch.from_numpy(surface.to_grid(values.detach().cpu().double().numpy()))[None, None]
+    known = torch.from_numpy(surface.to_grid(measured.cpu().numpy(), fill=False))
+    med = window_median(grid, known.to(torch.float64)[None, None], known, window)
+    out = surface.from_grid(med[0, 0].numpy()).to(values.dtype)
+    return torch.where(measured.cpu(), out, torch.full_like(out, float("nan"))).to(values.device)
+
+
+def agree_with_neighbours(
+    surface: Surface,
+    sigma: torch.Tensor,
+    error: torch.Tensor,
+    measured: torch.Tensor,
+    window: int,
+    evaluate: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]],
+) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """Which measured texels take their neighbours' lobe, and (pd, ps, sigma, error) there.
+
+    sigma, error (T,): each texel's lobe width and the squared error of its observations with it; measured (T,)
+    bool: the texels whose lobe comes from their own highlights; evaluate(sigma (T,)) -> (pd (T, 3), ps (T, C),
+    error (T,)) with Pd and Ps in closed form at one sigma per texel. Returns adopt (T,) bool and the evaluated
+    (pd, ps, sigma, error) (meaningful where adopt)."""
+    measured = measured & torch.isfinite(sigma) & torch.isfinite(error)
+    ref = neighbour_median(surface, sigma.log(), measured, window).exp()
+    tolerance = neighbour_median(surface, error, measured, window)
+    outlier = measured & torch.isfinite(ref) & ((sigma / ref).log().abs() > math.log(OUTLIER_RATIO))
+    ref = torch.where(outlier, ref, sigma)
+    pd, ps, err = evaluate(ref)
+    adopt = outlier & (err <= error + tolerance)
+    return adopt, (pd, ps, ref, err)
