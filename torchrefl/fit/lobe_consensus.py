@@ -1,26 +1,29 @@
-"""Measured lobes against their measured neighbours': a texel takes theirs where it explains its observations as well.
+"""Measured lobes that disagree with their measured neighbours while the neighbours' lobe explains them as well.
 
 A texel's profiled error over sigma (torchrefl.fit.profile_search) can have two basins of nearly equal depth:
 where all of a texel's highlights fall at small half-angles, a broad lobe (sigma about 0.4, Ps several times the
 truth) with a low Pd repeats its diffuse reflection and its highlight about as well as the true lobe does, and
 noise or the level's photon noise decides which basin wins. On the glossy vase 14 of the 510 texels of one scan
 row, whose geometry all share, took the broad basin and their Pd came out 0.3-0.6 low (docs/results/vase.md).
-Every measured texel is therefore also evaluated at the median sigma of the measured texels in its W x W window
-(Pd and Ps in closed form) and takes it where its error grows by no more than its measured neighbours' own best
-fits leave (the window median of their errors): its observations then do not tell the two lobes apart, and the
-neighbours, which measure the same material, do. A texel whose observations do tell them apart (a border between
-materials, a lobe of its own) keeps it. Where a material's lobe varies slowly this also takes out much of the
-per-texel noise of the measured lobes (docs/results/vase.md).
+Such a texel is an outlier in the map of measured lobes. Here a measured texel whose sigma lies more than a factor
+OUTLIER_RATIO from the median sigma of the measured texels in its W x W window is evaluated at that median (Pd
+and Ps in closed form) and takes it where the error grows by no more than its measured neighbours' own best fits
+leave (the window median of their errors): its observations then do not tell the two lobes apart, and the
+neighbours do. A texel whose observations do tell them apart (a border between materials) keeps its own.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import torch
 
 from torchrefl.core.surface import Surface
 from torchrefl.fit.interpolate import window_median
+
+#: a measured sigma further than this factor from its measured neighbours' median is an outlier of the lobe map
+OUTLIER_RATIO = 1.5
 
 
 def neighbour_median(surface: Surface, values: torch.Tensor, measured: torch.Tensor, window: int) -> torch.Tensor:
@@ -50,8 +53,8 @@ def agree_with_neighbours(
     measured = measured & torch.isfinite(sigma) & torch.isfinite(error)
     ref = neighbour_median(surface, sigma.log(), measured, window).exp()
     tolerance = neighbour_median(surface, error, measured, window)
-    candidate = measured & torch.isfinite(ref) & ~torch.isclose(ref, sigma, rtol=1e-6, atol=0.0)
-    ref = torch.where(candidate, ref, sigma)
+    outlier = measured & torch.isfinite(ref) & ((sigma / ref).log().abs() > math.log(OUTLIER_RATIO))
+    ref = torch.where(outlier, ref, sigma)
     pd, ps, err = evaluate(ref)
-    adopt = candidate & (err <= error + tolerance)
+    adopt = outlier & (err <= error + tolerance)
     return adopt, (pd, ps, ref, err)
