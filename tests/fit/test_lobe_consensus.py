@@ -34,10 +34,27 @@ def scene(sigma: torch.Tensor, ps: torch.Tensor, noise: float = 0.003):
 def test_the_neighbour_median_counts_only_measured_texels():
     values = torch.full((T,), 0.2, dtype=torch.float64)
     measured = torch.ones(T, dtype=torch.bool)
-    values[10], measured[10] = 50.0, False  # an unmeasured texel's value is never read
+    unmeasured = torch.arange(T) % 3 != 0  # two thirds of every window: counted, they would move every median
+    values[unmeasured], measured[unmeasured] = 50.0, False
     med = neighbour_median(grid_surface(), values, measured, 5)
-    assert torch.isnan(med[10])
-    assert torch.allclose(med[measured], torch.full((T - 1,), 0.2, dtype=torch.float64))
+    assert torch.isnan(med[unmeasured]).all()
+    assert torch.allclose(med[measured], torch.full((int(measured.sum()),), 0.2, dtype=torch.float64))
+
+
+def test_the_tolerance_is_the_neighbours_median_error():
+    """With the errors given: an outlier takes its neighbours' lobe where its error grows by at most the window median
+    of the measured errors (1.0 here), not where it grows by more; texels at their neighbours' median are left."""
+    sigma = torch.full((T,), 0.2, dtype=torch.float64)
+    sigma[27] = 0.45
+    error = torch.ones(T, dtype=torch.float64)
+    for growth, taken in ((0.9, True), (1.1, False)):
+
+        def evaluate(s, growth=growth):
+            grown = torch.where(torch.isclose(s, torch.tensor(0.2, dtype=torch.float64)), error + growth, error)
+            return torch.zeros(T, 3, dtype=torch.float64), torch.zeros(T, 3, dtype=torch.float64), grown
+
+        adopt, _ = agree_with_neighbours(grid_surface(), sigma, error, torch.ones(T, dtype=torch.bool), 5, evaluate)
+        assert adopt.nonzero().flatten().tolist() == ([27] if taken else [])
 
 
 def test_an_outlier_the_neighbours_lobe_explains_takes_it_and_its_pd_comes_right():

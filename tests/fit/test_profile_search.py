@@ -92,3 +92,30 @@ def test_the_error_is_that_of_the_parameters_returned_also_where_pd_is_held_at_z
     pd_b, ps_b, sg_b, err_b = profile_search(terms, intensity, mask, sigma_grid(0.01, 0.6, 32), ps_channels)
     own = ((predict(terms, pd_b, ps_b.expand(T, 3), sg_b) - intensity) * mask[..., None]).square().sum((0, 2))
     assert torch.allclose(err_b, own, rtol=1e-9, atol=1e-12)
+
+
+def test_with_one_ps_per_channel_the_fit_is_the_bounded_least_squares_one():
+    """Against scipy's bounded least squares (Pd >= 0, 0 <= Ps <= ps_max) per texel and channel, at one sigma."""
+    from scipy.optimize import lsq_linear
+
+    from torchrefl.core.brdf import specular_lobe
+
+    terms, intensity, mask, (pd, ps, sigma) = scene()
+    pd = pd.clone()
+    pd[::2, 2] = 0.0
+    g = torch.Generator().manual_seed(6)
+    intensity = predict(terms, pd, ps, sigma) + 0.01 * torch.randn(intensity.shape, generator=g, dtype=torch.float64)
+    s = torch.tensor(0.3, dtype=torch.float64)
+    pd_s, ps_s, err = profiled_fit(terms, intensity, mask, 3, ps_max=0.6)(s)
+    E = specular_lobe(terms.brdf, terms.theta_h, s)[..., None] * terms.specular
+    held = 0
+    for t in range(0, T, 3):
+        best = 0.0
+        for c in range(3):
+            m = mask[:, t]
+            A = torch.stack([terms.diffuse[m, t, c], E[m, t, c]], 1).numpy()
+            ref = lsq_linear(A, intensity[m, t, c].numpy(), bounds=([0.0, 0.0], [float("inf"), 0.6]), tol=1e-12)
+            best += 2 * ref.cost
+            held += int(ref.x[0] <= 1e-12)
+        assert abs(float(err[t]) - best) <= 1e-9 * max(best, 1e-12) + 1e-14
+    assert held > 0

@@ -5,8 +5,8 @@
    specular evidence (at least two T_spec observations): it replaces the closed form where its
    squared error is lower (noise or a rough lobe can defeat the two-observation closed form).
    With fit.specular = shared (or pooled) one lobe for the whole object is searched too.
-3. A measured lobe far from its measured neighbours' takes theirs where they explain its observations as well
-   (torchrefl.fit.lobe_consensus).
+3. A measured lobe far from its measured neighbours' takes theirs where its error grows by no more than their own
+   fits leave (torchrefl.fit.lobe_consensus).
 4. Texels whose Ps and sigma are still undetermined are filled from determined neighbours in a
    W x W window (torchrefl.fit.interpolate); the fit keeps them near these values with a prior,
    because their own observations carry (almost) no specular signal.

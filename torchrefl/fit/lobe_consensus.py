@@ -1,4 +1,4 @@
-"""Measured lobes that disagree with their measured neighbours while the neighbours' lobe explains them as well.
+"""Measured lobes far from their measured neighbours', settled by the neighbours where the data allow it.
 
 A texel's profiled error over sigma (torchrefl.fit.profile_search) can have two basins of nearly equal depth:
 where all of a texel's highlights fall at small half-angles, a broad lobe (sigma about 0.4, Ps several times the
@@ -7,9 +7,12 @@ noise or the level's photon noise decides which basin wins. On the glossy vase 1
 row, whose geometry all share, took the broad basin and their Pd came out 0.3-0.6 low (docs/results/vase.md).
 Such a texel is an outlier in the map of measured lobes. Here a measured texel whose sigma lies more than a factor
 OUTLIER_RATIO from the median sigma of the measured texels in its W x W window is evaluated at that median (Pd
-and Ps in closed form) and takes it where the error grows by no more than its measured neighbours' own best fits
-leave (the window median of their errors): its observations then do not tell the two lobes apart, and the
-neighbours do. A texel whose observations do tell them apart (a border between materials) keeps its own.
+and Ps in closed form) and takes it where its squared error grows by no more than its measured neighbours' own best
+fits leave (the window median of their errors). That tolerance is the model's misfit level, not the sensor noise's:
+the level's indirect light carries errors correlated over a texel's observations (the vase's wrong basin won by a
+few DN^2, dozens of noise variances), so a texel takes its neighbours' lobe unless its highlights reject it by more
+than a typical texel's whole misfit. A texel whose highlights do (a border between materials) keeps its own; a
+faint lobe of a different material among others (Ps 0.02 against 0.3) may not, and its Pd barely depends on it.
 """
 
 from __future__ import annotations

@@ -17,7 +17,10 @@ Per group g (a texel-channel, a texel, or the whole object), with sums over fitt
     u = i - A S_Ai / S_AA,  v = E - A S_AE / S_AA   (E = D B; Pd eliminated per texel and channel)
     Ps = clamp(sum(u v) / sum(v v), 0, ps_max),  error = sum(u u) - 2 Ps sum(u v) + Ps^2 sum(v v)
     Pd = (S_Ai - Ps S_AE) / S_AA;
-a channel whose Pd comes out negative is held at Pd = 0 (its u, v become i, E) and Ps is solved again.
+a channel whose Pd comes out negative is held at Pd = 0 (its u, v become i, E) and Ps is solved again. With one Ps
+per channel that is the least-squares fit with Pd >= 0; with one Ps for several channels (ps_channels 1, a shared
+lobe) it is a few rounds of an active set that only adds channels, so the error, always that of the parameters
+returned, can lie a few % above the bounded optimum at some sigma values.
 """
 
 from __future__ import annotations
@@ -31,6 +34,9 @@ from torchrefl.core.brdf import specular_lobe
 from torchrefl.transport.levels.base import IndirectTerms
 from torchrefl.transport.local import LocalTerms
 
+#: rounds of holding a negative Pd at 0 and solving Ps again (per-channel Ps: the first is exact; one Ps shared by
+#: channels or texels: a channel that turns negative joins the held ones, and after the last round Pd is clamped)
+_HOLD_ROUNDS = 3
 #: golden-section steps that narrow each texel's sigma within the grid steps around its best grid value
 GOLDEN_STEPS = 12
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
@@ -74,11 +80,16 @@ class _Profile:
         ps = self._ps(uv, vv)
         pd = (self.S_Ai - ps.expand(T, 3) * S_AE) / self.S_AA
         zero = pd < 0  # (T, 3): these channels' Pd is held at 0 and Ps solved against their whole sums
-        if bool(zero.any()):
+        for _ in range(_HOLD_ROUNDS):  # one Ps for several channels (or texels): another Pd may turn negative
+            if not bool(zero.any()):
+                break
             ps = self._ps(torch.where(zero, S_Ei, uv), torch.where(zero, S_EE, vv))
             pd = torch.where(zero, torch.zeros_like(pd), (self.S_Ai - ps.expand(T, 3) * S_AE) / self.S_AA)
-            zero = zero | (pd < 0)
-            pd = pd.clamp_min(0)
+            turned = (pd < 0) & ~zero
+            zero = zero | turned
+            if not bool(turned.any()):
+                break
+        pd = pd.clamp_min(0)
         ps_full = ps.expand(T, 3)
         free = self.uu - 2 * ps_full * uv + ps_full * ps_full * vv  # Pd at its least squares for this Ps
         held = self.ii - 2 * ps_full * S_Ei + ps_full * ps_full * S_EE  # Pd = 0

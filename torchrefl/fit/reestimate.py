@@ -7,8 +7,8 @@ the specular interreflection is strong (the non-uniform glossy fold: per-texel P
 at the truth the same fit stays within 2-3 %). Before each refit the sigma search runs again, per texel,
 on the local model plus the level's indirect light held at the current parameters
 (TransportLevel.indirect_terms), and texels with specular evidence restart from its result where it
-fits their observations better; a measured lobe far from its measured neighbours' takes theirs where they explain its
-observations as well (torchrefl.fit.lobe_consensus).
+fits their observations better; a measured lobe far from its measured neighbours' takes theirs where its error grows by
+no more than their own fits leave (torchrefl.fit.lobe_consensus).
 """
 
 from __future__ import annotations
