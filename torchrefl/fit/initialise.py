@@ -22,7 +22,7 @@ import torch
 from torchrefl.core.surface import Surface
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.interpolate import FILL_MEDIAN, fill_undetermined
-from torchrefl.fit.lobe_consensus import agree_with_neighbours
+from torchrefl.fit.lobe_consensus import settle_outliers
 from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.local import LocalTerms, predict
 
@@ -99,17 +99,9 @@ def initialise_local(
             ps = torch.where(take[:, None], ps_s.to(ps.dtype), ps)
             sigma = torch.where(take, sg_s.to(sigma.dtype), sigma)
             known = cf.spec_determined | take
-            adopt, (pd_c, ps_c, sg_c, _) = agree_with_neighbours(
-                surface,
-                sigma,
-                torch.where(take, err_s.to(err0.dtype), err0),
-                known & defined,
-                window,
-                profiled_fit(terms, intensity, fit_mask, ps_channels, ps_max),
-            )
-            pd = torch.where(adopt[:, None], pd_c.to(pd.dtype), pd)
-            ps = torch.where(adopt[:, None], ps_c.to(ps.dtype), ps)
-            sigma = torch.where(adopt, sg_c.to(sigma.dtype), sigma)
+            error = torch.where(take, err_s.to(err0.dtype), err0)
+            profile = profiled_fit(terms, intensity, fit_mask, ps_channels, ps_max)
+            pd, ps, sigma, adopt = settle_outliers(surface, pd, ps, sigma, error, known & defined, window, profile)
             note = f"sigma search kept at {int(take.sum())} texels with specular evidence"
             note += f", {int(adopt.sum())} took their measured neighbours' lobe"
             if shared_lobe is not None:

@@ -61,3 +61,13 @@ def agree_with_neighbours(
     pd, ps, err = evaluate(ref)
     adopt = outlier & (err <= error + tolerance)
     return adopt, (pd, ps, ref, err)
+
+
+def settle_outliers(surface, pd, ps, sigma, error, measured, window: int, evaluate) -> tuple:
+    """(pd (T, 3), ps (T, C), sigma (T,), adopt (T,)): the lobes with agree_with_neighbours' choice applied (Pd and Ps
+    from evaluate where a texel took its neighbours' sigma), in the given tensors' dtypes."""
+    adopt, (pd_c, ps_c, sg_c, _) = agree_with_neighbours(surface, sigma, error, measured, window, evaluate)
+    pd = torch.where(adopt[:, None], pd_c.to(pd.dtype), pd)
+    ps = torch.where(adopt[:, None], ps_c.to(ps.dtype), ps)
+    sigma = torch.where(adopt, sg_c.to(sigma.dtype), sigma)
+    return pd, ps, sigma, adopt

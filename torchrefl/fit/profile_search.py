@@ -66,8 +66,8 @@ class _Profile:
     def __call__(self, sigma: torch.Tensor):
         """(pd (T, 3), ps (T, C), error (T,)) at sigma: a 0-d tensor, or (T,) one value per texel. The error is that of
         the Pd and Ps returned: a channel whose least-squares Pd would be negative takes Pd = 0 and Ps is solved again
-        with that channel's whole sums (Pd >= 0 is the model's; the unconstrained error of a negative Pd, far below
-        reachable one where a broad lobe nearly repeats the diffuse term, won the search: docs/results/vase.md)."""
+        with that channel's whole sums (Pd >= 0 is the model's; the error of a negative Pd lies below any reachable
+        one where a broad lobe nearly repeats the diffuse term: docs/results/vase.md)."""
         dt, terms = self.dt, self.terms
         E = specular_lobe(terms.brdf, terms.theta_h, sigma.to(dt))[..., None] * terms.specular
         if self.indirect is not None:

@@ -18,7 +18,7 @@ import torch
 from torchrefl.config import Config
 from torchrefl.core.observation_classes import T_SPEC
 from torchrefl.core.params import TexelParams
-from torchrefl.fit.lobe_consensus import agree_with_neighbours
+from torchrefl.fit.lobe_consensus import settle_outliers
 from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.levels.base import IndirectTerms, TransportLevel
 
@@ -47,20 +47,15 @@ def reestimate(level: TransportLevel, params: TexelParams, cfg: Config) -> int:
         pd_new = torch.where(take[:, None], pd_s.to(pd.dtype), pd.cpu())
         ps_new = torch.where(take[:, None], ps_s.to(ps.dtype), ps.cpu())
         sigma_new = torch.where(take, sg_s.to(sigma.dtype), sigma.cpu())
-        adopt, (pd_c, ps_c, sg_c, _) = agree_with_neighbours(
-            inp.surface,
-            sigma_new,
-            torch.where(take, err_s.to(err0.dtype), err0),
-            evidence,
-            fc.interpolation_window,
-            profiled_fit(inp.terms, intensity, mask, rc.ps_channels, ps_max=rc.ps_max, indirect=cpu),
+        error = torch.where(take, err_s.to(err0.dtype), err0)
+        profile = profiled_fit(inp.terms, intensity, mask, rc.ps_channels, ps_max=rc.ps_max, indirect=cpu)
+        window = fc.interpolation_window
+        pd_new, ps_new, sigma_new, adopt = settle_outliers(
+            inp.surface, pd_new, ps_new, sigma_new, error, evidence, window, profile
         )
         take = take | adopt
         if not bool(take.any()):
             return 0
         dev = params.raw_pd.device
-        pd_new = torch.where(adopt[:, None], pd_c.to(pd.dtype), pd_new).to(dev)
-        ps_new = torch.where(adopt[:, None], ps_c.to(ps.dtype), ps_new).to(dev)
-        sigma_new = torch.where(adopt, sg_c.to(sigma.dtype), sigma_new).to(dev)
-        params.assign(pd_new, ps_new, sigma_new)
+        params.assign(pd_new.to(dev), ps_new.to(dev), sigma_new.to(dev))
     return int(take.sum())
