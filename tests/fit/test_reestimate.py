@@ -12,7 +12,7 @@ from torchrefl.core.observation_classes import T_SPEC
 from torchrefl.core.params import TexelParams
 from torchrefl.core.surface import Surface
 from torchrefl.fit.pipeline import level_inputs
-from torchrefl.fit.reestimate import reestimate
+from torchrefl.fit.reestimate import Reestimated, reestimate
 from torchrefl.transport.levels.base import IndirectTerms, TransportLevel
 from torchrefl.transport.local import predict
 
@@ -73,16 +73,18 @@ def test_the_search_on_direct_plus_indirect_light_recovers_the_truth_where_the_s
     params = TexelParams(pd * 1.4, ps * 0.5, (sigma * 1.8).clamp_max(0.55), 0.01, 0.6)
     evidence = ((inputs.classes == T_SPEC) & inputs.fit_mask).sum(0) >= 2
     assert evidence.sum() > T // 2
-    restarted = reestimate(level, params, cfg)
-    assert restarted >= int(evidence.sum()) - 2
+    again = reestimate(level, params, cfg)
+    assert again.restarted >= int(evidence.sum()) - 2
     got_pd, got_ps, got_sigma = (x.detach() for x in params.values())
     e = evidence
     # noise-free: the search narrowed between the grid values (14 % apart) lands on the truth
     assert ((got_sigma[e] - sigma[e]).abs() / sigma[e]).median() < 0.005
     assert ((got_ps[e] - ps[e]).abs() / ps[e]).median() < 0.01
     assert ((got_pd[e] - pd[e]).abs() / pd[e]).median() < 0.002
-    # texels without specular evidence keep their start
-    assert torch.allclose(got_sigma[~e], (sigma[~e] * 1.8).clamp_max(0.55), rtol=1e-6)
+    # texels without specular evidence keep their start unless measured texels of their colour lend them a lobe
+    kept = ~e if again.lent is None else ~e & ~again.lent
+    assert kept.any()
+    assert torch.allclose(got_sigma[kept], (sigma[kept] * 1.8).clamp_max(0.55), rtol=1e-6)
 
 
 def test_ignoring_the_indirect_light_would_not_recover_it():
@@ -101,6 +103,49 @@ def test_levels_without_indirect_light_and_shared_lobes_are_left_alone():
     cfg, inputs, level, (pd, ps, sigma) = setup(1.0)
     level.indirect_terms = lambda pd: None
     params = TexelParams(pd * 1.4, ps * 0.5, sigma, 0.01, 0.6)
-    assert reestimate(level, params, cfg) == 0
+    assert reestimate(level, params, cfg) == Reestimated()
     shared = TexelParams(pd, ps, sigma, 0.01, 0.6, shared_specular=True)
-    assert reestimate(KnownIndirectLevel(inputs, level.hd, level.hs, level.theta_i), shared, cfg) == 0
+    assert reestimate(KnownIndirectLevel(inputs, level.hd, level.hs, level.theta_i), shared, cfg) == Reestimated()
+
+
+def test_texels_without_highlights_take_the_lobe_now_measured_on_texels_of_their_colour():
+    """One material (one colour, one lobe): the texels with fewer than two highlights start at a wrong lobe (what a
+    start measured without the interreflection lends); after the re-estimation they carry the lobe their measured
+    neighbours of the same colour now have, which is the truth."""
+    cfg, inputs, level, _ = setup(1.0)
+    pd = torch.tensor([0.4, 0.5, 0.3], dtype=torch.float64).expand(T, 3).clone()
+    ps = torch.full((T, 3), 0.3, dtype=torch.float64)
+    sigma = torch.full((T,), 0.15, dtype=torch.float64)
+    with torch.no_grad():
+        inputs.obs.intensity = level.predict(pd, ps, sigma)
+    evidence = ((inputs.classes == T_SPEC) & inputs.fit_mask).sum(0) >= 2
+    without = ~evidence & inputs.fit_mask.any(0)
+    assert without.sum() >= 2
+    start_ps, start_sigma = ps.clone(), sigma.clone()
+    start_ps[without], start_sigma[without] = 0.02, 0.5
+    params = TexelParams(pd, start_ps, start_sigma, 0.01, 0.6)
+    again = reestimate(level, params, cfg)
+    assert again.lent is not None and again.lent.equal(without)
+    got_ps, got_sigma = params.ps().detach(), params.sigma().detach()
+    assert ((got_sigma[without] - 0.15).abs() / 0.15).max() < 0.01
+    assert ((got_ps[without] - 0.3).abs() / 0.3).max() < 0.02
+
+
+def test_the_lobe_prior_of_lent_texels_moves_to_the_lent_lobe():
+    """ObjectiveFactory.lend: after it the prior no longer pulls the lent texels back to their start lobe."""
+    from types import SimpleNamespace
+
+    from torchrefl.fit.pipeline import ObjectiveFactory
+
+    cfg, inputs, level, (pd, ps, sigma) = setup(1.0)
+    known = torch.zeros(T, dtype=torch.bool)
+    init = SimpleNamespace(known=known, ps=ps * 0.2, sigma=sigma * 2.0, shared_lobe=None)
+    factory = ObjectiveFactory(cfg, inputs, init)
+    params = TexelParams(pd, ps, sigma, 0.01, 0.6)
+    lent = torch.arange(T) % 2 == 0
+    before = factory.lobe_prior.sigma.clone()
+    factory.lend(lent, params)
+    assert torch.allclose(factory.lobe_prior.sigma[lent], sigma[lent].to(before.dtype), rtol=1e-5)
+    assert factory.lobe_prior.sigma[~lent].equal(before[~lent])
+    assert torch.allclose(factory.lobe_prior.ps[lent], ps[lent].to(before.dtype), rtol=1e-5)
+    assert init.sigma.equal(sigma * 2.0)  # the start is not changed

@@ -7,9 +7,10 @@
    With fit.specular = shared (or pooled) one lobe for the whole object is searched too.
 3. A measured lobe far from its measured neighbours' takes theirs where its error grows by no more than their own
    fits leave (torchrefl.fit.lobe_consensus).
-4. Texels whose Ps and sigma are still undetermined are filled from determined neighbours in a
-   W x W window (torchrefl.fit.interpolate); the fit keeps them near these values with a prior,
-   because their own observations carry (almost) no specular signal.
+4. Texels whose Ps and sigma are still undetermined take the lobe of the nearest measured texels of their
+   diffuse colour (torchrefl.fit.material_fill), or where no measured texel has their colour, of the
+   measured texels in their W x W window (torchrefl.fit.interpolate); the fit keeps them near these values
+   with a prior, because their own observations carry (almost) no specular signal.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from torchrefl.core.surface import Surface
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.interpolate import FILL_MEDIAN, fill_undetermined
 from torchrefl.fit.lobe_consensus import settle_outliers
+from torchrefl.fit.material_fill import colour_matched_lobes
 from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.local import LocalTerms, predict
 
@@ -107,7 +109,9 @@ def initialise_local(
             if shared_lobe is not None:
                 note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, "
                 note += f"sigma {float(shared_lobe[1][0]):.4f}"
-    ps, sigma, object_lobe = fill_lobes(surface, ps, sigma, known, defined, window, sigma_min, sigma_max)
+    ps, sigma, object_lobe, matched = fill_lobes(
+        surface, pd, ps, sigma, known, defined, n_spec, window, sigma_min, sigma_max
+    )
     ps = ps.clamp(0, ps_max)
     sigma = sigma.clamp(sigma_min, sigma_max)
     coverage = torch.full((surface.num_texels,), COVER_NONE, dtype=torch.int8)
@@ -118,9 +122,9 @@ def initialise_local(
     head = (
         f"closed form: Pd from eq. 3.3 at {int(cf.pd_from_diffuse.sum())} texels, bound at "
         f"{int((defined & ~cf.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at {int(cf.spec_determined.sum())}; "
-        f"Ps/sigma known at {int((known & defined).sum())} of {surface.num_texels} texels, the rest interpolated "
-        f"(W = {window}) or, beyond two windows, the measured texels' median lobe "
-        f"({int((object_lobe & defined).sum())}); {note}"
+        f"Ps/sigma known at {int((known & defined).sum())} of {surface.num_texels} texels, the rest taken from "
+        f"measured texels of their colour ({int((matched & defined).sum())}), interpolated (W = {window}) or, beyond "
+        f"two windows, the measured texels' median lobe ({int((object_lobe & defined).sum())}); {note}"
     )
     return Initial(
         pd, ps, sigma, known & defined, defined, coverage, cf.pd_from_diffuse, cf.spec_determined, shared_lobe, head
@@ -137,12 +141,15 @@ def mark_untrusted(coverage: torch.Tensor, untrusted: torch.Tensor | None) -> to
     return out
 
 
-def fill_lobes(surface: Surface, ps, sigma, known, defined, window: int, sigma_min: float, sigma_max: float):
-    """Ps (T, C), sigma (T,) with the texels not `known` filled (torchrefl.fit.interpolate), and (T,) bool: the
-    texels that took the measured texels' median lobe. Without any known texel: a faint mid-range lobe."""
+def fill_lobes(
+    surface: Surface, pd, ps, sigma, known, defined, n_spec, window: int, sigma_min: float, sigma_max: float
+):
+    """Ps (T, C), sigma (T,) with the texels not `known` filled from measured texels of their colour
+    (torchrefl.fit.material_fill) or else their window (torchrefl.fit.interpolate), and (T,) bool: the texels that
+    took the measured texels' median lobe. Without any known texel: a faint mid-range lobe."""
     if not known.any():
         none = torch.zeros(surface.num_texels, dtype=torch.bool)
-        return torch.full_like(ps, 1e-3), torch.full_like(sigma, 0.5 * (sigma_min + sigma_max)), none
+        return torch.full_like(ps, 1e-3), torch.full_like(sigma, 0.5 * (sigma_min + sigma_max)), none, none
     grid_vals = surface.to_grid(torch.cat([ps, sigma[:, None]], 1).double())
     filled, how = fill_undetermined(
         torch.from_numpy(grid_vals),
@@ -153,4 +160,5 @@ def fill_lobes(surface: Surface, ps, sigma, known, defined, window: int, sigma_m
     flat = surface.from_grid(filled.numpy()).to(ps.dtype)
     ps = torch.where(known[:, None], ps, flat[:, :-1])
     sigma = torch.where(known, sigma, flat[:, -1])
-    return ps, sigma, surface.from_grid(how.numpy() == FILL_MEDIAN) & ~known
+    ps, sigma, matched = colour_matched_lobes(surface.positions, pd, ps, sigma, known, defined & ~known, n_spec)
+    return ps, sigma, surface.from_grid(how.numpy() == FILL_MEDIAN) & ~known & ~matched, matched

@@ -59,34 +59,52 @@ def emitter_source(cfg: Config, inputs: LevelInputs, init, log) -> torch.Tensor 
     return source
 
 
-def objective_factory(cfg: Config, inputs: LevelInputs, init):
-    """(predict, mask) -> Objective with the fit's loss, priors and smoothness."""
-    fc, device, T = cfg.fit, inputs.device, inputs.surface.num_texels
-    # a shared lobe has no per-texel values to pull towards (the pull collapsed the object's lobe to Ps ~ 0)
-    prior_weight = 0.0 if fc.specular == "shared" else fc.prior_weight
-    priors = [Prior((~init.known).to(device), init.ps.to(device), init.sigma.to(device), prior_weight)]
-    if fc.specular == "pooled" and init.shared_lobe is not None:
-        priors.append(
-            Prior(
-                torch.ones(T, dtype=torch.bool, device=device),
-                init.shared_lobe[0].expand(T, -1).to(device),
-                init.shared_lobe[1].expand(T).to(device),
-                fc.pooling,
-            )
+class ObjectiveFactory:
+    """(predict, mask) -> Objective with the fit's loss, priors and smoothness; `lend` moves the lobe prior of texels
+    that took measured texels' lobes during the fit (torchrefl.fit.reestimate) to those lobes."""
+
+    def __init__(self, cfg: Config, inputs: LevelInputs, init):
+        fc, device, T = cfg.fit, inputs.device, inputs.surface.num_texels
+        # a shared lobe has no per-texel values to pull towards (the pull collapsed the object's lobe to Ps ~ 0)
+        prior_weight = 0.0 if fc.specular == "shared" else fc.prior_weight
+        self.lobe_prior = Prior(
+            (~init.known).to(device), init.ps.clone().to(device), init.sigma.clone().to(device), prior_weight
         )
-    s = inputs.surface
-    neighbours = grid_neighbours(s.texel_index, s.grid_shape).to(device) if fc.smoothness > 0 else None
-    intensity = inputs.obs.intensity.to(device)
-    return lambda predict, mask: Objective(
-        predict=predict,
-        intensity=intensity,
-        weight=mask.to(device),
-        loss=fc.loss,
-        loss_scale_8bit=fc.loss_scale_8bit,
-        priors=priors,
-        smoothness=fc.smoothness,
-        neighbours=neighbours,
-    )
+        self.priors = [self.lobe_prior]
+        if fc.specular == "pooled" and init.shared_lobe is not None:
+            self.priors.append(
+                Prior(
+                    torch.ones(T, dtype=torch.bool, device=device),
+                    init.shared_lobe[0].expand(T, -1).to(device),
+                    init.shared_lobe[1].expand(T).to(device),
+                    fc.pooling,
+                )
+            )
+        s = inputs.surface
+        self.neighbours = grid_neighbours(s.texel_index, s.grid_shape).to(device) if fc.smoothness > 0 else None
+        self.intensity = inputs.obs.intensity.to(device)
+        self.fc = fc
+
+    def lend(self, lent: torch.Tensor, params: TexelParams) -> None:
+        """The lobe prior of the texels in lent (T,) bool pulls towards their current lobes."""
+        prior = self.lobe_prior
+        m = lent.to(prior.mask.device)
+        with torch.no_grad():
+            prior.ps[m] = params.ps().detach()[m].to(prior.ps)
+            prior.sigma[m] = params.sigma().detach()[m].to(prior.sigma)
+
+    def __call__(self, predict, mask) -> Objective:
+        fc = self.fc
+        return Objective(
+            predict=predict,
+            intensity=self.intensity,
+            weight=mask.to(self.intensity.device),
+            loss=fc.loss,
+            loss_scale_8bit=fc.loss_scale_8bit,
+            priors=self.priors,
+            smoothness=fc.smoothness,
+            neighbours=self.neighbours,
+        )
 
 
 def refinement_optimizer(cfg: Config, params: TexelParams) -> str:
@@ -96,17 +114,23 @@ def refinement_optimizer(cfg: Config, params: TexelParams) -> str:
     return "lbfgs" if name == "lm" and (params.shared_specular or cfg.fit.smoothness > 0) else name
 
 
-def refit(level: TransportLevel, params: TexelParams, make_objective, cfg: Config) -> list[float]:
+def refit(level: TransportLevel, params: TexelParams, make_objective: ObjectiveFactory, cfg: Config) -> list[float]:
     """The refinement loop every level shares (transport.levels.base); returns the loss history."""
     fc, history = cfg.fit, []
     optimizer = refinement_optimizer(cfg, params)
     level.refresh(params, 0)
     for k in range(level.refits):
-        restarted = reestimate(level, params, cfg)
-        if restarted:
+        again = reestimate(level, params, cfg)
+        if again.restarted:
             level.inputs.log(
-                f"{level.name} refit {k + 1}: {restarted} texels restart from the sigma search on direct plus "
+                f"{level.name} refit {k + 1}: {again.restarted} texels restart from the sigma search on direct plus "
                 "indirect light"
+            )
+        if again.lent is not None:
+            make_objective.lend(again.lent, params)
+            level.inputs.log(
+                f"{level.name} refit {k + 1}: {int(again.lent.sum())} texels without highlights take the lobes now "
+                "measured on texels of their colour"
             )
         for step in level.steps(k):
             train = None if step.train is None else [getattr(params, name) for name in step.train]
@@ -228,7 +252,7 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
         if optimizer != cfg.fit.optimizer:
             why = "one lobe for the whole object (fit.specular: shared)" if params.shared_specular else "fit.smoothness"
             log(f"fit.optimizer {cfg.fit.optimizer}: {why} couples the texels, refined with {optimizer} instead")
-        history = refit(level, params, objective_factory(cfg, inputs, init), cfg)
+        history = refit(level, params, ObjectiveFactory(cfg, inputs, init), cfg)
         with torch.no_grad():
             pd, ps, sigma = (x.detach() for x in params.values())
             predicted = level.render(pd, ps, sigma).cpu()
