@@ -28,7 +28,8 @@ from torchrefl.fit.material_fill import colour_matched_lobes
 from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.local import LocalTerms, predict
 
-#: coverage codes (params.npz `coverage`, docs/outputs.md): none; Pd with Ps/sigma interpolated from neighbours;
+#: coverage codes (params.npz `coverage`, docs/outputs.md): none; Pd with Ps/sigma from measured texels of its colour or
+#: interpolated from neighbours;
 #: Pd with Ps/sigma measured (the texel's own T_spec observations); Pd from its upper bound only (Ps/sigma
 #: interpolated); untrusted geometry (edges, creases, mixed footprints, unfit range: not fitted); Pd with the
 #: object's lobe (the shared one, or the measured texels' median lobe far from every measured texel)
