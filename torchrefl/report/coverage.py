@@ -1,12 +1,12 @@
 """Where Ps and sigma come from: metrics.json's `specular_source` block (docs/outputs.md).
 
-A texel's Ps and sigma are measured (its own T_spec observations gave them: coverage code 2), taken from
-measured texels of its colour or its measured neighbours (codes 1 and 3: no usable highlight; "interpolated") or the object's lobe (code 5: fit.specular shared, or
-the measured texels' median lobe where none is measured within two interpolation windows). The shares are over
-the estimated texels, for the object and per material region where the capture's truth has a region map
-(synthetic captures); for every capture the largest connected patches of texels whose Ps and sigma are not
-measured (interpolated or the object's lobe) are listed with their size and bounding box, which says where a real
-capture lacks highlights.
+A texel's Ps and sigma are measured (its own T_spec observations gave them: coverage code 2), taken from measured
+texels of its colour or its measured neighbours (codes 1 and 3: no usable highlight; "interpolated") or the object's
+lobe (code 5: fit.specular shared, or the measured texels' median lobe where none is measured within two
+interpolation windows). The shares are over the estimated texels, for the object and per material region where the
+capture's truth has a region map (synthetic captures); for every capture the largest connected patches of texels
+whose Ps and sigma are not measured (interpolated or the object's lobe) are listed with their size and bounding box,
+which says where a real capture lacks highlights.
 """
 
 from __future__ import annotations
