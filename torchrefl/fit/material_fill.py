@@ -52,7 +52,7 @@ def colour_matched_lobes(
     colour = np.log(pd.detach().cpu().double().numpy().clip(0, None) + COLOUR_FLOOR)
     features = np.concatenate([pos / extent, colour / COLOUR_TOLERANCE], 1)
     k = min(NEIGHBOURS, len(src))
-    _, nearest = cKDTree(features[src]).query(features[dst], k=k)
+    _, nearest = cKDTree(features[src]).query(features[dst], k=k, workers=-1)  # deterministic; 2x on 2 cores
     nearest = src[nearest.reshape(len(dst), k)]
     apart = np.abs(colour[nearest] - colour[dst][:, None]).max(-1)
     ok = np.median(apart, 1) <= COLOUR_TOLERANCE
