@@ -112,17 +112,23 @@ def test_crease_texels_are_excluded_and_counted(scan_folder):
     assert int(lost.sum()) > 0 and bool((tight.valid <= base.valid).all())
 
 
+def raised_block(folder, tmp_path):
+    """A copy of the scan folder with a block raised 6 mm from the ellipsoid: (folder, its range image)."""
+    step = tmp_path / "step"
+    shutil.copytree(folder, step)
+    r = np.load(step / "range.npy")
+    r[30:46, 40:56] += 6.0
+    np.save(step / "range.npy", r)
+    return step, r
+
+
 def test_a_raised_block_is_a_mixed_footprint_excluded_and_counted(scan_folder, tmp_path):
     """A block raised 6 mm from the smooth ellipsoid (a plate's rim, a depth step): the texels along its rim are
     mixed footprints (ScanGeometry.mixed), none of their observations is valid, and the statistics count them;
     the smooth ellipsoid, the block's top and the surface around it are not flagged."""
     folder, _ = scan_folder
     assert not load_scan_geometry(folder, threads=1, dtype=torch.float64).mixed.any()
-    step = tmp_path / "step"
-    shutil.copytree(folder, step)
-    r = np.load(step / "range.npy")
-    r[30:46, 40:56] += 6.0
-    np.save(step / "range.npy", r)
+    step, r = raised_block(folder, tmp_path)
     geom = load_scan_geometry(step, threads=1, dtype=torch.float64)
     grid = np.zeros(r.size, bool)
     grid[geom.surface.texel_index.numpy()] = geom.mixed
@@ -245,3 +251,21 @@ def test_a_strip_no_fitting_window_describes_is_excluded_and_counted(scan_folder
     obs, stats = load_scan_observations(geom, threads=1, dtype=torch.float64)
     unfit = torch.from_numpy(geom.unfit & ~geom.mixed)
     assert not obs.valid[:, unfit].any() and stats["unfit_range_texels_excluded"] == int(unfit.sum()) > 0
+
+
+def test_observations_at_a_cast_shadows_edge_are_excluded_and_counted(scan_folder, tmp_path):
+    """The raised block casts shadows on the ellipsoid: the lit observations next to a shadowed texel of the same
+    face (untrusted_texels.shadow_edge_observations) are invalid and counted; the smooth ellipsoid has none."""
+    from torchrefl.capture.untrusted_texels import shadow_edge_observations
+
+    folder, _ = scan_folder
+    _, smooth = load_scan_observations(load_scan_geometry(folder, threads=1, dtype=torch.float64), threads=1)
+    assert smooth["shadowed_observations"] == 0 and smooth["shadow_edge_observations"] == 0
+    step, r = raised_block(folder, tmp_path)
+    geom = load_scan_geometry(step, threads=1, dtype=torch.float64)
+    obs, stats = load_scan_observations(geom, threads=1, dtype=torch.float64)
+    s = geom.surface
+    edge = shadow_edge_observations(obs.shadowed.numpy(), s.texel_index.numpy(), s.grid_shape, s.normals.numpy())
+    assert stats["shadowed_observations"] > 0 and edge.sum() > 0
+    assert not obs.valid[torch.from_numpy(edge)].any()
+    assert stats["shadow_edge_observations"] <= int(edge.sum())

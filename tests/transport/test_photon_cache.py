@@ -358,24 +358,6 @@ def test_specular_spreading_needs_the_grid(traced):
         )
 
 
-@pytest.mark.parametrize("sigma,normal_sigma", [(1.0, 0.0), (1.0, 0.1), (0.7, 0.3), (2.0, 0.1)])
-def test_the_sparse_smoothing_operator_is_kornias_filter(sigma, normal_sigma):
-    """smoothing_matrix (weights built once) applied to a field equals smooth_on_grid (kornia's Gaussian or
-    joint bilateral filter, normalised over the texels present), on a fold with a hole in its texel set."""
-    from torchrefl.transport.photon_density import apply_on_grid, smoothing_matrix
-
-    s = fold_surface(12, 20)
-    keep = torch.ones(s.num_texels, dtype=torch.bool)
-    keep[45:52] = False  # texels missing from the set
-    index, normals = s.texel_index[keep], s.normals[keep]
-    g = torch.Generator().manual_seed(0)
-    values = torch.rand(2, int(keep.sum()), 3, generator=g, dtype=torch.float64)
-    ref = smooth_on_grid(values, index, s.grid_shape, sigma, normals if normal_sigma else None, normal_sigma)
-    M = smoothing_matrix(index, s.grid_shape, sigma, normals, normal_sigma)
-    torch.testing.assert_close(apply_on_grid(M, values), ref, rtol=1e-9, atol=1e-12)
-    assert torch.autograd.gradcheck(lambda v: apply_on_grid(M, v), (values[:1].clone().requires_grad_(),))
-
-
 def test_indirect_radiance_gradients_are_bitwise_repeatable_on_two_threads():
     """Many specular entries per texel, 2 torch threads: the gradient of the reflected indirect light in sigma
     must not depend on the order threads sum the entries in (with sigma[t] instead of index_select it did,

@@ -35,7 +35,12 @@ from torchrefl.capture.images import read_images
 from torchrefl.capture.scan_yaml import read_manifest, read_scan_yaml  # noqa: F401  (the loader's readers)
 from torchrefl.capture.truth import TRUTH
 from torchrefl.capture.truth import load_truth as read_truth
-from torchrefl.capture.untrusted_texels import mixed_footprint_grid, untrusted_counts, untrusted_geometry
+from torchrefl.capture.untrusted_texels import (
+    mixed_footprint_grid,
+    shadow_edge_observations,
+    untrusted_counts,
+    untrusted_geometry,
+)
 from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.core.point_light import point_light
@@ -284,6 +289,10 @@ def _read_textures(geom: ScanGeometry, lights: list, where: str, threads: int) -
     return intensity, bits, warnings
 
 
+#: load_scan_observations' reason for the lit observations next to a cast shadow (untrusted_texels)
+SHADOW_EDGE = "at a cast shadow's edge (a shadowed neighbour on the same face)"
+
+
 def _excluded_observations(
     geom: ScanGeometry, og: dict, intensity: np.ndarray, saturation_level: float, edge_width: int, crease_angle_deg
 ) -> tuple[dict, np.ndarray, dict]:
@@ -297,6 +306,9 @@ def _excluded_observations(
         "not seen by the camera (facing away or occluded)": every(~og["seen"]),
         "not lit (n.l at or below the threshold)": ~og["lit"],
         "in cast shadow": og["shadowed"],
+        SHADOW_EDGE: shadow_edge_observations(
+            og["shadowed"], geom.surface.texel_index.numpy(), geom.surface.grid_shape, geom.surface.normals.numpy()
+        ),
         f"saturated (>= {saturation_level:g})": saturated,
         "not finite": ~finite,
         f"edge texels (geometry.edge_width {edge_width})": every(texels["edge"]),
@@ -380,6 +392,7 @@ def load_scan_observations(
         "saturation_level": float(saturation_level),
         "saturated_observations": int((saturated & og["seen"][None] & og["lit"]).sum()),
         "shadowed_observations": int(og["shadowed"].sum()),
+        "shadow_edge_observations": int((removed[SHADOW_EDGE] & og["seen"][None] & og["lit"]).sum()),
         "valid_observations": int(valid.sum()),
         **untrusted_counts(texels),
         "warnings": warnings,

@@ -25,14 +25,16 @@ does not use grazing light either).
 
 Density estimation (the kernels are in torchrefl.transport.photon_density). A texel's H from its own
 photons is noisy (a few photons per light and texel);
-with `smoothing` > 0 (texels) H is a Gaussian-weighted mean over neighbouring texels of the grid
-(normalised convolution over valid texels): the photon-map gather radius, trading noise for blur
-where the indirect light changes fast. With `smoothing_normal` s > 0 a neighbour also weighs
-exp(-|n - n'|^2 / (2 s^2)) by how far its normal n' is from the texel's n (a joint bilateral filter
-guided by the normals: kornia.filters.joint_bilateral_blur, plain gaussian_blur2d otherwise, in
-smooth_on_grid; the cache applies the same kernel as a sparse operator built once, smoothing_matrix,
-tested equal to kornia's), so the kernel gathers along the surface and not across a fold or a crease,
-where the two sides receive different indirect light (a photon map's gather with a normal test). The
+with `smoothing` > 0 (texels) H is smoothed over neighbouring texels of the grid with Gaussian weights
+(std `smoothing`): the photon-map gather radius, trading noise for blur where the indirect light changes
+fast. With `smoothing_normal` s > 0 a neighbour also weighs exp(-|n - n'|^2 / (2 s^2)) by how far its
+normal n' is from the texel's n (a joint bilateral filter guided by the normals, as kornia's
+joint_bilateral_blur), so the kernel gathers along the surface and not across a fold or a crease, where
+the two sides receive different indirect light (a photon map's gather with a normal test). The smoothing
+is local linear (smoothing_matrix, a sparse operator built once): each texel takes the value of the plane
+fitted with these weights through its neighbours, which inside a region is the normalised Gaussian (tested
+equal to kornia's there) and next to a fold or an edge, where the neighbours lie on one side, keeps the rise
+of the light towards the fold that the normalised kernel flattens. The
 specular entries stay per texel unless `specular_smoothing` > 0 spreads each photon's entry over
 its grid neighbours with the same kind of kernel (spread_on_grid): per-texel entries come from a few
 photons each, and that noise, multiplying Ps in the fit, biases Ps down (errors in variables). Where the

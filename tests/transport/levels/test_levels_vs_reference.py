@@ -325,22 +325,7 @@ def test_radiosity_level_is_the_diffuse_reference(fold, band):
     assert passes(a), a
 
 
-PHOTONS_ONLY_BANDS = [
-    pytest.param(
-        b,
-        marks=pytest.mark.xfail(
-            strict=True,
-            reason="known: with every path from photons the level is 7.1 +- 0.3 % low 3-6 mm from the fold at 1.6 M "
-            "photons per light (docs/results/reference_check.md); the default hybrid level passes",
-        ),
-    )
-    if b == (3.0, 6.0)
-    else b
-    for b in BANDS
-]
-
-
-@pytest.mark.parametrize("band", PHOTONS_ONLY_BANDS, ids=lambda b: f"{b[0]:g}-{b[1]:g}mm")
+@pytest.mark.parametrize("band", BANDS, ids=lambda b: f"{b[0]:g}-{b[1]:g}mm")
 def test_photon_level_is_the_full_reference(fold, band):
     a = agreement(fold, *fold["levels"]["photon"], "full", band)
     assert passes(a), a
