@@ -19,3 +19,27 @@ def test_lit_texels_next_to_a_cast_shadow_on_their_face_are_flagged():
     assert np.array_equal(edge[0], col == 5)
     assert not edge[1].any()
     assert not (edge & shadowed).any()
+
+
+def test_every_direction_counts_and_holes_and_the_seam_are_handled():
+    """One shadowed texel in the middle of the floor flags exactly its four grid neighbours (above, below, left,
+    right; not the diagonals); a texel missing from the set next to it is no neighbour; on a scan of the full turn
+    (wrap) a shadow in the last column flags the first, and without wrap it does not."""
+    s = fold_surface(9, 24)
+    index = s.texel_index.numpy()
+    row, col = index // 24, index % 24
+    centre = (row == 4) & (col == 5)
+    edge = shadow_edge_observations(centre[None], index, s.grid_shape, s.normals.numpy())[0]
+    four = ((row == 3) | (row == 5)) & (col == 5) | (row == 4) & ((col == 4) | (col == 6))
+    assert np.array_equal(edge, four)
+    keep = ~((row == 4) & (col == 6))  # a hole right of the shadowed texel
+    edge = shadow_edge_observations(centre[keep][None], index[keep], s.grid_shape, s.normals.numpy()[keep])[0]
+    assert np.array_equal(edge, four[keep])
+    wall = col >= 12  # the wall alone as a 9 x 12 grid: its last column is next to its first when the scan wraps
+    wall_index = row[wall] * 12 + (col[wall] - 12)
+    seam = (wall_index % 12 == 11) & (wall_index // 12 == 2)
+    n = s.normals.numpy()[wall]
+    wrapped = shadow_edge_observations(seam[None], wall_index, (9, 12), n, wrap=True)[0]
+    plain = shadow_edge_observations(seam[None], wall_index, (9, 12), n)[0]
+    first = (wall_index % 12 == 0) & (wall_index // 12 == 2)
+    assert wrapped[first].all() and not plain[first].any()

@@ -307,7 +307,11 @@ def _excluded_observations(
         "not lit (n.l at or below the threshold)": ~og["lit"],
         "in cast shadow": og["shadowed"],
         SHADOW_EDGE: shadow_edge_observations(
-            og["shadowed"], geom.surface.texel_index.numpy(), geom.surface.grid_shape, geom.surface.normals.numpy()
+            og["shadowed"],
+            geom.surface.texel_index.numpy(),
+            geom.surface.grid_shape,
+            geom.surface.normals.numpy(),
+            wrap=geom.rig.covers_full_turn(),
         ),
         f"saturated (>= {saturation_level:g})": saturated,
         "not finite": ~finite,

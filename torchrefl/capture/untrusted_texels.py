@@ -38,19 +38,23 @@ def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, r
 SAME_FACE_COS = 0.9
 
 
-def shadow_edge_observations(shadowed: np.ndarray, texel_index, grid_shape, normals: np.ndarray) -> np.ndarray:
+def shadow_edge_observations(
+    shadowed: np.ndarray, texel_index, grid_shape, normals: np.ndarray, wrap: bool = False
+) -> np.ndarray:
     """(P, T) bool: lit observations (not in cast shadow) of texels with a grid neighbour (4-neighbourhood) on the
     same face (normals within SAME_FACE_COS) that is in cast shadow. The texel's colour integrates a footprint
     reaching half-way to its neighbours, so the shadow's edge may cross it, while the model shades the texel's
     centre only: such an observation reads anything between lit and dark (on the fold at full size they were
-    0.4 % of the fitted observations and 47 % of the squared image residual at the true parameters)."""
+    0.4 % of the fitted observations and 47 % of the squared image residual at the true parameters). wrap: the
+    columns close around (a scan of the full turn), so the first and last columns are neighbours."""
     shadowed = np.asarray(shadowed, dtype=bool)
     grid = TexelGrid(texel_index, grid_shape)
     n = np.asarray(normals, dtype=np.float64)
-    t = np.arange(len(grid.index))
     edge = np.zeros_like(shadowed)
+    W = grid.grid_shape[1]
     for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0)):
-        other = grid.neighbour(t, dy, dx)
+        cols = grid.cols + dx
+        other = grid.at(grid.rows + dy, cols % W if wrap else cols)
         same = np.flatnonzero((other >= 0) & (np.einsum("ti,ti->t", n, n[np.maximum(other, 0)]) >= SAME_FACE_COS))
         edge[:, same] |= shadowed[:, other[same]]
     return edge & ~shadowed
