@@ -89,10 +89,7 @@ def linear_reconstruction(
     A = np.stack([np.ones_like(w), np.einsum("tmi,ti->tm", d, t1), np.einsum("tmi,ti->tm", d, t2)], -1)  # (T, M, 3)
     AtW = A.transpose(0, 2, 1) * w[:, None, :]  # (T, 3, M)
     M = AtW @ A  # (T, 3, 3)
-    ridge = RIDGE * pitch * pitch * M[:, 0, 0]
-    M[:, 1, 1] += ridge
-    M[:, 2, 2] += ridge
-    e1 = np.linalg.solve(M, np.broadcast_to(np.array([1.0, 0.0, 0.0]), (T, 3))[..., None])[..., 0]  # (T, 3)
+    e1 = plane_intercept_rows(M, RIDGE * pitch * pitch)  # (T, 3)
     coef = np.einsum("ti,tim->tm", e1, AtW)  # (T, M): texel value = sum coef H_q
     keep = valid & (coef != 0)
     rows = np.broadcast_to(np.arange(T)[:, None], cand.shape)[keep]
@@ -102,6 +99,17 @@ def linear_reconstruction(
     return torch.sparse_coo_tensor(
         torch.from_numpy(np.stack([rows, q[keep]])), torch.from_numpy(vals), (T, Q), check_invariants=False
     ).coalesce()
+
+
+def plane_intercept_rows(moments: np.ndarray, slope_ridge: float) -> np.ndarray:
+    """(T, 3) the intercept's row of the weighted least-squares plane a + b u + c v, per texel, from its moments
+    (T, 3, 3) = sum_j w_j x_j x_j^T with x_j = (1, u_j, v_j): a = row . sum_j w_j x_j y_j. slope_ridge x sum_j w_j
+    is added to the slopes' diagonal (modified in place), so neighbours in a line still determine a."""
+    ridge = slope_ridge * moments[:, 0, 0]
+    moments[:, 1, 1] += ridge
+    moments[:, 2, 2] += ridge
+    e1 = np.broadcast_to(np.array([1.0, 0.0, 0.0]), (len(moments), 3))[..., None]
+    return np.linalg.solve(moments, e1)[..., 0]
 
 
 def _pitch2(d: np.ndarray, valid: np.ndarray) -> np.ndarray:

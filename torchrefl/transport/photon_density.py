@@ -21,6 +21,7 @@ import torch
 
 from torchrefl.core.lobe_sampling import column_dot
 from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.transport.patch_reconstruction import plane_intercept_rows
 
 KERNEL_PHOTONS = 10_000  # photons of one light under the automatic irradiance kernel (photon.smoothing: null)
 SPECULAR_KERNEL_PHOTONS = 5_000  # the same for the spread of the specular entries (photon.specular_smoothing: null)
@@ -56,8 +57,8 @@ def smooth_on_grid(
     with normals (T, 3) and normal_sigma > 0 each neighbour's weight also has the factor
     exp(-|n - n'|^2 / (2 normal_sigma^2)) (joint bilateral filter guided by the normals).
 
-    kornia's filters on the grid image: the reference that smoothing_matrix (the operator the levels apply,
-    built once) is tested against."""
+    kornia's filters on the grid image: the reference that smoothing_matrix (the operator the photon level
+    applies, built once) is tested against inside a region, where its local plane is this kernel."""
     if sigma <= 0:
         return values
     from kornia.filters import gaussian_blur2d, joint_bilateral_blur
@@ -138,11 +139,7 @@ def smoothing_matrix(
         design = np.array([1.0, dy, dx])
         moments[keep] += wk[:, None, None] * np.outer(design, design)
         parts.append((keep, np.take(to, keep), wk, design))
-    ridge = SLOPE_RIDGE * moments[:, 0, 0]
-    moments[:, 1, 1] += ridge
-    moments[:, 2, 2] += ridge
-    # the intercept's row of the weighted least-squares solution, per texel
-    e1 = np.linalg.solve(moments, np.broadcast_to(np.array([1.0, 0.0, 0.0]), (T, 3))[..., None])[..., 0]
+    e1 = plane_intercept_rows(moments, SLOPE_RIDGE)  # the radiosity level's reconstruction solves the same plane
     rows = np.concatenate([p[0] for p in parts])
     cols = np.concatenate([p[1] for p in parts])
     vals = np.concatenate([wk * (np.take(e1, keep, axis=0) @ design) for keep, _, wk, design in parts])
