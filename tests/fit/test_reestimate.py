@@ -149,3 +149,38 @@ def test_the_lobe_prior_of_lent_texels_moves_to_the_lent_lobe():
     assert factory.lobe_prior.sigma[~lent].equal(before[~lent])
     assert torch.allclose(factory.lobe_prior.ps[lent], ps[lent].to(before.dtype), rtol=1e-5)
     assert init.sigma.equal(sigma * 2.0)  # the start is not changed
+
+
+def test_a_colour_no_measured_texel_has_takes_the_lobe_its_observations_give_the_material(monkeypatch):
+    """Half the grid is a second material (another colour and lobe) whose highlights are left out of the fit: no
+    measured texel has its colour, so its texels take one lobe fitted to all their other observations (direct tails
+    plus the level's indirect specular light), which noise-free is the truth; their prior follows."""
+    import sys
+    from types import SimpleNamespace
+
+    from torchrefl.fit.material_lobe import colour_clusters
+    from torchrefl.fit.pipeline import ObjectiveFactory
+
+    monkeypatch.setattr(sys.modules[colour_clusters.__module__], "MIN_CLUSTER", 10)
+    cfg, inputs, level, _ = setup(1.0)
+    second = torch.arange(T) < T // 2  # grid rows 0-3
+    pd = torch.where(second[:, None], torch.tensor([0.2, 0.3, 0.6]), torch.tensor([0.5, 0.4, 0.2])).double()
+    ps = torch.where(second[:, None], 0.25, 0.4).double().expand(T, 3).clone()
+    sigma = torch.where(second, 0.3, 0.12).double()
+    with torch.no_grad():
+        inputs.obs.intensity = level.predict(pd, ps, sigma)
+    inputs.fit_mask &= ~(second[None] & (inputs.classes == T_SPEC))
+    start = TexelParams(pd, torch.full((T, 3), 0.05).double(), torch.full((T,), 0.5).double(), 0.01, 0.6)
+    again = reestimate(level, start, cfg)
+    pooled = second & inputs.fit_mask.any(0)
+    assert again.pooled is not None and again.pooled.equal(pooled) and pooled.sum() > 20
+    got_ps, got_sigma = start.ps().detach(), start.sigma().detach()
+    assert ((got_sigma[pooled] - 0.3).abs() / 0.3).max() < 0.01
+    assert ((got_ps[pooled] - 0.25).abs() / 0.25).max() < 0.02
+    init = SimpleNamespace(
+        known=~second, ps=torch.full((T, 3), 0.05).double(), sigma=torch.full((T,), 0.5).double(), shared_lobe=None
+    )
+    factory = ObjectiveFactory(cfg, inputs, init)
+    factory.pool(again.pooled, start)
+    assert factory.pooled.equal(again.pooled)
+    assert torch.allclose(factory.lobe_prior.sigma[pooled], got_sigma[pooled].to(factory.lobe_prior.sigma.dtype))

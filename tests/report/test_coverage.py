@@ -6,6 +6,7 @@ import pytest
 
 from torchrefl.fit.initialise import (
     COVER_FULL,
+    COVER_MATERIAL,
     COVER_NONE,
     COVER_PD_BOUND,
     COVER_PD_ONLY,
@@ -34,11 +35,13 @@ def test_counts_and_shares_add_up_over_the_estimated_texels():
     out = source_counts(cov, est)
     assert out["estimated"] == 8 * 10 - 1
     assert out["interpolated"] == 12 + 1 + 4 and out["shared"] == 0
-    assert out["measured"] + out["interpolated"] + out["shared"] == out["estimated"]
+    assert out["measured"] + out["interpolated"] + out["shared"] + out["material"] == out["estimated"]
     assert out["measured_share"] == pytest.approx(out["measured"] / out["estimated"])
     shared = np.where(est, COVER_SHARED, cov)
     assert source_counts(shared, est)["shared_share"] == 1.0
     assert source_counts(cov, np.zeros_like(est))["measured_share"] is None
+    pooled = np.where(cov == COVER_PD_ONLY, COVER_MATERIAL, cov)
+    assert source_counts(pooled, est)["material"] == 16 and source_counts(pooled, est)["interpolated"] == 1
 
 
 def test_unmeasured_patches_are_the_largest_connected_interpolated_texels():
@@ -61,6 +64,7 @@ def test_texels_with_the_objects_lobe_are_unmeasured_patches_too():
     patches = unmeasured_patches(cov, est)
     assert patches[0] == {"texels": 12 + 1 + 17 + 4, "rows": [2, 8], "columns": [2, 9]}
     assert len(patches) == 1
+    assert unmeasured_patches(np.where(cov == COVER_SHARED, COVER_MATERIAL, cov), est) == patches  # code 7 too
 
 
 def test_per_region_shares_where_the_truth_has_regions():
@@ -90,7 +94,10 @@ def test_the_summary_prints_the_measured_share_and_the_untrusted_texels():
         "specular_source": specular_sources(cov, est),
     }
     table = summary_table(metrics)
-    assert "Ps/sigma measured at 78.5% of 79 estimated texels (interpolated 21.5%, shared lobe 0.0%)" in table
+    assert (
+        "Ps/sigma measured at 78.5% of 79 estimated texels (interpolated 21.5%, shared lobe 0.0%, material's lobe "
+        "from interreflection 0.0%)" in table
+    )
     assert "untrusted geometry: 40 texels not fitted" in table
     assert "largest area without a highlight of its own: 13 texels, rows 2-5, columns 2-6" in table
     metrics["specular_source"] = specular_sources(np.where(est, COVER_FULL, cov), est)

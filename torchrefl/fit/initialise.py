@@ -33,8 +33,10 @@ from torchrefl.transport.local import LocalTerms, predict
 #: Pd with Ps/sigma measured (the texel's own T_spec observations); Pd from its upper bound only (Ps/sigma
 #: interpolated); untrusted geometry (edges, creases, mixed footprints, unfit range: not fitted); Pd with the
 #: object's lobe (the shared one, or the measured texels' median lobe far from every measured texel)
-#: and misfit (the fitted model cannot explain its observations: torchrefl.fit.misfit; no estimate)
+#: and misfit (the fitted model cannot explain its observations: torchrefl.fit.misfit; no estimate); Pd with its
+#: material's lobe fitted to the material's interreflected light (torchrefl.fit.material_lobe)
 COVER_NONE, COVER_PD_ONLY, COVER_FULL, COVER_PD_BOUND, COVER_UNTRUSTED, COVER_SHARED, COVER_MISFIT = range(7)
+COVER_MATERIAL = 7
 
 
 @dataclass

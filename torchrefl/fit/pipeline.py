@@ -18,7 +18,7 @@ from torchrefl.core.params import TexelParams
 from torchrefl.core.progress import Stages, bar
 from torchrefl.errors import ConfigError
 from torchrefl.fit.emitter_fill import nearest_fitted
-from torchrefl.fit.initialise import COVER_MISFIT, initialise_local, mark_untrusted
+from torchrefl.fit.initialise import COVER_MATERIAL, COVER_MISFIT, initialise_local, mark_untrusted
 from torchrefl.fit.misfit import MISFIT_DEVIATIONS, misfit_texels, near_edge
 from torchrefl.fit.observe import observe
 from torchrefl.fit.reestimate import reestimate
@@ -60,8 +60,9 @@ def emitter_source(cfg: Config, inputs: LevelInputs, init, log) -> torch.Tensor 
 
 
 class ObjectiveFactory:
-    """(predict, mask) -> Objective with the fit's loss, priors and smoothness; `lend` moves the lobe prior of texels
-    that took measured texels' lobes during the fit (torchrefl.fit.reestimate) to those lobes."""
+    """(predict, mask) -> Objective with the fit's loss, priors and smoothness; `lend` and `pool` move the lobe prior
+    of texels that took measured texels' lobes or their material's lobe during the fit (torchrefl.fit.reestimate) to
+    those lobes."""
 
     def __init__(self, cfg: Config, inputs: LevelInputs, init):
         fc, device, T = cfg.fit, inputs.device, inputs.surface.num_texels
@@ -84,6 +85,7 @@ class ObjectiveFactory:
         self.neighbours = grid_neighbours(s.texel_index, s.grid_shape).to(device) if fc.smoothness > 0 else None
         self.intensity = inputs.obs.intensity.to(device)
         self.fc = fc
+        self.pooled: torch.Tensor | None = None  # texels whose lobe is their material's (pool)
 
     def lend(self, lent: torch.Tensor, params: TexelParams) -> None:
         """The lobe prior of the texels in lent (T,) bool pulls towards their current lobes."""
@@ -92,6 +94,12 @@ class ObjectiveFactory:
         with torch.no_grad():
             prior.ps[m] = params.ps().detach()[m].to(prior.ps)
             prior.sigma[m] = params.sigma().detach()[m].to(prior.sigma)
+
+    def pool(self, pooled: torch.Tensor, params: TexelParams) -> None:
+        """As lend, for the texels pooled (T,) bool that took their material's lobe (torchrefl.fit.material_lobe);
+        remembered in `pooled` for the coverage map."""
+        self.lend(pooled, params)
+        self.pooled = pooled.cpu()
 
     def __call__(self, predict, mask) -> Objective:
         fc = self.fc
@@ -132,6 +140,8 @@ def refit(level: TransportLevel, params: TexelParams, make_objective: ObjectiveF
                 f"{level.name} refit {k + 1}: {int(again.lent.sum())} texels without highlights take the lobes now "
                 "measured on texels of their colour"
             )
+        if again.pooled is not None:
+            make_objective.pool(again.pooled, params)
         for step in level.steps(k):
             train = None if step.train is None else [getattr(params, name) for name in step.train]
             objective = make_objective(level.predict, step.mask)
@@ -252,12 +262,17 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
         if optimizer != cfg.fit.optimizer:
             why = "one lobe for the whole object (fit.specular: shared)" if params.shared_specular else "fit.smoothness"
             log(f"fit.optimizer {cfg.fit.optimizer}: {why} couples the texels, refined with {optimizer} instead")
-        history = refit(level, params, ObjectiveFactory(cfg, inputs, init), cfg)
+        objectives = ObjectiveFactory(cfg, inputs, init)
+        history = refit(level, params, objectives, cfg)
         with torch.no_grad():
             pd, ps, sigma = (x.detach() for x in params.values())
             predicted = level.render(pd, ps, sigma).cpu()
     log(f"refinement ({optimizer}): loss {history[0]:.4g} -> {history[-1]:.4g} in {len(history)} evaluations")
     result = fit_result(pd, ps, sigma, predicted, history, seen, init, level, optimizer)
+    if objectives.pooled is not None:
+        result.coverage = torch.where(
+            objectives.pooled & result.estimated, torch.full_like(result.coverage, COVER_MATERIAL), result.coverage
+        )
     result.coverage = mark_untrusted(result.coverage, capture.untrusted)
     drop_misfits(result, capture, log)
     if capture.stats.get("preprocessing"):  # the geometry the level's choice rests on (geometry.median_size)

@@ -96,6 +96,18 @@ class _Profile:
         err = torch.where(zero, held, free).sum(-1)  # (T,)
         return pd, ps.expand(T, ps.shape[-1]).clone(), err
 
+    def parts(self, sigma: torch.Tensor):
+        """(uu, uv, vv) each (T, 3) at sigma (0-d): the sums of the module docstring, Pd eliminated per texel and
+        channel, from which any group of texels' Ps and error follow (torchrefl.fit.material_lobe)."""
+        E = specular_lobe(self.terms.brdf, self.terms.theta_h, sigma.to(self.dt))[..., None] * self.terms.specular
+        if self.indirect is not None:
+            E = E + self.indirect.specular(sigma).to(self.dt)
+        E = E * self.w
+        S_AE, S_Ei, S_EE = (self.A * E).sum(0), (E * self.i).sum(0), (E * E).sum(0)
+        uv = S_Ei - S_AE * self.S_Ai / self.S_AA
+        vv = (S_EE - S_AE * S_AE / self.S_AA).clamp_min(0)
+        return self.uu, uv, vv
+
     def _ps(self, num: torch.Tensor, den: torch.Tensor) -> torch.Tensor:
         """(T or 1, C) Ps = num / den summed per group (and over channels for one Ps), within [0, ps_max]."""
         if self.shared:

@@ -10,7 +10,9 @@ on the local model plus the level's indirect light held at the current parameter
 fits their observations better; a measured lobe far from its measured neighbours' takes theirs where its error grows by
 no more than their own fits leave (torchrefl.fit.lobe_consensus). Then the texels without specular evidence take the
 lobes of the measured texels of their colour again (`lend_lobes`, torchrefl.fit.material_fill): at the start those
-were measured without the interreflection (on the fold, region 0's lenders had Ps 0.01-0.04 against 0.39).
+were measured without the interreflection (on the fold, region 0's lenders had Ps 0.01-0.04 against 0.39). The
+texels of a colour no measured texel has take one lobe per material fitted to the light they reflect off the
+object (`material_lobes`, torchrefl.fit.material_lobe) instead of the object's median lobe.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from torchrefl.core.observation_classes import T_SPEC
 from torchrefl.core.params import TexelParams
 from torchrefl.fit.lobe_consensus import settle_outliers
 from torchrefl.fit.material_fill import colour_matched_lobes
+from torchrefl.fit.material_lobe import cluster_lobes, colour_clusters
 from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.levels.base import IndirectTerms, TransportLevel
 
@@ -32,10 +35,12 @@ from torchrefl.transport.levels.base import IndirectTerms, TransportLevel
 @dataclass
 class Reestimated:
     """restarted: texels restarted from the search; lent: (T,) bool texels without specular evidence that took the
-    lobe of measured texels of their colour (None: none)."""
+    lobe of measured texels of their colour; pooled: (T,) bool texels that took their material's lobe fitted to its
+    interreflected light (torchrefl.fit.material_lobe) (None: none)."""
 
     restarted: int = 0
     lent: Optional[torch.Tensor] = None
+    pooled: Optional[torch.Tensor] = None
 
 
 def reestimate(level: TransportLevel, params: TexelParams, cfg: Config) -> Reestimated:
@@ -73,7 +78,40 @@ def reestimate(level: TransportLevel, params: TexelParams, cfg: Config) -> Reest
         if bool(take.any()):
             dev = params.raw_pd.device
             params.assign(pd_new.to(dev), ps_new.to(dev), sigma_new.to(dev))
-    return Reestimated(int(take.sum()), lend_lobes(level, params))
+    lent = lend_lobes(level, params)
+    pooled = material_lobes(level, params, cpu, evidence if lent is None else evidence | lent, cfg)
+    return Reestimated(int(take.sum()), lent, pooled)
+
+
+def material_lobes(
+    level: TransportLevel, params: TexelParams, indirect: IndirectTerms, done: torch.Tensor, cfg: Config
+) -> torch.Tensor | None:
+    """Set the lobe of the fitted texels not in done (T,) bool (measured or lent) to their colour cluster's lobe
+    fitted with the level's indirect light (torchrefl.fit.material_lobe); returns the (T,) bool texels so set, or
+    None where none was."""
+    inp, rc = level.inputs, cfg.reflectance
+    with torch.no_grad():
+        pd, ps, sigma = (x.detach().cpu() for x in params.values())
+        members = inp.fit_mask.any(0) & ~done.cpu()
+        cluster = colour_clusters(inp.surface.texel_index, inp.surface.grid_shape, pd, members)
+        if cluster.max() < 0:
+            return None
+        profile = profiled_fit(inp.terms, inp.obs.intensity, inp.fit_mask, rc.ps_channels, rc.ps_max, indirect)
+        grid = sigma_grid(rc.sigma_min, rc.sigma_max, 2 * cfg.fit.sigma_search)
+        ps_c, sg_c = cluster_lobes(profile.parts, cluster, grid, rc.ps_channels, rc.ps_max)
+        pooled = torch.from_numpy(cluster >= 0)
+        of = torch.from_numpy(cluster[cluster >= 0])
+        ps, sigma = ps.clone(), sigma.clone()
+        ps[pooled] = ps_c[of].to(ps.dtype)
+        sigma[pooled] = sg_c[of].to(sigma.dtype)
+        dev = params.raw_pd.device
+        params.assign(pd.to(dev), ps.to(dev), sigma.to(dev))
+    sizes = torch.bincount(of, minlength=len(sg_c))
+    lobes = ", ".join(
+        f"{int(n)} texels Ps {float(p.mean()):.3f} sigma {float(g):.3f}" for n, p, g in zip(sizes, ps_c, sg_c)
+    )
+    inp.log(f"{len(sg_c)} materials without highlights, lobes fitted to their interreflected light: {lobes}")
+    return pooled
 
 
 def lend_lobes(level: TransportLevel, params: TexelParams) -> torch.Tensor | None:

@@ -3,10 +3,11 @@
 A texel's Ps and sigma are measured (its own T_spec observations gave them: coverage code 2), taken from measured
 texels of its colour or its measured neighbours (codes 1 and 3: no usable highlight; "interpolated") or the object's
 lobe (code 5: fit.specular shared, or the measured texels' median lobe where none is measured within two
-interpolation windows). The shares are over the estimated texels, for the object and per material region where the
-capture's truth has a region map (synthetic captures); for every capture the largest connected patches of texels
-whose Ps and sigma are not measured (interpolated or the object's lobe) are listed with their size and bounding box,
-which says where a real capture lacks highlights.
+interpolation windows) or their material's lobe fitted to its interreflected light (code 7, "material": no measured
+texel of their colour; torchrefl.fit.material_lobe). The shares are over the estimated texels, for the object and
+per material region where the capture's truth has a region map (synthetic captures); for every capture the largest
+connected patches of texels whose Ps and sigma are not measured (interpolated, the object's or the material's lobe)
+are listed with their size and bounding box, which says where a real capture lacks highlights.
 """
 
 from __future__ import annotations
@@ -14,11 +15,16 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import find_objects, label
 
-from torchrefl.fit.initialise import COVER_FULL, COVER_PD_BOUND, COVER_PD_ONLY, COVER_SHARED
+from torchrefl.fit.initialise import COVER_FULL, COVER_MATERIAL, COVER_PD_BOUND, COVER_PD_ONLY, COVER_SHARED
 
 #: The largest patches of interpolated texels listed.
 PATCHES = 10
-SOURCES = {"measured": (COVER_FULL,), "interpolated": (COVER_PD_ONLY, COVER_PD_BOUND), "shared": (COVER_SHARED,)}
+SOURCES = {
+    "measured": (COVER_FULL,),
+    "interpolated": (COVER_PD_ONLY, COVER_PD_BOUND),
+    "shared": (COVER_SHARED,),
+    "material": (COVER_MATERIAL,),
+}
 
 
 def source_counts(coverage: np.ndarray, estimated: np.ndarray) -> dict:
@@ -38,7 +44,9 @@ def unmeasured_patches(coverage: np.ndarray, estimated: np.ndarray, largest: int
     """The `largest` 8-connected patches of estimated texels whose Ps and sigma are not measured (interpolated or the
     object's lobe) on the (H, W) grid, largest first: {texels, rows: [first, last], columns: [first, last]}
     (inclusive, texel coordinates)."""
-    unmeasured = np.asarray(estimated, dtype=bool) & np.isin(coverage, SOURCES["interpolated"] + SOURCES["shared"])
+    unmeasured = np.asarray(estimated, dtype=bool) & np.isin(
+        coverage, SOURCES["interpolated"] + SOURCES["shared"] + SOURCES["material"]
+    )
     labels, n = label(unmeasured, structure=np.ones((3, 3), dtype=bool))
     if not n:
         return []

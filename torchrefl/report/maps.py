@@ -4,9 +4,10 @@ All maps are on the texel grid (H, W); texels without an estimate are black.
 - pd.png: Pd as RGB (1.0 = full white, clipped above).
 - ps.png: Ps as RGB scaled so the 99th percentile is white (scale in the metrics' `maps` entry).
 - sigma.png: sigma in grey, 0 = black, sigma_max = white.
-- coverage.png: how each texel was determined (the coverage codes 0-6): black none, blue Pd with Ps, sigma
+- coverage.png: how each texel was determined (the coverage codes 0-7): black none, blue Pd with Ps, sigma
   interpolated, green Pd and Ps, sigma measured, red Pd from the upper bound only (Ps, sigma interpolated),
-  magenta untrusted geometry (not fitted), yellow Pd with the object's lobe, orange misfit (no estimate).
+  magenta untrusted geometry (not fitted), yellow Pd with the object's lobe, orange misfit (no estimate), cyan Pd
+  with its material's lobe fitted to its interreflected light.
 - light_NNN_{observed,rendered,diff}.png: observed and re-rendered images of a few lights
   (gamma 1/2.2 for viewing) and the signed difference (grey 128 = 0, +-16 DN full swing).
 """
@@ -27,6 +28,7 @@ COVERAGE_COLOURS = {
     4: (200, 40, 200),
     5: (230, 200, 40),
     6: (255, 140, 0),
+    7: (40, 210, 210),
 }
 COVERAGE_NAMES = (
     "none",

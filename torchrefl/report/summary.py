@@ -12,10 +12,11 @@ def _coverage_lines(coverage: dict, source: dict) -> list[str]:
     without a highlight of its own) and the texels left unfitted for their geometry."""
     lines = []
     if isinstance(source.get("estimated"), int):
-        share = {k: _share(source.get(f"{k}_share")) for k in ("measured", "interpolated", "shared")}
+        share = {k: _share(source.get(f"{k}_share")) for k in ("measured", "interpolated", "shared", "material")}
         lines.append(
             f"  Ps/sigma measured at {share['measured']} of {source['estimated']} estimated texels "
-            f"(interpolated {share['interpolated']}, shared lobe {share['shared']})"
+            f"(interpolated {share['interpolated']}, shared lobe {share['shared']}, material's lobe from "
+            f"interreflection {share['material']})"
         )
     patches = source.get("unmeasured_patches") or []
     if patches and isinstance(patches[0].get("texels"), int):

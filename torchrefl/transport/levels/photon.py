@@ -4,9 +4,10 @@ Each refresh re-traces the photons with the current parameters into a cache of i
 (light, texel) (transport.photon_refresh); between refreshes the fit refines the texel tensors against
 local + cached indirect light (photon.schedule joint: all parameters on every fitted observation; seed:
 the dissertation's alternation, (a) Pd on T_diff, then (b) Ps and sigma on T_spec and T_none). After each
-refit Pd keeps photon.damping of the Pd the cache was traced with. Every refresh scores the parameters by
-the mean absolute image difference (8-bit) over the fitted observations, with the cache traced at exactly
-those parameters, and the best are kept: the start is scored at refresh 0, refit k at refresh k.
+refit Pd keeps photon.damping of the Pd the cache was traced with. From refresh AVERAGE_FROM on the cache
+averages the new trace with the previous one (transport.photon_cache.average_caches): half the photon noise in
+what the refits fit. Every refresh scores the parameters by the mean absolute image difference (8-bit) over the
+fitted observations with its cache, and the best are kept: the start is scored at refresh 0, refit k at refresh k.
 
 With photon.diffuse_paths: radiosity the level composes a RadiosityLevel: the all-diffuse paths' irradiance
 comes from its solution at each refresh, the photons carry only the paths with a specular scattering.
@@ -23,7 +24,7 @@ from torchrefl.core.params import inverse_softplus_b
 from torchrefl.core.rays import RayTracer
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, RefitStep, TransportLevel
 from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
-from torchrefl.transport.photon_cache import indirect_radiance, light_sources, specular_per_unit_ps
+from torchrefl.transport.photon_cache import average_caches, indirect_radiance, light_sources, specular_per_unit_ps
 from torchrefl.transport.photon_density import (
     KERNEL_PHOTONS,
     MAX_AUTO_SMOOTHING,
@@ -40,6 +41,9 @@ from torchrefl.transport.specular_gather import SpecularGather
 BACK_HIT_WARNING = 0.03
 #: independent photon traces whose predictions the final images average (the kept cache and fresh ones)
 FINAL_TRACES = 4
+#: from this refresh on the cache averages the new trace with the previous one (the first refits move the
+#: parameters far, so refresh 1's trace would mix in the start's light)
+AVERAGE_FROM = 2
 
 
 def image_score(pred: torch.Tensor, intensity: torch.Tensor, mask: torch.Tensor) -> float:
@@ -64,6 +68,7 @@ class PhotonLevel(TransportLevel):
         self.emitter_source = None
         self.scores: list[float] = []
         self.cache = None
+        self._last_trace = None  # the latest refresh's own trace (the cache may average two)
         self.refresher: PhotonRefresh | None = None
         self.smoothing = self.specular_smoothing = 0.0  # the density kernels' std in texels, set by prepare
         self._best = (math.inf, -1, None, None)
@@ -229,7 +234,13 @@ class PhotonLevel(TransportLevel):
         with torch.no_grad():
             values = params.values()
             self._traced_pd = values[0]
-            self.cache = self.refresher.cache(*values, refresh=k, progress=inp.cfg.output.progress)
+            trace = self.refresher.cache(*values, refresh=k, progress=inp.cfg.output.progress)
+            if k >= AVERAGE_FROM:
+                sigma = values[2].detach().cpu().double().numpy()
+                self.cache = average_caches(self._last_trace, trace, sigma)
+            else:
+                self.cache = trace
+            self._last_trace = trace
             intensity = inp.obs.intensity.to(inp.device)
             score = image_score(self.predict(*values), intensity, inp.fit_mask.to(inp.device))
         self.scores.append(score)
