@@ -505,7 +505,7 @@ def test_an_average_of_two_traces_predicts_the_mean_of_their_predictions(traced)
     )
     both = average_caches(a, b, sigma.numpy())
     assert both.stats["averaged_traces"] == 2
-    assert both.entry_obs.numel() < a.entry_obs.numel() + b.entry_obs.numel()
+    assert both.stats["averaged_entries"] == both.entry_obs.numel() < a.entry_obs.numel() + b.entry_obs.numel()
     g = torch.Generator().manual_seed(3)
     pd2 = 0.1 + 0.8 * torch.rand(pd.shape, generator=g, dtype=torch.float64)  # away from the traced Pd
     zero = torch.zeros_like(ps)

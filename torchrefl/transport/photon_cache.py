@@ -195,7 +195,8 @@ def average_caches(
 ) -> PhotonCache:
     """The cache of two independent traces' photons at half weight each: the mean of their irradiance and of their
     parts linear in Pd, and both traces' specular entries merged again into the theta_h bins of roughness sigma (T,)
-    (specular_bins.merge_entries), so the entries do not double. Both caches must share the smoother."""
+    (specular_bins.merge_entries), so the entries do not double. Both caches must share the smoother. The stats are
+    b's (the newer trace's) with `averaged_traces` and `averaged_entries` (the merged entries) added."""
     if (a.linear is None) != (b.linear is None):
         raise ValueError("average_caches: one cache is linear in the emitters' Pd and the other is not")
     T = a.irradiance.shape[1]
@@ -215,7 +216,7 @@ def average_caches(
         entries = [torch.from_numpy(obs).to(dev), torch.from_numpy(theta).to(dev, dt)]
         weight = torch.from_numpy(w).to(dev, dt)
     stats = dict(b.stats, averaged_traces=a.stats.get("averaged_traces", 1) + b.stats.get("averaged_traces", 1))
-    stats["specular_entries"] = int(entries[0].numel())
+    stats["averaged_entries"] = int(entries[0].numel())
     linear = None if a.linear is None else ((a.linear + b.linear) * 0.5).coalesce()
     return PhotonCache(a.brdf, 0.5 * (a.irradiance + b.irradiance), *entries, weight, stats, linear, b.smoother)
 

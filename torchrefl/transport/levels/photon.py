@@ -253,6 +253,11 @@ class PhotonLevel(TransportLevel):
                 if "gather_entries" in stats
                 else ""
             )
+            + (
+                f", averaged with the previous trace into {stats['averaged_entries']} entries"
+                if "averaged_entries" in stats
+                else ""
+            )
             + f"; image difference {score:.4f} DN"
         )
         back = stats.get("back_side_hits", 0) / max(stats.get("rays", 0), 1)
