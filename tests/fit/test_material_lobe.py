@@ -85,8 +85,9 @@ def test_the_cluster_lobe_is_the_dense_least_squares_lobe():
     normals, obs, terms, intensity = faint_lobe_scene(noise=0.002)
     profile = profiled_fit(terms, intensity, obs.valid, ps_channels=3)
     cluster = np.zeros(T, dtype=np.int64)
-    ps, sigma = cluster_lobes(profile.parts, cluster, sigma_grid(0.05, 0.6, 64), ps_channels=3, ps_max=2.0)
-    ref_sigma, ref_ps = dense_pooled_lobe(normals, obs, intensity, np.exp(np.linspace(np.log(0.2), np.log(0.45), 600)))
+    ps, sigma, determined = cluster_lobes(profile.parts, cluster, sigma_grid(0.05, 0.6, 64), 3, ps_max=2.0)
+    assert determined.all()
+    ref_sigma, ref_ps = dense_pooled_lobe(normals, obs, intensity, np.exp(np.linspace(np.log(0.25), np.log(0.36), 150)))
     assert abs(float(sigma[0]) / ref_sigma - 1) < 0.01
     assert np.abs(ps[0].numpy() / ref_ps - 1).max() < 0.02
 
@@ -100,7 +101,31 @@ def test_pooling_recovers_a_lobe_each_texel_alone_cannot(ps_channels):
     assert (ps_t / 0.3 - 1).abs().median() > 0.15
     profile = profiled_fit(terms, intensity, obs.valid, ps_channels=ps_channels, ps_max=2.0)
     two = np.where(np.arange(T) < T // 2, 0, 1)  # two clusters of the same material: each recovers it
-    ps, sigma = cluster_lobes(profile.parts, two, grid, ps_channels, ps_max=2.0)
+    ps, sigma, _ = cluster_lobes(profile.parts, two, grid, ps_channels, ps_max=2.0)
     assert ps.shape == (2, ps_channels)
     assert (sigma / 0.3 - 1).abs().max() < 0.04
     assert (ps / 0.3 - 1).abs().max() < 0.1
+
+
+@pytest.mark.parametrize("offset", [-0.3, 0.3])
+def test_the_lobe_between_grid_values_is_the_parabolas_vertex_on_either_side_of_a_grid_value(offset):
+    """Sums whose error is exactly quadratic in log sigma with its minimum `offset` grid steps from a grid value,
+    and whose least-squares Ps is linear in log sigma: the vertex and Ps are found exactly, on either side; a
+    cluster whose observations carry no specular light (vv = 0) is reported as not determined."""
+    grid = sigma_grid(0.05, 0.6, 16)
+    step = float(grid.log()[1] - grid.log()[0])
+    x0 = float(grid.log()[7]) + offset * step  # the true log sigma
+
+    def parts(s):
+        x = float(torch.log(s))
+        ps = 0.3 + 0.2 * (x - x0)  # least-squares Ps at this sigma: uv / vv
+        vv = torch.tensor([[2.0, 2.0, 2.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
+        uv = ps * vv
+        err = 1.0 + 5.0 * (x - x0) ** 2  # what is left at that Ps: uu - uv^2 / vv per cluster, over 3 channels
+        uu = (err / 3 + uv * uv / vv.clamp_min(1e-30)) * (vv > 0) + torch.tensor([[0.0] * 3, [1.0] * 3]) * (vv == 0)
+        return uu, uv, vv
+
+    ps, sigma, determined = cluster_lobes(parts, np.array([0, 1]), grid, ps_channels=3, ps_max=2.0)
+    assert determined.tolist() == [True, False]
+    assert float(sigma[0].log()) == pytest.approx(x0, abs=1e-9)
+    assert torch.allclose(ps[0], torch.full((3,), 0.3, dtype=torch.float64), atol=1e-9)

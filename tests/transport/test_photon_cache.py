@@ -517,3 +517,17 @@ def test_an_average_of_two_traces_predicts_the_mean_of_their_predictions(traced)
     assert float(expected.abs().max()) > 0
     assert float(error.max()) < 0.02 * float(expected.abs().max())
     assert float(error.sum()) < 0.005 * float(expected.abs().sum())
+
+
+def test_the_part_without_photon_noise_is_the_newer_caches_not_averaged(traced):
+    """With photon.diffuse_paths: radiosity the cache's irradiance holds the radiosity level's solution at the Pd of
+    its trace (exact_irradiance): the average keeps the newer one instead of lagging half a refit behind."""
+    s, obs, pt, src, hits, pd, ps, sigma = traced
+    a = cache_of(traced, 0.004)
+    b = cache_of(traced, 0.004)
+    photons = a.irradiance.clone()
+    a.exact_irradiance, b.exact_irradiance = torch.full_like(photons, 1.0), torch.full_like(photons, 3.0)
+    a.irradiance, b.irradiance = photons + 1.0, photons + 3.0
+    both = average_caches(a, b, sigma.numpy())
+    torch.testing.assert_close(both.irradiance, photons + 3.0)
+    assert both.exact_irradiance.equal(b.exact_irradiance)

@@ -51,15 +51,18 @@ def cluster_lobes(
     sigmas: torch.Tensor,
     ps_channels: int,
     ps_max: float,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """(ps (K, C), sigma (K,)): the lobe of each of the K clusters (cluster (T,) from colour_clusters).
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(ps (K, C), sigma (K,), determined (K,) bool): the lobe of each of the K clusters (cluster (T,) from
+    colour_clusters); a cluster whose observations carry no specular light at any sigma is not determined.
 
     parts(sigma 0-d) -> (uu, uv, vv) each (T, 3): per texel and channel the profiled sums at that sigma with Pd
-    eliminated (profile_search's _Profile.parts); sigmas (S,) a geometric grid."""
+    eliminated (profile_search's _Profile.parts); sigmas (S,) a geometric grid of at least 3 values."""
+    if len(sigmas) < 3:
+        raise ValueError(f"cluster_lobes: the sigma grid needs at least 3 values, got {len(sigmas)}")
     K = int(cluster.max()) + 1
     of = torch.from_numpy(cluster)
     inside = of >= 0
-    errors, values = [], []
+    errors, values, signal = [], [], 0.0
     for s in sigmas:
         uu, uv, vv = (torch.zeros(K, 3, dtype=x.dtype).index_add_(0, of[inside], x[inside]) for x in parts(s))
         num, den = (uv.sum(-1, keepdim=True), vv.sum(-1, keepdim=True)) if ps_channels == 1 else (uv, vv)
@@ -67,6 +70,7 @@ def cluster_lobes(
         full = ps.expand_as(uv)
         errors.append((uu - 2 * full * uv + full * full * vv).sum(-1))
         values.append(ps)
+        signal = signal + vv.sum(-1)
     err, ps_grid = torch.stack(errors, 1), torch.stack(values, 1)  # (K, S), (K, S, C)
     best = err.argmin(1)
     mid = best.clamp(1, len(sigmas) - 2)
@@ -79,4 +83,4 @@ def cluster_lobes(
     sigma = (log_grid[mid] + step * (log_grid[1] - log_grid[0])).exp()
     lo, hi = torch.where(step < 0, mid - 1, mid), torch.where(step < 0, mid, mid + 1)
     frac = torch.where(step < 0, step + 1, step)[:, None]
-    return ps_grid[rows, lo] * (1 - frac) + ps_grid[rows, hi] * frac, sigma
+    return ps_grid[rows, lo] * (1 - frac) + ps_grid[rows, hi] * frac, sigma, signal > 0

@@ -95,11 +95,12 @@ class ObjectiveFactory:
             prior.ps[m] = params.ps().detach()[m].to(prior.ps)
             prior.sigma[m] = params.sigma().detach()[m].to(prior.sigma)
 
-    def pool(self, pooled: torch.Tensor, params: TexelParams) -> None:
-        """As lend, for the texels pooled (T,) bool that took their material's lobe (torchrefl.fit.material_lobe);
-        remembered in `pooled` for the coverage map."""
-        self.lend(pooled, params)
-        self.pooled = pooled.cpu()
+    def pool(self, pooled: torch.Tensor | None, params: TexelParams) -> None:
+        """As lend, for the texels pooled (T,) bool that took their material's lobe at this re-estimation
+        (torchrefl.fit.material_lobe; None: none); remembered in `pooled` for the coverage map."""
+        self.pooled = None if pooled is None else pooled.cpu()
+        if pooled is not None:
+            self.lend(pooled, params)
 
     def __call__(self, predict, mask) -> Objective:
         fc = self.fc
@@ -140,7 +141,7 @@ def refit(level: TransportLevel, params: TexelParams, make_objective: ObjectiveF
                 f"{level.name} refit {k + 1}: {int(again.lent.sum())} texels without highlights take the lobes now "
                 "measured on texels of their colour"
             )
-        if again.pooled is not None:
+        if isinstance(make_objective, ObjectiveFactory):  # a plain (predict, mask) -> Objective has no priors
             make_objective.pool(again.pooled, params)
         for step in level.steps(k):
             train = None if step.train is None else [getattr(params, name) for name in step.train]

@@ -97,10 +97,13 @@ def material_lobes(
         if cluster.max() < 0:
             return None
         profile = profiled_fit(inp.terms, inp.obs.intensity, inp.fit_mask, rc.ps_channels, rc.ps_max, indirect)
-        grid = sigma_grid(rc.sigma_min, rc.sigma_max, 2 * cfg.fit.sigma_search)
-        ps_c, sg_c = cluster_lobes(profile.parts, cluster, grid, rc.ps_channels, rc.ps_max)
-        pooled = torch.from_numpy(cluster >= 0)
-        of = torch.from_numpy(cluster[cluster >= 0])
+        grid = sigma_grid(rc.sigma_min, rc.sigma_max, max(3, 2 * cfg.fit.sigma_search))
+        ps_c, sg_c, determined = cluster_lobes(profile.parts, cluster, grid, rc.ps_channels, rc.ps_max)
+        cluster = torch.from_numpy(cluster)
+        pooled = (cluster >= 0) & determined[cluster.clamp_min(0)]
+        if not bool(pooled.any()):
+            return None
+        of = cluster[pooled]
         ps, sigma = ps.clone(), sigma.clone()
         ps[pooled] = ps_c[of].to(ps.dtype)
         sigma[pooled] = sg_c[of].to(sigma.dtype)
@@ -108,9 +111,13 @@ def material_lobes(
         params.assign(pd.to(dev), ps.to(dev), sigma.to(dev))
     sizes = torch.bincount(of, minlength=len(sg_c))
     lobes = ", ".join(
-        f"{int(n)} texels Ps {float(p.mean()):.3f} sigma {float(g):.3f}" for n, p, g in zip(sizes, ps_c, sg_c)
+        f"{int(n)} texels Ps {float(p.mean()):.3f} sigma {float(g):.3f}"
+        for n, p, g, d in zip(sizes, ps_c, sg_c, determined)
+        if d
     )
-    inp.log(f"{len(sg_c)} materials without highlights, lobes fitted to their interreflected light: {lobes}")
+    inp.log(
+        f"{int(determined.sum())} materials without highlights, lobes fitted to their interreflected light: {lobes}"
+    )
     return pooled
 
 

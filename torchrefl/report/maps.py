@@ -38,6 +38,7 @@ COVERAGE_NAMES = (
     "untrusted geometry",
     "object's lobe",
     "misfit",
+    "material's lobe",
 )
 
 

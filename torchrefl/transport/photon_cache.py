@@ -154,7 +154,9 @@ def light_sources(surface, obs, max_maps: int, order: int = 3) -> LightSources:
 class PhotonCache:
     """irradiance (P, T, 3) H0 (smoothed); entry_obs (E,) flat p*T + t; entry_theta_h (E,); entry_weight (E, 3);
     linear: sparse (3 P T, 3 T) L, rows c P T + p T + t, columns c T + e, or None; smoother: the
-    density-estimation kernel (smoothing_matrix) applied to L Pd, or None (H0 is stored smoothed)."""
+    density-estimation kernel (smoothing_matrix) applied to L Pd, or None (H0 is stored smoothed); exact_irradiance:
+    the part of H0 without photon noise (the radiosity level's all-diffuse paths, photon.diffuse_paths: radiosity),
+    or None."""
 
     brdf: str
     irradiance: torch.Tensor
@@ -164,6 +166,7 @@ class PhotonCache:
     stats: dict = field(default_factory=dict)
     linear: torch.Tensor | None = None
     smoother: torch.Tensor | None = None
+    exact_irradiance: torch.Tensor | None = None
 
     def to(self, dtype: torch.dtype, device=None) -> "PhotonCache":
         mv = lambda x: x.to(device=device, dtype=dtype if x.is_floating_point() else x.dtype)
@@ -176,6 +179,7 @@ class PhotonCache:
             dict(self.stats),
             None if self.linear is None else mv(self.linear),
             None if self.smoother is None else mv(self.smoother),
+            None if self.exact_irradiance is None else mv(self.exact_irradiance),
         )
 
     def irradiance_at(self, pd: torch.Tensor) -> torch.Tensor:
@@ -193,9 +197,10 @@ class PhotonCache:
 def average_caches(
     a: PhotonCache, b: PhotonCache, sigma, theta_bin: float = THETA_BIN, bin_per_sigma: float = BIN_PER_SIGMA
 ) -> PhotonCache:
-    """The cache of two independent traces' photons at half weight each: the mean of their irradiance and of their
-    parts linear in Pd, and both traces' specular entries merged again into the theta_h bins of roughness sigma (T,)
-    (specular_bins.merge_entries), so the entries do not double. Both caches must share the smoother. The stats are
+    """The cache of two independent traces' photons at half weight each: the mean of their photon irradiance and of
+    their parts linear in Pd (the part without photon noise, exact_irradiance, is b's: the newer), and both traces'
+    specular entries merged again into the theta_h bins of roughness sigma (T,) (specular_bins.merge_entries), so
+    the entries do not double. Both caches must share the smoother. The stats are
     b's (the newer trace's) with `averaged_traces` and `averaged_entries` (the merged entries) added."""
     if (a.linear is None) != (b.linear is None):
         raise ValueError("average_caches: one cache is linear in the emitters' Pd and the other is not")
@@ -218,7 +223,10 @@ def average_caches(
     stats = dict(b.stats, averaged_traces=a.stats.get("averaged_traces", 1) + b.stats.get("averaged_traces", 1))
     stats["averaged_entries"] = int(entries[0].numel())
     linear = None if a.linear is None else ((a.linear + b.linear) * 0.5).coalesce()
-    return PhotonCache(a.brdf, 0.5 * (a.irradiance + b.irradiance), *entries, weight, stats, linear, b.smoother)
+    noisy = [x.irradiance - (0 if x.exact_irradiance is None else x.exact_irradiance) for x in (a, b)]
+    exact = 0 if b.exact_irradiance is None else b.exact_irradiance
+    irradiance = 0.5 * (noisy[0] + noisy[1]) + exact
+    return PhotonCache(a.brdf, irradiance, *entries, weight, stats, linear, b.smoother, b.exact_irradiance)
 
 
 def _grid_parts(grid: tuple) -> tuple:

@@ -125,6 +125,7 @@ class PhotonRefresh:
             cache.stats["radiosity_irradiance_mean"] = float(H_rad.mean())
             cache.stats["photon_irradiance_mean"] = float(cache.irradiance.mean())
             cache.irradiance = cache.irradiance + H_rad.to(cache.irradiance.dtype)
+            cache.exact_irradiance = H_rad.to(cache.irradiance.dtype)
             if self.specular_gather is not None:
                 cache = self._add_gather(cache, radiance, weights, sigma, refresh)
         cache.stats["trace_s"] = round(traced - start, 3)
