@@ -68,14 +68,7 @@ class _Profile:
         the Pd and Ps returned: a channel whose least-squares Pd would be negative takes Pd = 0 and Ps is solved again
         with that channel's whole sums (Pd >= 0 is the model's; the error of a negative Pd lies below any reachable
         one where a broad lobe nearly repeats the diffuse term: docs/results/vase.md)."""
-        dt, terms = self.dt, self.terms
-        E = specular_lobe(terms.brdf, terms.theta_h, sigma.to(dt))[..., None] * terms.specular
-        if self.indirect is not None:
-            E = E + self.indirect.specular(sigma).to(dt)
-        E = E * self.w
-        S_AE, S_Ei, S_EE = (self.A * E).sum(0), (E * self.i).sum(0), (E * E).sum(0)
-        uv = S_Ei - S_AE * self.S_Ai / self.S_AA
-        vv = (S_EE - S_AE * S_AE / self.S_AA).clamp_min(0)
+        S_AE, S_Ei, S_EE, uv, vv = self._sums(sigma)
         T = uv.shape[0]
         ps = self._ps(uv, vv)
         pd = (self.S_Ai - ps.expand(T, 3) * S_AE) / self.S_AA
@@ -99,6 +92,12 @@ class _Profile:
     def parts(self, sigma: torch.Tensor):
         """(uu, uv, vv) each (T, 3) at sigma (0-d): the sums of the module docstring, Pd eliminated per texel and
         channel, from which any group of texels' Ps and error follow (torchrefl.fit.material_lobe)."""
+        *_, uv, vv = self._sums(sigma)
+        return self.uu, uv, vv
+
+    def _sums(self, sigma: torch.Tensor):
+        """(S_AE, S_Ei, S_EE, uv, vv) each (T, 3) at sigma: the specular column E's sums and, Pd eliminated, u.v
+        and v.v."""
         E = specular_lobe(self.terms.brdf, self.terms.theta_h, sigma.to(self.dt))[..., None] * self.terms.specular
         if self.indirect is not None:
             E = E + self.indirect.specular(sigma).to(self.dt)
@@ -106,7 +105,7 @@ class _Profile:
         S_AE, S_Ei, S_EE = (self.A * E).sum(0), (E * self.i).sum(0), (E * E).sum(0)
         uv = S_Ei - S_AE * self.S_Ai / self.S_AA
         vv = (S_EE - S_AE * S_AE / self.S_AA).clamp_min(0)
-        return self.uu, uv, vv
+        return S_AE, S_Ei, S_EE, uv, vv
 
     def _ps(self, num: torch.Tensor, den: torch.Tensor) -> torch.Tensor:
         """(T or 1, C) Ps = num / den summed per group (and over channels for one Ps), within [0, ps_max]."""

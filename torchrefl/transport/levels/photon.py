@@ -5,7 +5,7 @@ Each refresh re-traces the photons with the current parameters into a cache of i
 local + cached indirect light (photon.schedule joint: all parameters on every fitted observation; seed:
 the dissertation's alternation, (a) Pd on T_diff, then (b) Ps and sigma on T_spec and T_none). After each
 refit Pd keeps photon.damping of the Pd the cache was traced with. From refresh AVERAGE_FROM on the cache
-averages the new trace with the previous one (transport.photon_cache.average_caches): half the photon noise in
+averages the new trace with the previous one (transport.cache_average.average_caches): half the photon noise in
 what the refits fit. Every refresh scores the parameters by the mean absolute image difference (8-bit) over the
 fitted observations with its cache, and the best are kept: the start is scored at refresh 0, refit k at refresh k.
 
@@ -22,9 +22,10 @@ import torch
 from torchrefl.core.observation_classes import T_DIFF, T_NONE, T_SPEC
 from torchrefl.core.params import inverse_softplus_b
 from torchrefl.core.rays import RayTracer
+from torchrefl.transport.cache_average import average_caches
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, RefitStep, TransportLevel
 from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
-from torchrefl.transport.photon_cache import average_caches, indirect_radiance, light_sources, specular_per_unit_ps
+from torchrefl.transport.photon_cache import indirect_radiance, light_sources, specular_per_unit_ps
 from torchrefl.transport.photon_density import (
     KERNEL_PHOTONS,
     MAX_AUTO_SMOOTHING,
