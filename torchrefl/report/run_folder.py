@@ -18,7 +18,7 @@ from pathlib import Path
 
 from torchrefl.core.atomic_files import fsync_dir
 from torchrefl.errors import OutputError
-from torchrefl.report.run_marker import CONFIG, LOG, MARKER, write_marker
+from torchrefl.report.run_marker import CONFIG, LOG, MARKER, run_files, write_marker
 
 STAGING = ".{name}.staging-{pid}"
 FAILED = "{name}.failed"
@@ -133,6 +133,14 @@ class StagedRunFolder:
                 self.target.rmdir()
             os.replace(self.path, self.target)
         fsync_dir(self.target.parent)
+
+    def wrote_nothing(self) -> bool:
+        """Whether the staging folder holds nothing but the run's config.yaml and log.txt (no work written)."""
+        return set(run_files(self.path)) <= {CONFIG}
+
+    def discard(self) -> None:
+        """Remove the staging folder of a run that failed before any work (nothing in it worth keeping)."""
+        shutil.rmtree(self.path, ignore_errors=True)
 
     def abandon(self) -> Path:
         """Keep the failed run's files (its log first) as NAME.failed beside the target; returns that path."""
