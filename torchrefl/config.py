@@ -29,9 +29,9 @@ from torchrefl.config_loading import (
     _nest,
     _validate,
     override_where,
-    yaml_value,
     parse_override,
     read_yaml_mapping,
+    yaml_value,
 )
 from torchrefl.errors import ConfigError
 
