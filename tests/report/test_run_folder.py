@@ -102,6 +102,26 @@ def test_commit_replaces_an_earlier_run_whole(tmp_path):
     np.testing.assert_array_equal(run.pd, np.load(old / "params.npz")["pd"])
 
 
+def test_overwrite_never_deletes_a_users_files_but_os_metadata_goes_with_the_run(tmp_path, capsys):
+    """Issue 33: --overwrite replaced a finished run folder whole, deleting the figure a user had saved in it.
+    Now such a folder is refused before any work, naming the file; a .DS_Store alone does not stop the run."""
+    run = tmp_path / "run"
+    write_run(run)
+    (run / "figure.png").write_bytes(b"my figure")
+    (run / ".DS_Store").write_bytes(b"Bud1")
+    for overwrite in (False, True):
+        with pytest.raises(OutputError, match=r"1 file\(s\) it did not write \(e\.g\. \['figure\.png'\]\).*move them"):
+            StagedRunFolder(run, overwrite)
+    argv = tiny_capture_args(tmp_path, f"output.dir={run}", "--overwrite", "--quiet")
+    assert main(argv) == 2
+    assert "figure.png" in capsys.readouterr().err
+    assert (run / "figure.png").read_bytes() == b"my figure"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ps", "ps.yaml", "run"]  # no staging or failed folder
+    (run / "figure.png").unlink()
+    assert main(argv) == 0
+    assert not (run / ".DS_Store").exists() and load_run(run).unrecorded == ()
+
+
 def test_a_stale_staging_folder_of_a_killed_run_is_removed(tmp_path):
     stale = tmp_path / ".run.staging-999999999"
     stale.mkdir()
