@@ -93,28 +93,37 @@ def _candidates(lo: np.ndarray, hi: np.ndarray, faces: np.ndarray, S: int):
         start = sel[-1] + 1
 
 
-def _barycentric(P: np.ndarray, p: np.ndarray):
-    """Barycentric weights (M, 3) of points p (M, 2) in triangles P (M, 3, 2), and each point's signed distance
-    (M, 3) to the line of the edge opposite each corner (positive inside)."""
-    e1, e2, q = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0], p - P[:, 0]
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    b1 = (q[:, 0] * e2[:, 1] - q[:, 1] * e2[:, 0]) / det
-    b2 = (e1[:, 0] * q[:, 1] - e1[:, 1] * q[:, 0]) / det
-    bary = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
-    opposite = np.stack(
-        [np.linalg.norm(P[:, (k + 2) % 3] - P[:, (k + 1) % 3], axis=1) for k in range(3)],
-        axis=1,
-    )
-    return bary, bary * np.abs(det)[:, None] / np.maximum(opposite, 1e-300)
+class _Triangles:
+    """Per-face constants of the UV triangles xy (F, 3, 2) for barycentric tests of many points."""
+
+    def __init__(self, xy: np.ndarray):
+        self.p0 = xy[:, 0]
+        self.e1, self.e2 = xy[:, 1] - xy[:, 0], xy[:, 2] - xy[:, 0]
+        det = self.e1[:, 0] * self.e2[:, 1] - self.e1[:, 1] * self.e2[:, 0]
+        self.inv_det = 1.0 / np.where(det != 0, det, np.inf)
+        opposite = np.stack([xy[:, 2] - xy[:, 1], xy[:, 0] - xy[:, 2], xy[:, 1] - xy[:, 0]], axis=1)
+        # Distance to the edge opposite corner k per unit of barycentric k: the triangle's height there.
+        self.height = np.abs(det)[:, None] / np.maximum(np.sqrt((opposite**2).sum(axis=2)), 1e-300)
+
+    def barycentric(self, f: np.ndarray, p: np.ndarray):
+        """Barycentric weights (M, 3) of points p (M, 2) in faces f (M,), and each point's signed distance (M, 3)
+        to the line of the edge opposite each corner (positive inside)."""
+        q = p - self.p0[f]
+        e1, e2, inv = self.e1[f], self.e2[f], self.inv_det[f]
+        b1 = (q[:, 0] * e2[:, 1] - q[:, 1] * e2[:, 0]) * inv
+        b2 = (e1[:, 0] * q[:, 1] - e1[:, 1] * q[:, 0]) * inv
+        bary = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
+        return bary, bary * self.height[f]
 
 
 def _centre_hits(xy: np.ndarray, live: np.ndarray, S: int):
     """Every (texel, face, barycentric, depth) with the texel's centre in or on the face's triangle; depth is the
     centre's distance inside the nearest edge (texels)."""
+    tri = _Triangles(xy)
     out = []
     for f, r, c in _candidates(xy[live].min(axis=1), xy[live].max(axis=1), live, S):
         p = np.stack([c + 0.5, r + 0.5], axis=1).astype(np.float64)
-        bary, dist = _barycentric(xy[f], p)
+        bary, dist = tri.barycentric(f, p)
         depth = dist.min(axis=1)
         ok = depth >= -EDGE_TOLERANCE_TEXELS
         out.append((r[ok] * S + c[ok], f[ok], bary[ok], depth[ok]))

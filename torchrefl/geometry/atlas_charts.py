@@ -7,7 +7,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from torchrefl.geometry.mesh_file import MeshData
-from torchrefl.geometry.mesh_normals import welded_vertices
+from torchrefl.geometry.mesh_normals import row_ids, welded_vertices
+
+# UVs equal to 1 / UV_CODE (far below a texel) are the same UV.
+UV_CODE = float(1 << 30)
 
 
 def face_charts(mesh: MeshData) -> np.ndarray:
@@ -24,12 +27,13 @@ def face_charts(mesh: MeshData) -> np.ndarray:
     swap = a > b
     lo, hi = np.where(swap, b, a), np.where(swap, a, b)
     ulo, uhi = np.where(swap[..., None], ub, ua), np.where(swap[..., None], ua, ub)
-    key = np.concatenate([lo[..., None], hi[..., None], ulo, uhi], axis=-1).reshape(-1, 6)
+    code = np.round(np.stack([ulo, uhi]) * UV_CODE).astype(np.int64)  # (2, F, 3, 2) exact for file UVs
     face = np.repeat(np.arange(F), 3)
-    proper = key[:, 0] != key[:, 1]
-    key, face = key[proper], face[proper]
-    _, group = np.unique(key, axis=0, return_inverse=True)
-    group = group.reshape(-1)
+    proper = (lo != hi).reshape(-1)
+    group = row_ids(
+        *(c.reshape(-1)[proper] for c in (lo, hi, code[0, ..., 0], code[0, ..., 1], code[1, ..., 0], code[1, ..., 1]))
+    )
+    face = face[proper]
     order = np.argsort(group, kind="stable")
     g, f = group[order], face[order]
     same = np.flatnonzero(g[1:] == g[:-1])

@@ -16,12 +16,24 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.where(length > 0, n / np.maximum(length, 1e-300), 0.0)
 
 
+def row_ids(*columns: np.ndarray) -> np.ndarray:
+    """(N,) int64 id, 0.., shared by the rows equal in every one of the integer columns (N,) (a fast
+    np.unique(axis=0) inverse: the columns are folded into one key a column at a time)."""
+    ids = np.zeros(len(columns[0]), dtype=np.int64)
+    for col in columns:
+        col = np.unique(np.asarray(col, dtype=np.int64), return_inverse=True)[1].reshape(-1)
+        ids = np.unique(ids * (int(col.max(initial=0)) + 1) + col, return_inverse=True)[1].reshape(-1)
+    return ids
+
+
 def welded_vertices(vertices: np.ndarray, tolerance: float = 1e-9) -> np.ndarray:
     """(V,) int64 id shared by vertices at the same position (within tolerance times the mesh's extent): the
     copies a loader makes at UV seams."""
     v = np.asarray(vertices, dtype=np.float64)
-    q = max(float(np.ptp(v, axis=0).max()) * tolerance, 1e-300) if len(v) else 1.0
-    return np.unique(np.round(v / q), axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    if not len(v):
+        return np.zeros(0, dtype=np.int64)
+    q = np.round((v - v.min(axis=0)) / max(float(np.ptp(v, axis=0).max()) * tolerance, 1e-300)).astype(np.int64)
+    return row_ids(q[:, 0], q[:, 1], q[:, 2])
 
 
 def _corner_angles(v: np.ndarray) -> np.ndarray:
@@ -39,8 +51,9 @@ def corner_normals(
 ) -> np.ndarray:
     """(F, 3, 3) unit normal at each corner of faces (F, 3): the corner-angle-weighted mean of the normals of the
     faces around the corner's position (vertices at one position are one vertex, so UV seams do not show) whose
-    normal is within crease_angle_deg of this face's (a cube keeps its flat faces, a sphere is smooth). A corner
-    whose sum vanishes keeps its face's normal."""
+    normal is within crease_angle_deg of this face's (a cube keeps its flat faces, a sphere is smooth); a degenerate
+    face's corners take every face around them (a UV sphere's poles). A corner whose sum vanishes keeps its face's
+    normal."""
     v = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     fn = face_normals(v, faces)
@@ -56,12 +69,14 @@ def corner_normals(
     sizes = np.diff(np.r_[np.flatnonzero(start_flag), len(order)])
     group_size = np.repeat(sizes, sizes)
     by_size = np.argsort(-group_size, kind="stable")
+    descending = -group_size[by_size]
     cos_crease = np.cos(np.radians(crease_angle_deg))
     total = np.zeros_like(normal)
     for j in range(int(sizes.max()) if len(sizes) else 0):
-        pos = by_size[: np.searchsorted(-group_size[by_size], -j, side="left")]
+        pos = by_size[: np.searchsorted(descending, -j, side="left")]
         me, other = order[pos], order[group_start[pos] + j]
-        ok = np.einsum("ci,ci->c", normal[me], normal[other]) >= cos_crease
+        mine = normal[me]
+        ok = (np.einsum("ci,ci->c", mine, normal[other]) >= cos_crease) | ~mine.any(axis=1)
         total[me[ok]] += weight[other[ok], None] * normal[other[ok]]  # each corner once per pass
     length = np.linalg.norm(total, axis=1, keepdims=True)
     out = np.where(length > 1e-12, total / np.maximum(length, 1e-300), normal)
