@@ -35,17 +35,20 @@ class AtlasGeometry:
 
 def texel_geometry(mesh: MeshData, texels: AtlasTexels, face_normals: bool = False, crease_angle_deg=None):
     """(positions (T, 3), normals (T, 3)) of texels on mesh: the barycentric blend of the face's corners, and of
-    its corner normals (mesh_normals.corner_normals, normalised) or, with face_normals, the face's own normal."""
+    its corner normals (mesh_normals.corner_normals, normalised) or, with face_normals, the face's own normal.
+    A texel on a face of zero 3-D area (a UV sphere's pole) takes the blend of its corner normals either way."""
     faces = mesh.faces[texels.face]
     positions = np.einsum("tk,tki->ti", texels.barycentric, mesh.vertices[faces])
     flat = mesh_face_normals(mesh.vertices, mesh.faces)[texels.face]
-    if face_normals:
+    degenerate = ~flat.any(axis=1)
+    if face_normals and not degenerate.any():
         return positions, flat
     crease = DEFAULT_CREASE_ANGLE_DEG if crease_angle_deg is None else crease_angle_deg
     corner = corner_normals(mesh.vertices, mesh.faces, crease)[texels.face]
     n = np.einsum("tk,tki->ti", texels.barycentric, corner)
     length = np.linalg.norm(n, axis=1, keepdims=True)
-    return positions, np.where(length > 1e-9, n / np.maximum(length, 1e-300), flat)
+    smooth = np.where(length > 1e-9, n / np.maximum(length, 1e-300), flat)
+    return positions, np.where(degenerate[:, None] | (not face_normals), smooth, flat)
 
 
 def atlas_geometry(
