@@ -12,8 +12,9 @@ a texel) still gets the gutter texels whose centre lies within half a texel of i
 nearest face's point nearest the centre, and sharing the chart's 3-D area, so that no chart is lost. Charts that
 have texel centres get no conservative texels: their border faces' area is already in the centre-sampled sum.
 
-Two faces whose UV triangles both hold a texel centre strictly inside are overlapping charts (a mirrored or tiled
-layout): an error, since one texel holds one reflectance.
+A texel centre strictly inside two faces' UV triangles, or strictly inside one and in or on a face of another
+chart, is an overlap (a mirrored or tiled layout, a folded chart): an error, since one texel holds one
+reflectance. Charts may touch along an edge.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from torchrefl.errors import GeometryError
 from torchrefl.geometry.atlas_charts import face_charts
 from torchrefl.geometry.mesh_file import MeshData
 
-# A texel centre this far (texels) inside two faces' UV triangles is covered twice: overlapping charts.
+# A texel centre this far (texels) inside a face's UV triangle is strictly inside it (overlap test).
 OVERLAP_DEPTH_TEXELS = 1e-3
 # A centre this far (texels) outside a triangle still counts as on its edge.
 EDGE_TOLERANCE_TEXELS = 1e-6
@@ -132,21 +133,26 @@ def _centre_hits(xy: np.ndarray, live: np.ndarray, S: int):
     return tuple(np.concatenate(parts) for parts in zip(*out))
 
 
-def _check_overlap(texel, face, depth, source: str, S: int) -> None:
+def _check_overlap(texel, face, depth, chart, source: str, S: int) -> None:
+    """Raise GeometryError when a texel centre lies strictly inside two faces, or strictly inside one face and in
+    or on a face of another chart (one chart's edge crossing another's interior)."""
     deep = depth > OVERLAP_DEPTH_TEXELS
-    t, f = texel[deep], face[deep]
-    order = np.argsort(t, kind="stable")
-    t, f = t[order], f[order]
-    twice = np.flatnonzero(t[1:] == t[:-1])
-    if len(twice):
-        texels = np.unique(t[twice])
-        faces = np.unique(np.concatenate([f[twice], f[twice + 1]]))
-        row, col = divmod(int(t[twice[0]]), S)
+    cell, inverse = np.unique(texel, return_inverse=True)
+    n_deep = np.bincount(inverse, weights=deep, minlength=len(cell))
+    pair = np.unique(inverse * (int(chart.max(initial=0)) + 1) + chart[face])
+    n_charts = np.bincount(pair // (int(chart.max(initial=0)) + 1), minlength=len(cell))
+    bad = (n_deep >= 2) | ((n_deep >= 1) & (n_charts >= 2))
+    if bad.any():
+        hit = np.isin(inverse, np.flatnonzero(bad))
+        faces = np.unique(face[hit])
+        first = np.flatnonzero(inverse == np.flatnonzero(bad)[0])
+        row, col = divmod(int(cell[bad][0]), S)
         raise GeometryError(
-            f"mesh file {source}: overlapping charts in the UV atlas: {len(texels)} texel centres of the {S}x{S} "
-            f"atlas lie inside two or more faces ({len(faces)} faces overlap; e.g. faces {int(f[twice[0]])} and "
-            f"{int(f[twice[0] + 1])} at texel row {row}, col {col}). Each texel holds one reflectance, so a "
-            "mirrored or tiled UV layout cannot be used: re-unwrap the mesh or remove its UVs to get a new atlas"
+            f"mesh file {source}: overlapping charts in the UV atlas: {int(bad.sum())} texel centres of the {S}x{S} "
+            f"atlas lie inside two or more faces ({len(faces)} faces overlap; e.g. faces "
+            f"{', '.join(str(int(f)) for f in face[first])} at texel row {row}, col {col}). Each texel holds one "
+            "reflectance, so a mirrored or tiled UV layout cannot be used: re-unwrap the mesh or remove its UVs to "
+            "get a new atlas"
         )
 
 
@@ -200,14 +206,14 @@ def rasterise_atlas(mesh: MeshData, texture_size: int, conservative: bool = True
     face_area = mesh.face_areas()
     live = np.flatnonzero(uv_area > 1e-12)
     texel, face, bary, depth = _centre_hits(xy, live, S)
-    _check_overlap(texel, face, depth, mesh.source, S)
+    chart = face_charts(mesh)
+    _check_overlap(texel, face, depth, chart, mesh.source, S)
     # A centre on the edge between two faces: the face it is deeper inside.
     order = np.lexsort((-depth, texel))
     keep = order[np.r_[True, texel[order][1:] != texel[order][:-1]]] if len(order) else order
     texel, face, bary = texel[keep], face[keep], bary[keep]
     area = face_area[face] / uv_area[face]
     extra = np.zeros(len(texel), dtype=bool)
-    chart = face_charts(mesh)
     chart_area = np.bincount(chart, weights=face_area)
     lonely = live[~np.isin(chart[live], chart[face])]
     if conservative and len(lonely):
