@@ -9,11 +9,15 @@ DEFAULT_CREASE_ANGLE_DEG = 60.0
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F, 3) unit normals of faces (F, 3) by their winding (right hand); zeros for a degenerate face."""
+    """(F, 3) unit normals of faces (F, 3) by their winding (right hand); zeros for a degenerate face (area below
+    1e-10 of its squared edge lengths: rounding noise in a collapsed face, such as a UV sphere's pole, has no
+    direction)."""
     v = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
-    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+    n = np.cross(e1, e2)
     length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.where(length > 0, n / np.maximum(length, 1e-300), 0.0)
+    scale = (e1**2).sum(axis=1, keepdims=True) + (e2**2).sum(axis=1, keepdims=True)
+    return np.where(length > 1e-10 * scale, n / np.maximum(length, 1e-300), 0.0)
 
 
 def row_ids(*columns: np.ndarray) -> np.ndarray:
