@@ -40,8 +40,6 @@ BANDS = {
 }
 #: units a slip commonly comes from: mm per unit
 UNITS = {"metres": 1000.0, "inches": 25.4, "centimetres": 10.0, "micrometres": 1.0e-3}
-#: a ratio within this factor of a unit's size names that unit ("look like metres")
-UNIT_TOLERANCE = 3.0
 
 
 @dataclass(frozen=True)
@@ -56,7 +54,7 @@ class ObjectSize:
     centre: str = "the object's centre"  # what the distances are measured from
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Reference:
     """Lengths of one key of the capture compared with the object's radius: distances of lights or cameras from
     the object's centre ('light', 'camera'), or sampling steps ('step')."""
@@ -66,6 +64,10 @@ class Reference:
     keys: tuple[str, ...]  # one key per value, e.g. ("lights[0].position_mm", ...)
     values: tuple[float, ...]
     fix: str = "write {keys} in {unit}"
+    #: world positions (N, 3) and the object's centre (3,) the values are distances between, when they are: a unit
+    #: slip scales the positions (and the geometry its centre), not the distances (None: lengths about the origin)
+    positions: np.ndarray | None = None
+    centre: np.ndarray | None = None
 
     @classmethod
     def of(cls, kind: str, source: str, key: str, values, fix: str | None = None) -> Reference:
@@ -73,6 +75,19 @@ class Reference:
         vals = tuple(float(v) for v in np.atleast_1d(np.asarray(values, dtype=np.float64)))
         keys = tuple(key.format(i=i) for i in range(len(vals)))
         return cls(kind, source, keys, vals, fix or cls.fix)
+
+    @classmethod
+    def between(cls, kind: str, source: str, key: str, positions, centre) -> Reference:
+        """Distances of world positions (N, 3) from the object's centre (3,)."""
+        p, c = np.asarray(positions, dtype=np.float64).reshape(-1, 3), np.asarray(centre, dtype=np.float64)
+        ref = cls.of(kind, source, key, np.linalg.norm(p - c, axis=-1))
+        return cls(ref.kind, ref.source, ref.keys, ref.values, ref.fix, p, c)
+
+    def rescaled(self, own: float, geometry: float) -> np.ndarray:
+        """The values with this reference's lengths times `own` and the geometry's times `geometry`."""
+        if self.positions is None:
+            return np.asarray(self.values) * own
+        return np.linalg.norm(self.positions * own - self.centre * geometry, axis=-1)
 
     @property
     def name(self) -> str:
@@ -107,7 +122,8 @@ class ScaleCheck:
     obj: ObjectSize
     references: list[Reference]
     findings: list[Finding] = field(default_factory=list)
-    #: (reference, factor): None = the geometry; factor: the multiplier that would bring its lengths to mm
+    #: (reference, factor): None = the geometry; factor: the unit's mm (UNITS) that would bring its lengths in place
+    #: (a reference out of band in every unit, a single light out of place, is only listed)
     suspects: list[tuple[Reference | None, float]] = field(default_factory=list)
 
     @property
@@ -121,14 +137,16 @@ class ScaleCheck:
     def _verdict(self) -> str:
         parts = []
         for ref, factor in self.suspects:
-            unit = unit_name(factor)
-            looks = f"look like {unit} (x {UNITS[unit]:g} gives mm)" if unit else f"look off by a factor {_num(factor)}"
             if ref is None:
-                fix = self.obj.fix.format(factor=_round_factor(factor))
-                parts.append(f"{self.obj.what} {looks} next to the capture's other lengths; {fix}")
-            else:
+                fix = self.obj.fix.format(factor=factor)
+                parts.append(f"{self.obj.what} {_looks(factor)} next to the capture's other lengths; {fix}")
+            elif factor is not None:
                 fix = ref.fix.format(keys=ref.name, unit="mm")
-                parts.append(f"{ref.name} in {ref.source} {looks} next to the object and the other lengths; {fix}")
+                parts.append(
+                    f"{ref.name} in {ref.source} {_looks(factor)} next to the object and the other lengths; {fix}"
+                )
+            else:
+                parts.append(f"{ref.name} in {ref.source} do not fit the object in any unit")
         return "; ".join(parts)
 
     def message(self, findings: list[Finding]) -> str:
@@ -143,8 +161,8 @@ class ScaleCheck:
         verdict = self._verdict()
         return (
             f"{self.obj.source}: "
-            + (f"{verdict}. " if verdict else "")
-            + f"The object's radius is {self.obj.radius:.4g} mm, but "
+            + (f"{verdict}. The" if verdict else "the")
+            + f" object's radius is {self.obj.radius:.4g} mm, but "
             + "; ".join(items)
             + " (the bands: docs/capture-formats.md, 'The capture's scale')"
         )
@@ -159,15 +177,13 @@ class ScaleCheck:
         return [self.message(self.warnings)] if self.warnings else []
 
 
-def unit_name(factor: float) -> str | None:
-    """The unit whose size in mm is within UNIT_TOLERANCE of `factor` (the nearest), or None."""
-    best = min(UNITS, key=lambda u: abs(math.log(factor / UNITS[u])))
-    return best if abs(math.log(factor / UNITS[best])) <= math.log(UNIT_TOLERANCE) else None
+def unit_name(factor: float) -> str:
+    """The name of the unit (UNITS) whose size in mm is nearest `factor`."""
+    return min(UNITS, key=lambda u: abs(math.log(factor / UNITS[u])))
 
 
-def _round_factor(factor: float) -> float:
-    unit = unit_name(factor)
-    return UNITS[unit] if unit else float(f"{factor:.2g}")
+def _looks(factor: float) -> str:
+    return f"look like {unit_name(factor)} (x {factor:g} gives mm)"
 
 
 def _num(x: float) -> str:
@@ -179,17 +195,31 @@ def _typical(kind: str) -> float:
     return math.sqrt(lo * hi)
 
 
+def _in_band(ref: Reference, radius: float, geometry: float = 1.0, own: float = 1.0) -> bool:
+    """Every value of `ref` within its kind's warning band with the geometry's lengths (the object's `radius`
+    included) times `geometry` and the reference's times `own`."""
+    lo, hi = BANDS[ref.kind][0]
+    ratios = ref.rescaled(own, geometry) / (radius * geometry)
+    return bool(((ratios >= lo) & (ratios <= hi)).all())
+
+
+def _likeliest(scales: list[float], typical_log: float) -> float:
+    """Of several unit factors that fit equally well, the one nearest the typical factor (exp(typical_log))."""
+    return min(scales, key=lambda k: abs(math.log(k) - typical_log))
+
+
 def check_scale(obj: ObjectSize, references: list[Reference]) -> ScaleCheck:
     """Compare each reference length with the object's radius (the bands: the module's docstring).
 
-    Which side looks wrong: each reference implies the factor by which the object is too small (its ratio over
-    its band's geometric centre). The references' median factor is the geometry's own: beyond UNIT_TOLERANCE the
-    geometry is suspect; a reference still out of its band with the geometry rescaled by it is suspect itself."""
+    Which side looks wrong, when a value is out of its band: the unit factor (1 or one of UNITS) of the geometry that
+    puts the most references wholly in their bands is the geometry's (1 on a tie with 1: the geometry is trusted
+    first); a reference still out of band with that factor is suspect itself when a unit puts it in band (a single
+    light out of place is only listed)."""
     if not (math.isfinite(obj.radius) and obj.radius > 0):
         raise GeometryError(f"{obj.source}: the object's radius is {obj.radius!r}, expected a positive length")
     references = [r for r in references if r.values]
     result = ScaleCheck(obj, references)
-    log_factors = {}
+    logs = []
     for ref in references:
         (wlo, whi), (elo, ehi) = BANDS[ref.kind]
         ratios = np.asarray(ref.values) / obj.radius
@@ -200,20 +230,21 @@ def check_scale(obj: ObjectSize, references: list[Reference]) -> ScaleCheck:
                 result.findings.append(Finding("warning", ref, key, value, float(ratio)))
         positive = ratios[np.isfinite(ratios) & (ratios > 0)]
         if positive.size:
-            log_factors[id(ref)] = float(np.median(np.log(positive / _typical(ref.kind))))
-    if not result.findings or not log_factors:
+            logs.append(float(np.median(np.log(positive / _typical(ref.kind)))))
+    if not result.findings:
         return result
-    own = float(np.median(list(log_factors.values())))
-    if abs(own) > math.log(UNIT_TOLERANCE):
-        result.suspects.append((None, math.exp(own)))
-    else:
-        own = 0.0  # the geometry agrees with the capture: the references out of band are wrong by themselves
-    rescaled = obj.radius * math.exp(own)
+    typical_log = float(np.median(logs)) if logs else 0.0
+    agree = {k: sum(_in_band(ref, obj.radius, k) for ref in references) for k in (1.0, *UNITS.values())}
+    best = max(agree.values())
+    scale = 1.0 if agree[1.0] == best else _likeliest([k for k, n in agree.items() if n == best], typical_log)
+    if scale != 1.0:
+        result.suspects.append((None, scale))
     for ref in references:
-        (wlo, whi), _ = BANDS[ref.kind]
-        ratios = np.asarray(ref.values) / rescaled
-        if id(ref) in log_factors and not ((ratios >= wlo) & (ratios <= whi)).all():
-            result.suspects.append((ref, math.exp(own - log_factors[id(ref)])))
+        if not _in_band(ref, obj.radius, scale):
+            fits = [m for m in UNITS.values() if _in_band(ref, obj.radius, scale, m)]
+            ref_log = float(np.median(np.log(np.asarray(ref.values) / (_typical(ref.kind) * obj.radius * scale))))
+            if fits:
+                result.suspects.append((ref, _likeliest(fits, -ref_log)))
     return result
 
 
@@ -245,6 +276,5 @@ def scene_scale_check(
     refs = []
     for kind, spec in (("camera", cameras), ("light", lights)):
         if spec is not None:
-            d = np.linalg.norm(np.asarray(spec.positions, dtype=np.float64).reshape(-1, 3) - centre, axis=-1)
-            refs.append(Reference.of(kind, spec.source, spec.key, d))
+            refs.append(Reference.between(kind, spec.source, spec.key, spec.positions, centre))
     return check_scale(ObjectSize(radius, geometry, "the mesh's vertices", fix), refs)
