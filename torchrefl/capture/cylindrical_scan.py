@@ -170,10 +170,8 @@ def load_scan_geometry(
     dtype=torch.float32,
     check_scale: bool = True,
 ) -> ScanGeometry:
-    """Range image -> Surface (points, normals, areas, mesh) and the rig geometry (median_size None: auto).
-
-    check_scale: refuse a range image whose scale disagrees with scan.yaml's lengths by orders of magnitude,
-    keep the warnings of a lesser disagreement (capture.scan_scale); False where the caller checked the scale."""
+    """Range image -> Surface (points, normals, areas, mesh) and the rig geometry (median_size None: auto); check_scale:
+    the scale check (capture.scan_scale: errors raised, warnings kept), False where the caller made it."""
     folder = Path(folder)
     doc = read_scan_yaml(folder)
     r = read_range(folder, doc)
@@ -430,14 +428,8 @@ class CylindricalScanLoader(CaptureLoader):
     def load_geometry(self, folder: Path, cfg: Config, check_scale: bool = True) -> ScanGeometry:
         """The range image's Surface and the rig geometry (what light selection needs before any texture)."""
         g = cfg.geometry
-        return load_scan_geometry(
-            folder,
-            median_size=g.median_size,
-            fit_window=g.fit_window,
-            threads=cfg.threads,
-            dtype=cfg.torch_dtype,
-            check_scale=check_scale,
-        )
+        kw = dict(median_size=g.median_size, fit_window=g.fit_window, threads=cfg.threads, dtype=cfg.torch_dtype)
+        return load_scan_geometry(folder, check_scale=check_scale, **kw)
 
     def load(self, folder: Path, cfg: Config, log: Log, geometry: ScanGeometry | None = None) -> Capture:
         geom = geometry if geometry is not None else self.load_geometry(folder, cfg)

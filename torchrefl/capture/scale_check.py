@@ -13,7 +13,7 @@ The bands (reference length / object radius, the radius about the object's centr
   outside the object. Under 1 radius it is inside the object's bounding sphere (possible only in a hollow:
   warning), under 0.5 inside any object not hollow there (error). Beyond 30 radii the fall-off varies by
   under 14 % across the object and the directions by under 4 degrees: nearly directional lights, which a
-  rig of point lights would need ~30x brighter than at 5 radii (warning); beyond 1000 radii the fall-off
+  rig of point lights would need (30/5)^2 = 36 times brighter than at 5 radii (warning); beyond 1000 radii the fall-off
   varies by under 0.4 %, one 8-bit step: the positions carry nothing the images could show (error).
 - a camera's distance: inside as for lights; beyond 100 radii the object subtends under 1.2 degrees (a
   telephoto lens; warning), beyond 1000 under 0.12 degrees (a telescope; error).
@@ -112,7 +112,7 @@ class Finding:
     @property
     def deviation(self) -> float:
         """|log| of the ratio over its band's centre: how far out it is."""
-        return abs(math.log(self.ratio / _typical(self.reference.kind)))
+        return abs(math.log(max(self.ratio, 1e-300) / _typical(self.reference.kind)))
 
 
 @dataclass
@@ -140,13 +140,11 @@ class ScaleCheck:
             if ref is None:
                 fix = self.obj.fix.format(factor=factor)
                 parts.append(f"{self.obj.what} {_looks(factor)} next to the capture's other lengths; {fix}")
-            elif factor is not None:
+            else:
                 fix = ref.fix.format(keys=ref.name, unit="mm")
                 parts.append(
                     f"{ref.name} in {ref.source} {_looks(factor)} next to the object and the other lengths; {fix}"
                 )
-            else:
-                parts.append(f"{ref.name} in {ref.source} do not fit the object in any unit")
         return "; ".join(parts)
 
     def message(self, findings: list[Finding]) -> str:
@@ -187,7 +185,7 @@ def _looks(factor: float) -> str:
 
 
 def _num(x: float) -> str:
-    return f"{x:.3g}" if 1e-3 <= x < 1e4 else f"{x:.1e}"
+    return f"{x:.3g}" if x == 0 or 1e-3 <= x < 1e4 else f"{x:.1e}"
 
 
 def _typical(kind: str) -> float:
@@ -225,7 +223,7 @@ def check_scale(obj: ObjectSize, references: list[Reference]) -> ScaleCheck:
         ratios = np.asarray(ref.values) / obj.radius
         for key, value, ratio in zip(ref.keys, ref.values, ratios):
             if not (math.isfinite(ratio) and ratio > 0) or not elo <= ratio <= ehi:
-                result.findings.append(Finding("error", ref, key, value, float(ratio) if ratio > 0 else 1e-300))
+                result.findings.append(Finding("error", ref, key, value, float(ratio)))
             elif not wlo <= ratio <= whi:
                 result.findings.append(Finding("warning", ref, key, value, float(ratio)))
         positive = ratios[np.isfinite(ratios) & (ratios > 0)]
@@ -242,7 +240,11 @@ def check_scale(obj: ObjectSize, references: list[Reference]) -> ScaleCheck:
     for ref in references:
         if not _in_band(ref, obj.radius, scale):
             fits = [m for m in UNITS.values() if _in_band(ref, obj.radius, scale, m)]
-            ref_log = float(np.median(np.log(np.asarray(ref.values) / (_typical(ref.kind) * obj.radius * scale))))
+            values = np.asarray(ref.values)
+            values = values[np.isfinite(values) & (values > 0)]
+            ref_log = (
+                float(np.median(np.log(values / (_typical(ref.kind) * obj.radius * scale)))) if values.size else 0.0
+            )
             if fits:
                 result.suspects.append((ref, _likeliest(fits, -ref_log)))
     return result
