@@ -15,6 +15,7 @@ from torchrefl.capture.scan_scale import head_distances
 from torchrefl.config import LightGridConfig, SyntheticConfig
 from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.synthetic.scan import SyntheticScan
+from torchrefl.train import main
 
 
 def default_scene_coarse():
@@ -110,3 +111,15 @@ def test_lights_in_a_manifest_are_named_by_the_manifest(scan):
 
 def test_head_distances_are_about_the_axis():
     np.testing.assert_allclose(head_distances([[30.0, 500.0, 40.0], [0.0, -9.0, 300.0]]), [50.0, 300.0])
+
+
+def test_the_command_line_refuses_a_range_in_metres_in_one_line(scan, tmp_path, capsys):
+    """The case of issue 33: a range image in metres fitted silently to a wrong answer and exit 0; now exit 2 with
+    one message that names range.npy and the fix."""
+    rescale_range(scan, 0.001)
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(yaml.safe_dump({"capture": {"kind": "cylindrical_scan", "path": str(scan)}}))
+    assert main([str(cfg), f"output.dir={tmp_path / 'out'}", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "range.npy: the ranges look like metres" in err and "range.scale_mm: 1000" in err
+    assert "Traceback" not in err
