@@ -26,7 +26,7 @@ def test_a_mesh_object_passes():
 
 
 def test_size_in_metres_is_refused_naming_the_key():
-    with pytest.raises(ConfigError, match=r"^synthetic\.size_mm \(config\): synthetic\.size_mm look like metres"):
+    with pytest.raises(ConfigError, match=r"^config: synthetic\.size_mm look like metres"):
         check(size_mm=[0.062, 0.095, 0.05]).enforce(ConfigError)
 
 

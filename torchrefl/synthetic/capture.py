@@ -30,12 +30,12 @@ def synthetic_scale_check(cfg: Config, scan: SyntheticScan) -> ScaleCheck:
     s, axis = cfg.synthetic, "the rotation axis"
     if scan.object is None:
         radius = max(scan.axes[0], scan.axes[2])
-        obj = ObjectSize(radius, "synthetic.size_mm (config)", "synthetic.size_mm", "multiply it by {factor:g}", axis)
+        obj = ObjectSize(radius, "config", "synthetic.size_mm", "multiply it by {factor:g}", axis)
     else:
         radius = float(np.hypot(scan.object.vertices[:, 0], scan.object.vertices[:, 2]).max())
         obj = ObjectSize(
             radius,
-            f"synthetic.object {s.object} (config)",
+            "config",
             f"the {s.object} mesh's lengths (mm, its own)",
             "give the rig's lengths in mm",
             axis,
@@ -45,7 +45,7 @@ def synthetic_scale_check(cfg: Config, scan: SyntheticScan) -> ScaleCheck:
         Reference.of("camera", "config", "synthetic.camera_distance_mm", s.camera_distance_mm),
         Reference.of("step", "config", "synthetic.height_step_mm", s.height_step_mm),
         Reference.of(
-            "light", "config", "selection.grid candidate {i}", head_distances(scan.candidate_positions()), grid_fix
+            "light", "config", "selection.grid candidates[{i}]", head_distances(scan.candidate_positions()), grid_fix
         ),
     ]
     return check_scale(obj, refs)
