@@ -15,7 +15,7 @@ the triangle mesh for shadow rays is the range image's grid triangulation.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,7 @@ from torchrefl.capture.checks import (
 )
 from torchrefl.capture.cylindrical_rig import CylindricalRig
 from torchrefl.capture.images import read_images
+from torchrefl.capture.scan_scale import scan_scale_check
 from torchrefl.capture.scan_yaml import read_manifest, read_scan_yaml  # noqa: F401  (the loader's readers)
 from torchrefl.capture.truth import TRUTH
 from torchrefl.capture.truth import load_truth as read_truth
@@ -68,6 +69,7 @@ class ScanGeometry:
     unfit: np.ndarray | None = None  # (T,) bool: texels no range-fitting window describes (footprint.unfit_windows)
     median_size: int = 1  # the median window the preprocessing applied (1 = none)
     noise_mm: float = 0.0  # the range noise it estimated, mm
+    scale_warnings: list[str] = field(default_factory=list)  # the scale check's (capture.scan_scale)
 
     def texel_angles(self) -> np.ndarray:
         """(T,) scan angle of each valid texel's column."""
@@ -166,11 +168,14 @@ def load_scan_geometry(
     noise_tolerance: float = 2.0,
     threads: int = 2,
     dtype=torch.float32,
+    check_scale: bool = True,
 ) -> ScanGeometry:
-    """Range image -> Surface (points, normals, areas, mesh) and the rig geometry (median_size None: auto)."""
+    """Range image -> Surface (points, normals, areas, mesh) and the rig geometry (median_size None: auto); check_scale:
+    the scale check (capture.scan_scale: errors raised, warnings kept), False where the caller made it."""
     folder = Path(folder)
     doc = read_scan_yaml(folder)
     r = read_range(folder, doc)
+    scale_warnings = scan_scale_check(r, doc, folder).enforce() if check_scale else []
     rig = rig_from_yaml(doc, r.shape)
     valid = np.isfinite(r)
     r_t = torch.from_numpy(np.where(valid, r, 0.0))
@@ -210,7 +215,7 @@ def load_scan_geometry(
     tracer = RayTracer(verts, faces, threads=threads)
     mixed = mixed_footprint_grid(r, valid, geo, rig).ravel()[idx]
     unfit = unfit_windows(geo.fit_rms_mm.double().numpy(), ok, geo.spacing_mm, geo.noise_mm).ravel()[idx]
-    return ScanGeometry(surface, rig, tracer, doc, folder, mixed, unfit, geo.median_size, geo.noise_mm)
+    return ScanGeometry(surface, rig, tracer, doc, folder, mixed, unfit, geo.median_size, geo.noise_mm, scale_warnings)
 
 
 def observation_geometry(
@@ -420,12 +425,11 @@ class CylindricalScanLoader(CaptureLoader):
 
     kind = "cylindrical_scan"
 
-    def load_geometry(self, folder: Path, cfg: Config) -> ScanGeometry:
+    def load_geometry(self, folder: Path, cfg: Config, check_scale: bool = True) -> ScanGeometry:
         """The range image's Surface and the rig geometry (what light selection needs before any texture)."""
         g = cfg.geometry
-        return load_scan_geometry(
-            folder, median_size=g.median_size, fit_window=g.fit_window, threads=cfg.threads, dtype=cfg.torch_dtype
-        )
+        kw = dict(median_size=g.median_size, fit_window=g.fit_window, threads=cfg.threads, dtype=cfg.torch_dtype)
+        return load_scan_geometry(folder, check_scale=check_scale, **kw)
 
     def load(self, folder: Path, cfg: Config, log: Log, geometry: ScanGeometry | None = None) -> Capture:
         geom = geometry if geometry is not None else self.load_geometry(folder, cfg)
@@ -464,7 +468,7 @@ class CylindricalScanLoader(CaptureLoader):
                 "(every window spans a crease, an edge or a turn too fast for a quadratic: their normals are "
                 "extrapolated) are not fitted"
             )
-        warnings = stats.pop("warnings")
+        warnings = geom.scale_warnings + stats.pop("warnings")
         untrusted = np.logical_or.reduce(list(untrusted_geometry(geom, g.edge_width, g.crease_angle_deg).values()))
         truth = load_truth(folder, s, geom.meta)
         return Capture(s, obs, stats, truth, Path(folder), warnings, torch.from_numpy(untrusted))
