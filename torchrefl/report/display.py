@@ -22,8 +22,8 @@ BACKGROUND = (0.80, 0.80, 0.80)
 PERCENTILES = (1.0, 99.0)
 #: A map whose percentile spread is below this fraction of its level (or below MIN_SPAN) is shown as constant.
 FLAT = 1e-3
-#: The smallest colour range (in the map's unit) for a map at level 0.
-MIN_SPAN = 1e-9
+#: The smallest colour range for a map at level 0 (the map's unit: albedo, rad).
+MIN_SPAN = 1e-6
 
 
 @dataclass(frozen=True)

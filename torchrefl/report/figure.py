@@ -104,9 +104,11 @@ def draw_reflectance(
 
 
 def _colormap(name: str):
+    """The named colour map with an odd number of colours (a constant map, at the range's middle, falls in the
+    middle of one colour, not on the edge of two) and transparent masked texels (the background shows)."""
     import matplotlib
 
-    return matplotlib.colormaps[name].with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
+    return matplotlib.colormaps[name].resampled(255).with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
 
 
 def _percentile_note(rng) -> str:
