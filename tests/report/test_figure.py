@@ -88,3 +88,28 @@ def test_texels_without_an_estimate_take_the_background_colour(word):
     ]
     np.testing.assert_allclose(colour(19.5, 29.5), BACKGROUND, atol=2 / 255)
     assert np.abs(colour(30, 10) - BACKGROUND).max() > 0.05  # an estimated texel is not the background
+
+
+def test_write_figure_saves_a_notebook_wide_png_without_touching_pyplot(tmp_path):
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    from torchrefl.report.figure import write_figure
+
+    open_before = plt.get_fignums()
+    write_figure(tmp_path / "figure.png", **maps(), sigma_max=0.6, title="a run")
+    with Image.open(tmp_path / "figure.png") as im:
+        assert im.size[0] == 1000  # 10 in at 100 dpi
+    assert plt.get_fignums() == open_before
+    assert [p.name for p in tmp_path.iterdir()] == ["figure.png"]  # no temporary file left
+
+
+def test_the_panels_are_cropped_to_the_described_texels():
+    m = maps()
+    m["mask"][:] = False
+    m["mask"][10:20, 30:40] = True
+    m["coverage"] = np.where(m["mask"], 2, 0)
+    m["coverage"][25, 45] = 4  # an untrusted texel is described too
+    fig = drawn(m)
+    ax = panel(fig, "coverage")
+    assert ax.get_xlim() == (30 - 2 - 0.5, 45 + 2 + 0.5) and ax.get_ylim() == (25 + 2 + 0.5, 10 - 2 - 0.5)

@@ -9,10 +9,13 @@ the coverage codes are named in a legend of colour swatches below the panels, in
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from matplotlib.colors import BoundaryNorm, ListedColormap
 from matplotlib.patches import Patch
 
+from torchrefl.core.atomic_files import atomic_file
 from torchrefl.report.display import BACKGROUND, robust_range, srgb
 from torchrefl.report.maps import COVERAGE_COLOURS, COVERAGE_NAMES
 
@@ -152,3 +155,24 @@ def _draw_coverage(fig, ax, coverage, mask, box, show) -> None:
         title="coverage (texels)",
         title_fontsize=9,
     )
+
+
+def write_figure(
+    path: Path,
+    pd: np.ndarray,
+    ps: np.ndarray,
+    sigma: np.ndarray,
+    mask: np.ndarray,
+    coverage: np.ndarray | None,
+    sigma_max: float | None,
+    title: str,
+    dpi: int = 100,
+) -> None:
+    """Draw the reflectance figure (draw_reflectance's arguments) into a Figure of its own, not pyplot's (no global
+    matplotlib state changes), and save it as a PNG at `path`."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figure_size(described_texels(mask, coverage)), layout="constrained")
+    draw_reflectance(fig, pd, ps, sigma, mask, coverage, sigma_max, title)
+    with atomic_file(path) as fh:
+        fig.savefig(fh, format="png", dpi=dpi)
