@@ -13,7 +13,7 @@ light maps, without a valid observation) are transparent (alpha 0), never shown 
 - light_NNN_{observed,rendered,diff}.png: observed and re-rendered images of a few lights
   (gamma 1/2.2 for viewing) and the signed difference (grey 128 = 0, +-16 DN full swing).
 The display ranges come from torchrefl.report.display; torchrefl.report.figure draws the same maps with colour
-bars and a legend.
+bars and a legend (maps/figure.png, RunResult.figure).
 """
 
 from __future__ import annotations
