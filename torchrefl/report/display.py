@@ -5,7 +5,8 @@ One place for the choices every figure and PNG map shares (torchrefl.report.figu
   into one colour, clipped to the quantity's physical limits where it has them, and widened around its level
   where the map is (nearly) constant, so that a constant map shows as one colour rather than as float noise;
 - Pd, an albedo in [0, 1], shown as an sRGB-encoded colour image (kornia's linear_rgb_to_rgb);
-- texels without an estimate shown in one neutral background colour (never as the value 0).
+- texels without an estimate shown on a neutral, hatched background (never as the value 0, and not to be taken
+  for a grey albedo).
 """
 
 from __future__ import annotations
@@ -16,8 +17,11 @@ import numpy as np
 import torch
 from kornia.color import linear_rgb_to_rgb
 
-#: Texels without an estimate in figures: a neutral light grey (RGB fractions), unlike any colour map's ends.
-BACKGROUND = (0.80, 0.80, 0.80)
+#: Texels without an estimate in figures: a neutral light grey (RGB fractions), unlike any colour map's ends,
+#: hatched with darker grey lines.
+BACKGROUND = (0.85, 0.85, 0.85)
+HATCH = "///"
+HATCH_COLOUR = (0.6, 0.6, 0.6)
 #: Percentiles of the described texels that bound a colour range.
 PERCENTILES = (1.0, 99.0)
 #: A map whose percentile spread is below this fraction of its level (or below MIN_SPAN) is shown as constant.
@@ -29,12 +33,18 @@ MIN_SPAN = 1e-6
 @dataclass(frozen=True)
 class DisplayRange:
     """The values shown at the two ends of a colour scale; below / above: some described values lie outside it
-    (a colour bar draws them as arrows: `extend`)."""
+    (a colour bar draws them as arrows: `extend`); flat: the map is constant (to FLAT), shown at the middle."""
 
     vmin: float
     vmax: float
     below: bool = False
     above: bool = False
+    flat: bool = False
+
+    @property
+    def level(self) -> float:
+        """The value at the middle of the scale."""
+        return 0.5 * (self.vmin + self.vmax)
 
     @property
     def extend(self) -> str:
@@ -67,9 +77,10 @@ def robust_range(
     hi = hi if upper is None else min(hi, float(upper))
     level = 0.5 * (lo + hi)
     span = max(FLAT * abs(level), MIN_SPAN)
-    if hi - lo < span:
+    flat = hi - lo < span
+    if flat:
         lo, hi = level - span / 2, level + span / 2
-    return DisplayRange(lo, hi, below=bool((v < lo).any()), above=bool((v > hi).any()))
+    return DisplayRange(lo, hi, below=bool((v < lo).any()), above=bool((v > hi).any()), flat=flat)
 
 
 def srgb(linear: np.ndarray) -> np.ndarray:
@@ -77,3 +88,11 @@ def srgb(linear: np.ndarray) -> np.ndarray:
     a = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
     flat = torch.from_numpy(np.ascontiguousarray(a.reshape(-1, 3).T[:, :, None]))
     return np.clip(linear_rgb_to_rgb(flat)[:, :, 0].T.numpy().reshape(a.shape), 0.0, 1.0)
+
+
+def show_no_data(ax) -> None:
+    """Give a matplotlib Axes the no-estimate background: texels drawn transparent (alpha 0 or a colour map's
+    transparent `bad` colour) show it."""
+    ax.set_facecolor(BACKGROUND)
+    ax.patch.set_hatch(HATCH)
+    ax.patch.set_hatchcolor(HATCH_COLOUR)

@@ -3,7 +3,7 @@
 Two by two panels cropped to the texels the maps describe (axes in texel rows and columns, the coordinates the
 summary's patches use). Pd is shown sRGB-encoded (an albedo in [0, 1]); Ps and sigma on robust colour ranges
 (torchrefl.report.display: percentiles of the estimated texels, clipped to their physical limits; arrows on a
-colour bar mark values beyond it); texels without an estimate take the neutral background colour in every panel;
+colour bar mark values beyond it); texels without an estimate show the hatched grey background in every panel;
 the coverage codes are named in a legend of colour swatches below the panels, inside the figure.
 """
 
@@ -16,7 +16,7 @@ from matplotlib.colors import BoundaryNorm, ListedColormap
 from matplotlib.patches import Patch
 
 from torchrefl.core.atomic_files import atomic_file
-from torchrefl.report.display import BACKGROUND, robust_range, srgb
+from torchrefl.report.display import BACKGROUND, HATCH, HATCH_COLOUR, robust_range, show_no_data, srgb
 from torchrefl.report.maps import COVERAGE_COLOURS, COVERAGE_NAMES
 
 #: The figure's width in inches: a notebook shows a figure about this wide without scaling it down.
@@ -76,7 +76,7 @@ def draw_reflectance(
     hidden = lambda a: np.ma.masked_array(np.asarray(a, dtype=np.float64)[box], ~mask[box])
     axes = fig.subplots(2, 2, sharex=True, sharey=True)
     for ax in axes.flat:
-        ax.set_facecolor(BACKGROUND)
+        show_no_data(ax)
         ax.tick_params(labelsize=8)
     for ax in axes[1]:
         ax.set_xlabel("texel column", fontsize=9)
@@ -84,7 +84,8 @@ def draw_reflectance(
         ax.set_ylabel("texel row", fontsize=9)
     show = dict(extent=extent, aspect="equal")
 
-    rgba = np.concatenate([srgb(np.asarray(pd)[box]), mask[box][..., None].astype(np.float64)], axis=-1)
+    pd = np.broadcast_to(np.asarray(pd, dtype=np.float64).reshape(mask.shape + (-1,)), mask.shape + (3,))
+    rgba = np.concatenate([srgb(pd[box]), mask[box][..., None].astype(np.float64)], axis=-1)
     axes[0, 0].imshow(rgba, **show)
     axes[0, 0].set_title("Pd, diffuse albedo (sRGB, 0-1)", fontsize=11)
 
@@ -98,7 +99,10 @@ def draw_reflectance(
         bar = fig.colorbar(im, ax=ax, extend=rng.extend, shrink=0.9)
         bar.set_label(label, fontsize=9)
         bar.ax.tick_params(labelsize=8)
-        ax.set_title(label.split(",")[0] + f" ({_percentile_note(rng)})", fontsize=11)
+        bar.formatter.set_useOffset(False)
+        if rng.flat:
+            bar.set_ticks([rng.level], labels=[f"{rng.level:.4g}"])
+        ax.set_title(label.split(",")[0] + f" ({_range_note(rng)})", fontsize=11)
 
     _draw_coverage(fig, axes[1, 1], coverage, mask, box, show)
     if title:
@@ -114,15 +118,23 @@ def _colormap(name: str):
     return matplotlib.colormaps[name].resampled(255).with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
 
 
-def _percentile_note(rng) -> str:
+def _range_note(rng) -> str:
     """What the colour range is, for a panel's title."""
+    if rng.flat:
+        return f"constant {rng.level:.4g}"
     return "1st-99th percentile" if rng.below or rng.above else "full range"
 
 
 def _draw_coverage(fig, ax, coverage, mask, box, show) -> None:
     """The coverage panel and the swatch legend below the panels; code 0 (no usable observation) and texels
     without an estimate share the background swatch."""
-    no_estimate = Patch(facecolor=BACKGROUND, edgecolor="0.4", label="no estimate / no usable observation")
+    no_estimate = Patch(
+        facecolor=BACKGROUND,
+        edgecolor="0.4",
+        hatch=HATCH,
+        hatchcolor=HATCH_COLOUR,
+        label="no estimate / no usable observation",
+    )
     if coverage is None:
         ax.set_title("coverage (not in params.npz)", fontsize=11)
         fig.legend(handles=[no_estimate], loc="outside lower center", fontsize=9, frameon=False)
