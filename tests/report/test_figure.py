@@ -59,6 +59,7 @@ def test_a_constant_map_is_one_colour():
         im = panel(fig, word).images[0]
         rgba = im.to_rgba(im.get_array())[m["mask"]]
         assert len(np.unique(np.round(rgba, 6), axis=0)) == 1, word
+    assert panel(fig, "sigma").get_title() == "sigma (constant 0.25)"
 
 
 def test_the_coverage_legend_is_inside_a_plainly_saved_figure():
