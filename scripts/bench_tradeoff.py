@@ -74,6 +74,47 @@ def pareto(times, errors) -> np.ndarray:
     return np.array([not np.any((t <= t[i]) & (e <= e[i]) & ((t < t[i]) | (e < e[i]))) for i in range(len(t))])
 
 
+def plot_tradeoff(rows: list[dict], scenes: list[str], path: Path) -> None:
+    """Held-out error and pd_rmse against fit time, one column per scene, each level in its own marker, the
+    Pareto front dashed and its points numbered, their settings in a key (every point is in tradeoff.md's
+    table)."""
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    marks = {"local": ("s", "tab:blue"), "radiosity": ("o", "tab:orange"), "photon": ("^", "tab:green")}
+    fig = Figure(figsize=(10, 8), layout="constrained")
+    axes = fig.subplots(2, len(scenes), squeeze=False)
+    for j, scene in enumerate(scenes):
+        sr = [r for r in rows if r["scene"] == scene]
+        times = np.array([r["time_s"] for r in sr], dtype=float)
+        for i, (key, label) in enumerate(
+            (("holdout_mean_abs_diff_8bit", "held-out mean |difference| [DN of 255]"), ("pd_rmse", "pd_rmse"))
+        ):
+            err = np.array([np.inf if r[key] is None else r[key] for r in sr], dtype=float)
+            front = pareto(times, err)
+            ax = axes[i][j]
+            for level, (marker, colour) in marks.items():
+                k = [n for n, r in enumerate(sr) if r["level"] == level]
+                ax.scatter(times[k], err[k], marker=marker, color=colour, s=36, zorder=3)
+            order = [k for k in np.argsort(times) if front[k]]
+            ax.plot(times[order], err[order], "k--", lw=1, zorder=2)
+            key_lines = []
+            for n, k in enumerate(order, start=1):  # numbers at the points, their settings in a key
+                ax.annotate(str(n), (times[k], err[k]), xytext=(4, 4), textcoords="offset points", fontsize=9)
+                key_lines.append(f"{n}: {sr[k]['level']} {sr[k]['setting']}".replace(" -", ""))
+            key = [Line2D([], [], ls="none", label=line) for line in key_lines]
+            ax.legend(handles=key, loc="best", handlelength=0, handletextpad=0, fontsize=8, framealpha=0.9)
+            ax.set_xscale("log")
+            ax.set_xlabel("fit time [s] (log)", fontsize=10)
+            ax.set_ylabel(label, fontsize=10)
+            ax.set_title(scene, fontsize=11)
+            ax.grid(alpha=0.3, which="both")
+    handles = [Line2D([], [], marker=m, color=c, ls="none", label=level) for level, (m, c) in marks.items()]
+    handles.append(Line2D([], [], color="k", ls="--", lw=1, label="Pareto front (numbered: its settings in the key)"))
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=10, frameon=False)
+    fig.savefig(path, dpi=100)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="outputs/tradeoff")
@@ -122,10 +163,6 @@ def main() -> None:
                 }
             )
             (out / "tradeoff.json").write_text(json.dumps(rows, indent=2))
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import torch
 
     machine = (
@@ -140,31 +177,12 @@ def main() -> None:
         "var | Pareto |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    fig, axes = plt.subplots(2, len(args.scenes), figsize=(6 * len(args.scenes), 8), squeeze=False)
-    for j, scene in enumerate(args.scenes):
+    for scene in args.scenes:
         sr = [r for r in rows if r["scene"] == scene]
-        times = [r["time_s"] for r in sr]
-        for i, key in enumerate(("holdout_mean_abs_diff_8bit", "pd_rmse")):
-            err = [r[key] if r[key] is not None else np.inf for r in sr]
-            front = pareto(times, err)
-            if key == "holdout_mean_abs_diff_8bit":
-                for r, f in zip(sr, front):
-                    r["pareto_holdout"] = bool(f)
-            ax = axes[i][j]
-            for level, marker in (("local", "s"), ("radiosity", "o"), ("photon", "^")):
-                sel = [k for k, r in enumerate(sr) if r["level"] == level]
-                ax.scatter([times[k] for k in sel], [err[k] for k in sel], marker=marker, label=level)
-            order = np.argsort(times)
-            fx = [times[k] for k in order if front[k]]
-            fy = [err[k] for k in order if front[k]]
-            ax.plot(fx, fy, "k--", lw=1, label="Pareto front")
-            for k, r in enumerate(sr):
-                ax.annotate(r["setting"].split(" ")[0], (times[k], err[k]), fontsize=6)
-            ax.set_xscale("log")
-            ax.set_xlabel("fit time [s]")
-            ax.set_ylabel(key)
-            ax.set_title(scene)
-            ax.legend(fontsize=7)
+        errors = [r["holdout_mean_abs_diff_8bit"] for r in sr]
+        front = pareto([r["time_s"] for r in sr], [np.inf if e is None else e for e in errors])
+        for r, f in zip(sr, front):
+            r["pareto_holdout"] = bool(f)
         for r in sr:
             f = lambda v: f"{v:.4g}" if isinstance(v, float) else "-"
             lines.append(
@@ -172,8 +190,7 @@ def main() -> None:
                 f"{f(r['ps_median_rel_err'])} | {f(r['sigma_median_rel_err'])} | {f(r['holdout_mean_abs_diff_8bit'])} "
                 f"| {f(r['holdout_var_diff_8bit'])} | {'yes' if r.get('pareto_holdout') else ''} |"
             )
-    fig.tight_layout()
-    fig.savefig(out / "tradeoff.png", dpi=100)
+    plot_tradeoff(rows, args.scenes, out / "tradeoff.png")
     (out / "tradeoff.md").write_text("\n".join(lines) + "\n")
     (out / "tradeoff.json").write_text(json.dumps(rows, indent=2))
     print("\n".join(lines))

@@ -68,7 +68,7 @@ def test_outputs_contract(small_run):
     assert m["coverage"]["untrusted_geometry"] == int((p["coverage"] == 4).sum()) > 0
     assert not (p["mask"] & (p["coverage"] == 4)).any()
     assert {"measured_share", "interpolated_share", "regions", "unmeasured_patches"} <= set(m["specular_source"])
-    for name in ("pd.png", "ps.png", "sigma.png", "coverage.png"):
+    for name in ("pd.png", "ps.png", "sigma.png", "coverage.png", "figure.png"):
         assert (out / "maps" / name).stat().st_size > 0
     assert len(list((out / "maps").glob("light_*_diff.png"))) == 2
     assert (out / "config.yaml").is_file() and (out / "log.txt").is_file()

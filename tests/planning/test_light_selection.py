@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from torchrefl.errors import ConfigError
-from torchrefl.planning.light_selection import greedy_select, measurability, plot_coverage
+from torchrefl.planning.light_selection import coverage_figure, greedy_select, measurability, plot_coverage
 
 
 def test_measurability_thresholds():
@@ -84,3 +84,25 @@ def test_plot_and_table(tmp_path):
     assert (tmp_path / "c.png").stat().st_size > 1000
     t = r.table()
     assert t["lights_selected"] == len(r.chosen) and t["candidates"] == 5
+
+
+def test_the_coverage_figure_marks_each_pick_and_keeps_its_legend_inside(tmp_path):
+    import matplotlib
+
+    D, S, seen = toy()
+    r = greedy_select(D, S, seen, stop_ratio=1.0)
+    backend = matplotlib.get_backend()
+    matplotlib.use("svg")  # a backend other than the Agg a file writer might pick
+    try:
+        plot_coverage(r, tmp_path / "c.png")
+        assert matplotlib.get_backend() == "svg"  # writing the plot leaves a notebook's backend alone
+    finally:
+        matplotlib.use(backend)
+    fig = coverage_figure(r)
+    fig.savefig(tmp_path / "c.png")
+    (legend,) = fig.legends
+    box, frame = legend.get_window_extent(), fig.bbox
+    assert frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1
+    for ax in fig.axes:  # one marker per pick, in the style of its role
+        marked = {line.get_marker(): len(line.get_xdata()) for line in ax.lines if line.get_marker() in ("o", "^")}
+        assert marked == {"o": r.roles.count("diffuse"), "^": r.roles.count("specular")}

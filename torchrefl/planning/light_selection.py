@@ -150,29 +150,55 @@ def greedy_select(
     return SelectionResult(chosen, roles, dcurve, scurve, all_d, all_s, P, int(seen.sum()))
 
 
-def plot_coverage(result: SelectionResult, path) -> None:
-    """A Fig. 2.12 analogue: diffuse and specular coverage against the number of selected lights."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def coverage_figure(result: SelectionResult):
+    """A Fig. 2.12 analogue: diffuse and specular coverage against the number of selected lights, each pick marked
+    by its role, as a matplotlib Figure (not pyplot's: drawing it changes no global matplotlib state)."""
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
 
     k = np.arange(1, len(result.chosen) + 1)
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
+    roles = np.array(result.roles, dtype=object)
+    marks = {"diffuse": ("o", "tab:blue"), "specular": ("^", "tab:orange")}
+    fig = Figure(figsize=(10, 4.2), layout="constrained")
+    axes = fig.subplots(1, 2, sharey=True)
     for ax, curve, full, title in (
-        (axes[0], result.diffuse_curve, result.all_diffuse, "diffuse only (1 observation)"),
-        (axes[1], result.specular_curve, result.all_specular, "strong specular (2 observations)"),
+        (axes[0], result.diffuse_curve, result.all_diffuse, "diffuse only (1 observation per texel)"),
+        (axes[1], result.specular_curve, result.all_specular, "strong specular (2 observations per texel)"),
     ):
-        ax.plot(k, np.array(curve) * 100, "o-", label="selected")
-        ax.axhline(full * 100, color="grey", ls="--", label=f"all {result.num_candidates} candidates")
-        ax.set_xlabel("number of selected lights")
-        ax.set_ylabel("coverage of seen texels [%]")
-        ax.set_title(title)
+        y = np.array(curve, dtype=np.float64) * 100
+        ax.plot(k, y, "-", color="0.5", lw=1.2)
+        for role, (marker, colour) in marks.items():
+            picked = roles == role
+            ax.plot(k[picked], y[picked], marker, color=colour, ms=7, ls="none")
+        ax.axhline(full * 100, color="0.3", ls="--", lw=1.2)
+        ax.set_xlabel("number of selected lights", fontsize=10)
+        ax.set_title(title, fontsize=11)
         ax.set_ylim(0, 105)
-        ax.legend(loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+        ax.set_xticks(k if len(k) <= 20 else ax.get_xticks())
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("coverage of the seen texels [%]", fontsize=10)
+    handles = [
+        Line2D(
+            [], [], marker=marks["diffuse"][0], color=marks["diffuse"][1], ls="none", label="light picked for diffuse"
+        ),
+        Line2D(
+            [],
+            [],
+            marker=marks["specular"][0],
+            color=marks["specular"][1],
+            ls="none",
+            label="light picked for specular",
+        ),
+        Line2D([], [], color="0.3", ls="--", label=f"all {result.num_candidates} candidate lights"),
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncols=3, fontsize=10, frameon=False)
+    fig.suptitle(f"light selection: {len(result.chosen)} of {result.num_candidates} candidates", fontsize=12)
+    return fig
+
+
+def plot_coverage(result: SelectionResult, path) -> None:
+    """Save coverage_figure(result) as a PNG at `path` (100 dpi: 1000 pixels wide)."""
+    coverage_figure(result).savefig(path, dpi=100)
 
 
 def select_for_scan(

@@ -1,15 +1,19 @@
 """PNG maps of the estimates and of observed / re-rendered / difference images.
 
-All maps are on the texel grid (H, W); texels without an estimate are black.
-- pd.png: Pd as RGB (1.0 = full white, clipped above).
-- ps.png: Ps as RGB scaled so the 99th percentile is white (scale in the metrics' `maps` entry).
-- sigma.png: sigma in grey, 0 = black, sigma_max = white.
-- coverage.png: how each texel was determined (the coverage codes 0-7): black none, blue Pd with Ps, sigma
+All maps are RGBA PNGs on the texel grid (H, W), one pixel per texel; texels without an estimate (or, in the
+light maps, without a valid observation) are transparent (alpha 0), never shown as the value 0.
+- pd.png: Pd as an sRGB-encoded colour image (linear 1.0 = white, clipped above).
+- ps.png: Ps as RGB, 0 black, the 99th percentile of the estimated texels white (`ps_white` in the metrics'
+  `maps` entry).
+- sigma.png: sigma in grey, 0 black, the 99th percentile (at most sigma_max) white (`sigma_white`).
+- coverage.png: how each texel was determined (the coverage codes 1-7; 0 transparent): blue Pd with Ps, sigma
   interpolated, green Pd and Ps, sigma measured, red Pd from the upper bound only (Ps, sigma interpolated),
   magenta untrusted geometry (not fitted), yellow Pd with the object's lobe, orange misfit (no estimate), cyan Pd
   with its material's lobe fitted to its interreflected light.
 - light_NNN_{observed,rendered,diff}.png: observed and re-rendered images of a few lights
   (gamma 1/2.2 for viewing) and the signed difference (grey 128 = 0, +-16 DN full swing).
+The display ranges come from torchrefl.report.display; torchrefl.report.figure draws the same maps with colour
+bars and a legend (maps/figure.png, RunResult.figure).
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from torchrefl.capture.images import write_png
+from torchrefl.report.display import robust_range, srgb
 
 COVERAGE_COLOURS = {
     0: (0, 0, 0),
@@ -30,15 +35,16 @@ COVERAGE_COLOURS = {
     6: (255, 140, 0),
     7: (40, 210, 210),
 }
+#: The coverage codes' names in figure legends.
 COVERAGE_NAMES = (
-    "none",
-    "Pd, spec interpolated",
-    "Pd + spec measured",
-    "Pd bound",
-    "untrusted geometry",
-    "object's lobe",
-    "misfit",
-    "material's lobe",
+    "none: no usable observation",
+    "Pd; Ps, sigma interpolated",
+    "Pd, Ps, sigma measured",
+    "Pd upper bound; Ps, sigma interpolated",
+    "untrusted geometry (not fitted)",
+    "Pd; Ps, sigma the object's lobe",
+    "misfit (no estimate)",
+    "Pd; Ps, sigma the material's lobe",
 )
 
 
@@ -50,6 +56,12 @@ def _rgb(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def _rgba(rgb: np.ndarray, shown: np.ndarray) -> np.ndarray:
+    """(H, W, 4) floats in [0, 1]: rgb (H, W, 1 or 3) clipped, alpha 1 on the `shown` texels and 0 elsewhere."""
+    rgb = np.where(shown[..., None], np.clip(np.nan_to_num(_rgb(rgb)), 0.0, 1.0), 0.0)
+    return np.concatenate([rgb, shown[..., None].astype(np.float64)], axis=-1)
+
+
 def write_parameter_maps(
     folder: Path,
     mask: np.ndarray,
@@ -59,27 +71,28 @@ def write_parameter_maps(
     coverage: np.ndarray,
     sigma_max: float,
 ) -> dict:
-    """Write pd/ps/sigma/coverage PNGs into folder; returns the display scales used."""
+    """Write pd/ps/sigma/coverage PNGs into folder; returns the display scales used (the values shown white)."""
     folder.mkdir(parents=True, exist_ok=True)
-    m = mask[..., None]
-    write_png(folder / "pd.png", np.clip(_rgb(pd) * m, 0, 1), bits=8)
-    ps_scale = float(np.percentile(ps[mask], 99)) if mask.any() else 1.0
-    ps_scale = ps_scale if ps_scale > 0 else 1.0
-    write_png(folder / "ps.png", np.clip(_rgb(ps) / ps_scale * m, 0, 1), bits=8)
-    write_png(folder / "sigma.png", np.clip(_rgb(sigma / sigma_max) * m, 0, 1), bits=8)
-    cov = np.zeros(mask.shape + (3,), dtype=np.uint8)
+    mask = np.asarray(mask, dtype=bool)
+    write_png(folder / "pd.png", _rgba(srgb(_rgb(pd)), mask), bits=8)
+    ps_white = robust_range(ps, np.broadcast_to(mask[..., None], np.shape(ps)), lower=0.0).vmax
+    write_png(folder / "ps.png", _rgba(_rgb(ps) / ps_white, mask), bits=8)
+    sigma_white = robust_range(sigma, mask, lower=0.0, upper=sigma_max).vmax
+    write_png(folder / "sigma.png", _rgba(sigma / sigma_white, mask), bits=8)
+    cov = np.zeros(mask.shape + (4,), dtype=np.uint8)
     for code, colour in COVERAGE_COLOURS.items():
-        cov[coverage == code] = colour
+        if code:
+            cov[coverage == code] = colour + (255,)
     write_png(folder / "coverage.png", cov, bits=8)
-    return {"ps_white": ps_scale, "sigma_white": sigma_max}
+    return {"ps_white": ps_white, "sigma_white": sigma_white}
 
 
 def write_light_maps(folder: Path, name: str, observed: np.ndarray, rendered: np.ndarray, mask: np.ndarray) -> None:
     """observed, rendered: (H, W, 3) fractions of full range; mask (H, W) texels shown."""
     folder.mkdir(parents=True, exist_ok=True)
-    m = mask[..., None]
-    view = lambda x: np.clip(np.clip(x, 0, 1) ** (1 / 2.2) * m, 0, 1)
+    mask = np.asarray(mask, dtype=bool)
+    view = lambda x: _rgba(np.clip(x, 0, 1) ** (1 / 2.2), mask)
     write_png(folder / f"{name}_observed.png", view(observed), bits=8)
     write_png(folder / f"{name}_rendered.png", view(rendered), bits=8)
     diff = (rendered - observed) * 255.0
-    write_png(folder / f"{name}_diff.png", np.clip(0.5 + diff / 32.0, 0, 1) * m + 0.5 * (1 - m), bits=8)
+    write_png(folder / f"{name}_diff.png", _rgba(0.5 + diff / 32.0, mask), bits=8)

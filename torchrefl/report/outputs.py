@@ -15,6 +15,7 @@ from torchrefl.fit.initialise import COVER_UNTRUSTED
 from torchrefl.fit.result import FitResult
 from torchrefl.planning.light_selection import SelectionResult
 from torchrefl.report.coverage import specular_sources
+from torchrefl.report.figure import write_figure
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference, strict_json
 from torchrefl.version import __version__
@@ -112,15 +113,11 @@ def write_outputs(
         metrics = metrics_of(cfg, cap, res, selection, device)
         maps = out / "maps"
         mask = surface.to_grid(res.estimated.numpy(), fill=False)
-        metrics["maps"] = write_parameter_maps(
-            maps,
-            mask,
-            grid(res.pd.double().numpy()),
-            grid(res.ps.double().numpy()),
-            grid(res.sigma.double().numpy()),
-            grid(res.coverage.numpy()),
-            cfg.reflectance.sigma_max,
-        )
+        estimate = (grid(res.pd.double().numpy()), grid(res.ps.double().numpy()), grid(res.sigma.double().numpy()))
+        coverage = grid(res.coverage.numpy())
+        metrics["maps"] = write_parameter_maps(maps, mask, *estimate, coverage, cfg.reflectance.sigma_max)
+        title = f"{out.name}: model {res.level}, brdf {cfg.reflectance.brdf}"
+        write_figure(maps / "figure.png", *estimate, mask, coverage, cfg.reflectance.sigma_max, title)
         k = min(cfg.output.map_lights, obs.num_lights)
         for p in np.linspace(0, obs.num_lights - 1, k).round().astype(int) if k else []:
             shown = surface.to_grid(obs.valid[p].numpy(), fill=False)

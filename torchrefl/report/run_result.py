@@ -167,40 +167,19 @@ class RunResult:
         return out
 
     def figure(self, sigma_max: float | None = None):
-        """A matplotlib Figure with Pd (RGB), Ps (mean over channels), sigma and the coverage map."""
+        """A matplotlib Figure (pyplot) with Pd (sRGB), Ps (mean over channels), sigma and the coverage map
+        (torchrefl.report.figure); sigma_max: the top of sigma's colour range, by default the run's
+        reflectance.sigma_max."""
         import matplotlib.pyplot as plt
-        from matplotlib.colors import ListedColormap
 
-        from torchrefl.report.maps import COVERAGE_COLOURS, COVERAGE_NAMES
+        from torchrefl.report.figure import described_texels, draw_reflectance, figure_size
 
-        blank = lambda a: np.where(self.mask if a.ndim == 2 else self.mask[..., None], a, np.nan)
-        fig, axes = plt.subplots(1, 4, figsize=(16, 4), constrained_layout=True)
-        pd_img = np.clip(self.pd, 0.0, 1.0)
-        axes[0].imshow(np.concatenate([pd_img, self.mask[..., None].astype(float)], axis=-1))
-        axes[0].set_title("Pd (RGB)")
-        ps = self.ps.mean(axis=-1)
-        im = axes[1].imshow(blank(ps), cmap="magma")
-        axes[1].set_title("Ps (mean of channels)")
-        fig.colorbar(im, ax=axes[1], shrink=0.8)
         section = self.config.get("reflectance")
         top = sigma_max if sigma_max is not None else section.get("sigma_max") if isinstance(section, dict) else None
         top = top if isinstance(top, (int, float)) and not isinstance(top, bool) else None
-        im = axes[2].imshow(blank(self.sigma), cmap="viridis", vmin=0.0, vmax=top)
-        axes[2].set_title("sigma (rad)")
-        fig.colorbar(im, ax=axes[2], shrink=0.8)
-        if self.coverage is not None:
-            colours = np.array([COVERAGE_COLOURS[k] for k in sorted(COVERAGE_COLOURS)]) / 255.0
-            axes[3].imshow(
-                self.coverage, cmap=ListedColormap(colours), vmin=-0.5, vmax=len(colours) - 0.5, interpolation="nearest"
-            )
-            axes[3].set_title("coverage: " + " / ".join(COVERAGE_NAMES), fontsize=7)
-        else:
-            axes[3].set_title("coverage: not in params.npz")
-        for a in axes:
-            a.set_xticks([])
-            a.set_yticks([])
-        fig.suptitle(f"{self.folder}: model {self.metrics.get('model', '?')}, brdf {self.brdf}")
-        return fig
+        fig = plt.figure(figsize=figure_size(described_texels(self.mask, self.coverage)), layout="constrained")
+        title = f"{self.folder.name}: model {self.metrics.get('model', '?')}, brdf {self.brdf}"
+        return draw_reflectance(fig, self.pd, self.ps, self.sigma, self.mask, self.coverage, top, title)
 
 
 def _vector(name: str, value, allow_scalar: bool = False, unit: bool = False) -> torch.Tensor:
