@@ -34,6 +34,7 @@ def test_reads_cameras_in_file_order_with_distortion_defaults(write_json):
         ({k: v for k, v in CAM.items() if k != "fx"}, r"missing key \['c'\]\.fx"),
         (dict(CAM, fov=3), r"unknown key \['c'\]\.fov"),
         (dict(CAM, width=64.5), r"\['c'\]\.width must be a positive integer"),
+        ('{"c": {"width": 1e400}}', r"\['c'\]\.width must be a positive integer"),
         (dict(CAM, fy="52"), r"\['c'\]\.fy must be a finite number"),
         (dict(CAM, R=[[1, 0, 0], [0, 1, 0]]), r"\['c'\]\.R must be 3 x 3 finite numbers"),
         (dict(CAM, t=[0, 0]), r"\['c'\]\.t must be 3 finite numbers"),
@@ -42,7 +43,7 @@ def test_reads_cameras_in_file_order_with_distortion_defaults(write_json):
     ],
 )
 def test_bad_camera_names_file_and_key(write_json, camera, message):
-    path = write_json("cameras.json", {"c": camera})
+    path = write_json("cameras.json", camera if isinstance(camera, str) else {"c": camera})
     with pytest.raises(CaptureError, match=rf"cameras\.json.*{message}"):
         read_cameras_json(path)
 

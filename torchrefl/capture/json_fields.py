@@ -81,7 +81,7 @@ def number(value, where: str, key: str, positive: bool = False) -> float:
 
 def integer(value, where: str, key: str) -> int:
     """A positive integer (a JSON number without a fractional part)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value) or value < 1:
+    if not _is_number(value) or value != int(value) or value < 1:
         raise CaptureError(f"{where}: {key} must be a positive integer, got {value!r}")
     return int(value)
 
