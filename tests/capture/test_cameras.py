@@ -115,3 +115,21 @@ def test_repeated_name_is_an_error():
     with pytest.raises(CaptureError, match="'a' used twice"):
         Cameras.from_arrays(["a", "a"], [4, 4], [4, 4], [1, 1], [1, 1], [0, 0], [0, 0], np.zeros((2, 5)),
                             [np.eye(3)] * 2, np.zeros((2, 3)), "test")  # fmt: skip
+
+
+def test_points_beyond_the_distortion_turning_radius_are_left_out():
+    # r (1 - 0.5 r^2) stops growing at r^2 = 2/3: beyond it the model folds back towards the centre
+    cams = one_camera(R=np.eye(3), t=(0.0, 0.0, 0.0), dist=(-0.5, 0, 0, 0, 0))
+    assert cams.max_radius2().tolist() == pytest.approx([2 / 3])
+    uv = cams.project(torch.tensor([[0.5, 0.0, 1.0], [1.0, 0.0, 1.0]], dtype=torch.float64), camera=0).uv
+    assert uv[0].tolist() == pytest.approx([1000.0 * 0.5 * (1 - 0.5 * 0.25) + 320.0, 240.0])
+    assert torch.isnan(uv[1]).all()  # it would land at u = 820, inside the image, without the guard
+    assert one_camera(dist=(0.1, 0.01, 0, 0, 0)).max_radius2().tolist() == [math.inf]
+
+
+def test_skewed_intrinsic_matrix_is_an_error():
+    cams = one_camera()
+    K = cams.K.clone()
+    K[0, 0, 1] = 0.5
+    with pytest.raises(CaptureError, match=r"camera 'cam': K is .*expected \[\[fx, 0, cx\]"):
+        Cameras(cams.names, cams.width, cams.height, K, cams.distortion, cams.R, cams.t, source="test")

@@ -31,7 +31,8 @@ class Projection:
     """World points seen by cameras.
 
     uv: (..., P, 2) pixel coordinates (u right, v down; the centre of the top-left pixel at (0, 0)), NaN where
-        the point is not in front of the camera (depth <= 0).
+        the point is not in front of the camera (depth <= 0) or lies beyond the radius where the camera's
+        distortion folds back (Cameras.max_radius2).
     depth: (..., P) z of the point in the camera frame (world unit), along the optical axis.
     """
 
@@ -136,6 +137,12 @@ class Cameras:
             where = f"{self.source}: camera '{name}'"
             if self.width[i] < 1 or self.height[i] < 1:
                 raise CaptureError(f"{where}: size {int(self.width[i])}x{int(self.height[i])}, expected positive")
+            structure = self.K[i].clone()
+            structure[0, 0] = structure[1, 1] = structure[0, 2] = structure[1, 2] = 0.0
+            if not torch.equal(structure, torch.tensor([[0.0, 0, 0], [0, 0, 0], [0, 0, 1]], dtype=structure.dtype)):
+                raise CaptureError(
+                    f"{where}: K is {self.K[i].tolist()}, expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]"
+                )
             if self.K[i, 0, 0] <= 0 or self.K[i, 1, 1] <= 0:
                 raise CaptureError(
                     f"{where}: focal length fx = {float(self.K[i, 0, 0])!r}, fy = {float(self.K[i, 1, 1])!r} px, "
@@ -150,6 +157,19 @@ class Cameras:
                 )
             if float(torch.linalg.det(r)) < 0:
                 raise CaptureError(f"{where}: R has determinant -1, a reflection; expected a rotation (det +1)")
+
+    def max_radius2(self) -> torch.Tensor:
+        """(N,) the squared normalised radius r^2 = x'^2 + y'^2 up to which the radial distortion
+        r (1 + k1 r^2 + k2 r^4 + k3 r^6) still grows with r (inf when it always does). Beyond it the model
+        folds back, so a point far outside the field of view could land inside the image: project leaves it out."""
+        out = torch.full((len(self),), torch.inf, dtype=torch.float64)
+        for i, (k1, k2, _, _, k3) in enumerate(self.distortion.tolist()):
+            # d/dr of r (1 + k1 s + k2 s^2 + k3 s^3), s = r^2: 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3
+            roots = np.roots(np.trim_zeros([7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0], "f"))
+            real = [r.real for r in roots if abs(r.imag) < 1e-12 and r.real > 0]
+            if real:
+                out[i] = min(real)
+        return out
 
     def centres(self) -> torch.Tensor:
         """(N, 3) camera centres in the world: -R^T t."""
@@ -170,7 +190,8 @@ class Cameras:
         uv = torch.empty(n, p, 2, dtype=points.dtype, device=points.device)
         depth = torch.empty(n, p, dtype=points.dtype, device=points.device)
         step = max(1, CHUNK_PAIRS // max(n, 1))
-        params = [x[idx].to(points.device, points.dtype) for x in (self.R, self.t, self.K, self.distortion)]
+        tensors = (self.R, self.t, self.K, self.distortion, self.max_radius2())
+        params = [x[idx].to(points.device, points.dtype) for x in tensors]
         for start in range(0, p, step):
             stop = min(start + step, p)
             _project_chunk(points[start:stop], *params, uv[:, start:stop], depth[:, start:stop])
@@ -190,8 +211,9 @@ class Cameras:
         return (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
 
 
-def _project_chunk(points, R, t, K, distortion, uv_out, depth_out) -> None:
-    """Write the pixels (n, p, 2) and depths (n, p) of points (p, 3) in n cameras into uv_out, depth_out.
+def _project_chunk(points, R, t, K, distortion, max_r2, uv_out, depth_out) -> None:
+    """Write the pixels (n, p, 2) and depths (n, p) of points (p, 3) in n cameras into uv_out, depth_out
+    (pixels NaN behind the camera or beyond the distortion's turning radius, max_r2 (n,)).
 
     OpenCV's 5-coefficient model written out with in-place ops on (n, p) rows (the same formula as kornia's
     distort_points, which pads every camera to 14 coefficients and a rational radial term, several times the
@@ -206,7 +228,7 @@ def _project_chunk(points, R, t, K, distortion, uv_out, depth_out) -> None:
     xy2 = (x * y).mul_(2.0)
     xd = (x * radial).addcmul_(p1, xy2).addcmul_(p2, torch.addcmul(r2, x, x, value=2.0))
     yd = (y * radial).addcmul_(p2, xy2).addcmul_(p1, torch.addcmul(r2, y, y, value=2.0))
-    behind = z <= 0
+    behind = (z <= 0) | (r2 > max_r2[:, None])
     uv_out[..., 0] = xd.mul_(K[:, 0, 0, None]).add_(K[:, 0, 2, None]).masked_fill_(behind, torch.nan)
     uv_out[..., 1] = yd.mul_(K[:, 1, 1, None]).add_(K[:, 1, 2, None]).masked_fill_(behind, torch.nan)
     depth_out.copy_(z)
