@@ -133,3 +133,11 @@ def test_skewed_intrinsic_matrix_is_an_error():
     K[0, 0, 1] = 0.5
     with pytest.raises(CaptureError, match=r"camera 'cam': K is .*expected \[\[fx, 0, cx\]"):
         Cameras(cams.names, cams.width, cams.height, K, cams.distortion, cams.R, cams.t, source="test")
+
+
+def test_scaled_cameras_see_scaled_points_at_the_same_pixels():
+    cams = one_camera(dist=(0.1, 0, 0.01, 0, 0))
+    points = torch.tensor([[0.0, 3.0, -2.0], [1.0, -4.0, 5.0]], dtype=torch.float64)  # metres, say
+    in_mm = cams.scaled(1000.0)
+    assert in_mm.t[0].tolist() == [0.0, 0.0, 400000.0]
+    assert torch.allclose(in_mm.project(points * 1000.0).uv, cams.project(points).uv, atol=1e-9)

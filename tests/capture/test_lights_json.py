@@ -36,3 +36,12 @@ def test_point_and_directional_lights(write_json):
 def test_bad_light_names_file_and_key(write_json, light, message):
     with pytest.raises(CaptureError, match=rf"lights\.json: {message}"):
         read_lights_json(write_json("lights.json", {"x": light}))
+
+
+def test_scaled_lights_keep_the_irradiance(write_json):
+    doc = {"led": {"position": [0, 0, 2], "intensity": 3.0}, "sun": {"direction": [0, 0, 1], "intensity": 0.5}}
+    lights = read_lights_json(write_json("lights.json", doc)).scaled(10.0)  # cm -> mm
+    assert lights.position[0].tolist() == [0.0, 0.0, 20.0]
+    # Y / d^2 at the origin: 3 / 2^2 in cm units, 300 / 20^2 in mm
+    assert (lights.intensity[0] / 20.0**2).tolist() == pytest.approx([3.0 / 2.0**2] * 3)
+    assert lights.intensity[1].tolist() == [0.5] * 3 and np.isnan(lights.position[1]).all()

@@ -10,7 +10,7 @@ otherwise).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -104,6 +104,10 @@ class Cameras:
     @property
     def cy(self) -> torch.Tensor:
         return self.K[:, 1, 2]
+
+    def scaled(self, factor: float) -> "Cameras":
+        """The same cameras in a world unit `factor` times smaller (t x factor; e.g. a mesh's unit to mm)."""
+        return replace(self, t=self.t * factor)
 
     def index(self, name: str) -> int:
         """The index of the camera called `name`; KeyError when there is none."""

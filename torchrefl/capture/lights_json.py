@@ -12,7 +12,7 @@ sensor full range. `intensity` is 3 numbers > 0 (RGB) or one number for all thre
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +47,12 @@ class Lights:
 
     def __len__(self) -> int:
         return len(self.names)
+
+    def scaled(self, factor: float) -> "Lights":
+        """The same lights in a world unit `factor` times smaller (e.g. a mesh's unit to mm): positions x factor,
+        point intensities x factor^2 (so Y / d^2 is unchanged); directional lights unchanged."""
+        gain = np.where(self.point, factor**2, 1.0)[:, None]
+        return replace(self, position=self.position * factor, intensity=self.intensity * gain)
 
     def index(self, name: str) -> int:
         return self.names.index(name)
