@@ -9,6 +9,7 @@ height_step_mm; the same object and lights) with one sub-sample per texel, to ke
 """
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -89,3 +90,21 @@ def test_the_console_command_lists_its_subcommands(installed, tmp_path):
     _, bin_dir, env, _ = installed
     help_text = _run([bin_dir / "torchrefl", "--help"], cwd=tmp_path, env=env).stdout
     assert all(f"\n  {name} " in help_text for name in ("train", "plan", "rig"))
+
+
+def _bash_blocks(text: str) -> list[str]:
+    return re.findall(r"```bash\n(.*?)```", text, flags=re.S)
+
+
+def test_ci_runs_the_readme_test_command():
+    readme = (ROOT / "README.md").read_text()
+    (test_block,) = [b for b in _bash_blocks(readme) if "pytest" in b]
+    ci_lines = (ROOT / ".ci" / "run").read_text().splitlines()
+    assert test_block.strip() in ci_lines
+
+
+def test_readme_installs_torch_on_its_own_line_naming_the_build():
+    blocks = [b for b in _bash_blocks((ROOT / "README.md").read_text()) if "pip install" in b]
+    torch_lines = [line for b in blocks for line in b.splitlines() if "pip install torch" in line]
+    assert any("--index-url https://download.pytorch.org/whl/cpu" in line for line in torch_lines)  # the CPU build
+    assert all(" -e " not in line for line in torch_lines)  # torch is never installed together with the project
