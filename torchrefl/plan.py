@@ -17,7 +17,7 @@ from pathlib import Path
 
 from torchrefl.config import Config, load_config
 from torchrefl.core.progress import Stages
-from torchrefl.errors import ConfigError, OutputError, TorchReflError
+from torchrefl.errors import ConfigError, OutputError, command_status
 from torchrefl.planning.capture_plan import FIGURE_FILE, PLAN_FILE, PlanFiles, choose_lights, selection_line, write_plan
 from torchrefl.planning.light_selection import SelectionResult
 from torchrefl.synthetic.capture import stand_in_geometry
@@ -83,18 +83,16 @@ def main(argv=None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no log lines on stderr (the summary is still printed)")
     args = parser.parse_intermixed_args(argv)
     log = (lambda message: None) if args.quiet else (lambda message: print(message, file=sys.stderr))
-    try:
+
+    def work() -> int:
         result = plan_capture(load_config(args.config, args.overrides), args.out, args.overwrite, log)
-    except TorchReflError as exc:
-        print(f"torchrefl: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("torchrefl: interrupted", file=sys.stderr)
-        return 130
-    print(selection_line(result.selection))
-    print(f"plan: {result.files.plan} ({len(result.selection.chosen)} lights); coverage figure: {result.files.figure}")
-    print(f"capture it: python -m torchrefl.rig capture --plan {result.files.plan} --out CAPTURE_FOLDER")
-    return 0
+        files = result.files
+        print(selection_line(result.selection))
+        print(f"plan: {files.plan} ({len(result.selection.chosen)} lights); coverage figure: {files.figure}")
+        print(f"capture it: python -m torchrefl.rig capture --plan {files.plan} --out CAPTURE_FOLDER")
+        return 0
+
+    return command_status(work)
 
 
 if __name__ == "__main__":

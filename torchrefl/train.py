@@ -13,7 +13,7 @@ import sys
 
 from torchrefl.config import describe, load_config
 from torchrefl.config_bundle import listing
-from torchrefl.errors import TorchReflError
+from torchrefl.errors import command_status
 from torchrefl.report.summary import summary_table
 from torchrefl.run import run
 
@@ -47,18 +47,14 @@ def main(argv=None) -> int:
         return 0
     if args.config is None:
         parser.error("the following arguments are required: config (a YAML file, or a bundled name: --list)")
-    try:
-        cfg = load_config(args.config, args.overrides)
-        metrics = run(cfg, quiet=args.quiet, overwrite=args.overwrite)
-    except TorchReflError as exc:
-        print(f"torchrefl: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("torchrefl: interrupted", file=sys.stderr)
-        return 130
-    if args.quiet:
-        print(summary_table(metrics))
-    return 0
+
+    def work() -> int:
+        metrics = run(load_config(args.config, args.overrides), quiet=args.quiet, overwrite=args.overwrite)
+        if args.quiet:
+            print(summary_table(metrics))
+        return 0
+
+    return command_status(work)
 
 
 if __name__ == "__main__":
