@@ -10,6 +10,7 @@ LAYERS = [
     "errors",
     "version",
     "config_loading",
+    "config_bundle",
     "config",
     "core",
     "geometry",
@@ -21,7 +22,9 @@ LAYERS = [
     "report",
     "rig",
     "run",
+    "plan",
     "train",
+    "cli",
     "__init__",
 ]
 

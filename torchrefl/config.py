@@ -21,6 +21,7 @@ from typing import Optional
 
 import yaml
 
+from torchrefl.config_bundle import bundled_folder, config_path
 from torchrefl.config_loading import (
     PATH_KEYS,
     _apply,
@@ -367,12 +368,13 @@ class Config:
 
 
 def load_config(path: Optional[str | Path] = None, overrides: list[str] = ()) -> Config:
-    """Load a YAML config strictly, apply dotted overrides, validate; returns Config."""
+    """Load a YAML config strictly, apply dotted overrides, validate; returns Config. `path` is a YAML file, or the
+    name of a bundled config (`default`; torchrefl.config_bundle) when no file of that name exists."""
     cfg = Config()
     sources: dict[str, str] = {}
     default_where = str(path) if path is not None else "config"
     if path is not None:
-        path = Path(path)
+        path = config_path(path)
         data = read_yaml_mapping(path, ConfigError, "config file")
         _apply(cfg, data, "", str(path), sources)
         cfg.config_dir = str(path.resolve().parent)
@@ -420,7 +422,18 @@ def describe(cls=Config, prefix: str = "") -> list[str]:
     return lines
 
 
-def resolve_path(cfg: Config, value: str) -> Path:
-    """A path from the config, relative to the config file's folder."""
+def resolve_path(cfg: Config, value: str, key: str = "capture.path") -> Path:
+    """A path from the config, relative to the config file's folder. A relative path of a bundled config that does
+    not exist is a ConfigError: it points into a repository checkout (the bundled configs' folder) and is to be given
+    on the command line instead."""
     p = Path(value)
-    return p if p.is_absolute() else Path(cfg.config_dir) / p
+    if p.is_absolute():
+        return p
+    resolved = Path(cfg.config_dir) / p
+    if not resolved.exists() and Path(cfg.config_dir) == bundled_folder():
+        raise ConfigError(
+            f"{resolved}: key '{key}' = '{value}' of a bundled config is relative to the bundled configs' folder and "
+            f"does not exist there; give it on the command line, e.g. {key}=/path/to/data (relative to the current "
+            "folder)"
+        )
+    return resolved

@@ -2,8 +2,11 @@
 
 Every bad input raises a TorchReflError subclass whose message names the file,
 the key or the field and what was expected. Callers (the CLI) print the message
-without a traceback; library users can catch TorchReflError.
+without a traceback (command_status); library users can catch TorchReflError.
 """
+
+import sys
+from typing import Callable
 
 
 class TorchReflError(Exception):
@@ -36,3 +39,23 @@ class OutputError(TorchReflError):
 
 class RunFolderError(TorchReflError):
     """A run folder is incomplete, mixes two runs or holds damaged files (load_run)."""
+
+
+def command_status(work: Callable[[], int]) -> int:
+    """The exit status of a command's work: its own; 2 for a TorchReflError (printed on one line to stderr, no
+    traceback); 130 when interrupted."""
+    try:
+        return work()
+    except TorchReflError as exc:
+        _print_error(f"error: {exc}", exc)
+        return 2
+    except KeyboardInterrupt as exc:
+        _print_error("interrupted", exc)
+        return 130
+
+
+def _print_error(text: str, exc: BaseException) -> None:
+    """An error on stderr, once: the message, then the notes a run added to the exception (where its files are)."""
+    print(f"torchrefl: {text}", file=sys.stderr)
+    for note in getattr(exc, "__notes__", ()):
+        print(f"  {note}", file=sys.stderr)

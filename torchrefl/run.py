@@ -133,7 +133,8 @@ def run(cfg: Config, quiet: bool = False, overwrite: bool = False) -> dict:
 def fit(
     config: Config | str | Path, overrides: list[str] = (), *, quiet: bool = True, overwrite: bool = False
 ) -> RunResult:
-    """Fit a config (a Config, or a YAML file with dotted.key=value overrides) and return the finished run."""
+    """Fit a config (a Config, or a YAML file or bundled config name with dotted.key=value overrides) and return the
+    finished run."""
     cfg = config if isinstance(config, Config) else load_config(config, list(overrides))
     run(cfg, quiet=quiet, overwrite=overwrite)
     return load_run(output_folder(cfg.output.dir))

@@ -1,4 +1,6 @@
-"""python -m torchrefl.train CONFIG [dotted.key=value ...] [--overwrite] [--quiet]
+"""python -m torchrefl.train CONFIG [dotted.key=value ...] [--overwrite] [--quiet]  |  --list
+
+CONFIG is a YAML file or the name of a bundled config (`default`; --list prints them).
 
 The command line of torchrefl.run: one config (and dotted overrides) -> one run folder, written whole or
 not at all (torchrefl.report.run_folder). Streams: the summary table and the run folder's path on stdout;
@@ -12,7 +14,8 @@ import argparse
 import sys
 
 from torchrefl.config import describe, load_config
-from torchrefl.errors import TorchReflError
+from torchrefl.config_bundle import listing
+from torchrefl.errors import command_status
 from torchrefl.report.run_folder import output_folder
 from torchrefl.report.summary import summary_table
 from torchrefl.run import run
@@ -26,13 +29,6 @@ NO_CONFIG = (
 )
 
 
-def _error(text: str, notes=()) -> None:
-    """An error on stderr, once: the message, then the notes the run added (where its files are)."""
-    print(f"torchrefl: {text}", file=sys.stderr)
-    for note in notes:
-        print(f"  {note}", file=sys.stderr)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog=PROG,
@@ -41,7 +37,12 @@ def main(argv=None) -> int:
         epilog="Options (set in the YAML file or as dotted.key=value overrides):\n" + "\n".join(describe()),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("config", nargs="?", metavar="CONFIG", help="YAML config file (e.g. configs/default.yaml)")
+    parser.add_argument(
+        "config",
+        nargs="?",
+        metavar="CONFIG",
+        help="YAML config file (e.g. configs/default.yaml) or the name of a bundled config (e.g. default; see --list)",
+    )
     parser.add_argument(
         "overrides", nargs="*", help="dotted.key=value overrides, e.g. output.dir=/tmp/x fit.holdout=[5,11]"
     )
@@ -56,23 +57,24 @@ def main(argv=None) -> int:
         help="replace an earlier run in output.dir (kept until this run completes; without the flag "
         "a folder holding a run is refused)",
     )
+    parser.add_argument("--list", action="store_true", help="print the bundled configs and exit")
     args = parser.parse_intermixed_args(argv)
+    if args.list:
+        print(listing())
+        return 0
     if args.config is None:
         print(f"usage: {USAGE}", file=sys.stderr)
-        _error(f"error: {NO_CONFIG}")
+        print(f"torchrefl: error: {NO_CONFIG}", file=sys.stderr)
         return 2
-    try:
+
+    def work() -> int:
         cfg = load_config(args.config, args.overrides)
         metrics = run(cfg, quiet=args.quiet, overwrite=args.overwrite)
-    except TorchReflError as exc:
-        _error(f"error: {exc}", getattr(exc, "__notes__", ()))
-        return 2
-    except KeyboardInterrupt as exc:
-        _error("interrupted", getattr(exc, "__notes__", ()))
-        return 130
-    print(summary_table(metrics))
-    print(f"\nrun folder: {output_folder(cfg.output.dir)}")
-    return 0
+        print(summary_table(metrics))
+        print(f"\nrun folder: {output_folder(cfg.output.dir)}")
+        return 0
+
+    return command_status(work)
 
 
 if __name__ == "__main__":

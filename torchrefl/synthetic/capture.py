@@ -7,19 +7,19 @@ cylindrical_scan loader like any scan on disk.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from torchrefl.capture.base import Capture, Log
-from torchrefl.capture.cylindrical_scan import CylindricalScanLoader
+from torchrefl.capture.cylindrical_scan import CylindricalScanLoader, ScanGeometry
 from torchrefl.capture.scale_check import ObjectSize, Reference, ScaleCheck, check_scale
 from torchrefl.capture.scan_scale import head_distances
 from torchrefl.config import Config
 from torchrefl.core.progress import Stages, bar
 from torchrefl.errors import ConfigError
-from torchrefl.planning.light_selection import SelectionResult, plot_coverage, select_for_scan
+from torchrefl.planning.capture_plan import FIGURE_FILE, PLAN_FILE, choose_lights, selection_line, write_plan
+from torchrefl.planning.light_selection import SelectionResult
 from torchrefl.synthetic.scan import SyntheticScan
 
 
@@ -51,39 +51,42 @@ def synthetic_scale_check(cfg: Config, scan: SyntheticScan) -> ScaleCheck:
     return check_scale(obj, refs)
 
 
-def synthetic_capture(cfg: Config, out: Path, stages: Stages, log: Log) -> tuple[Capture, SelectionResult | None]:
-    """Render cfg.synthetic into out/capture and load it; the light selection (None when disabled)."""
-    loader = CylindricalScanLoader()
+def stand_in_geometry(
+    cfg: Config, folder: Path, stages: Stages, log: Log
+) -> tuple[SyntheticScan, ScanGeometry, list[str]]:
+    """The synthetic object of cfg scanned into `folder` (range image, truth; no texture) and its geometry read back,
+    with the scale check's warnings (a ConfigError where the config's lengths disagree by orders of magnitude)."""
     with stages.stage("synthetic scan"):
         scan = SyntheticScan(
             cfg.synthetic, cfg.selection.grid, seed=cfg.seed, kappa=cfg.capture.kappa, threads=cfg.threads
         )
         scan.saturation_level = cfg.capture.saturation_level
         scale_warnings = synthetic_scale_check(cfg, scan).enforce(ConfigError)
-        folder = scan.write_geometry(out / "capture")
+        scan.write_geometry(folder)
     log(f"synthetic {cfg.synthetic.object} written to {folder}")
     with stages.stage("geometry"):
-        geom = loader.load_geometry(folder, cfg, check_scale=False)  # checked above, in the config's terms
+        geom = CylindricalScanLoader().load_geometry(
+            folder, cfg, check_scale=False
+        )  # checked above, in the config's terms
+    return scan, geom, scale_warnings
+
+
+def synthetic_capture(cfg: Config, out: Path, stages: Stages, log: Log) -> tuple[Capture, SelectionResult | None]:
+    """Render cfg.synthetic into out/capture and load it; the light selection (None when disabled)."""
+    folder = out / "capture"
+    scan, geom, scale_warnings = stand_in_geometry(cfg, folder, stages, log)
     positions = candidates = scan.candidate_positions()
     selection = None
     if cfg.selection.enabled:
         with stages.stage("light selection"):
-            selection = select_for_scan(geom, candidates, cfg.selection, cfg.reflectance, cfg.geometry.shadow_offset_mm)
+            selection = choose_lights(cfg, geom, candidates)
             positions = candidates[selection.chosen]
-            (out / "selection").mkdir(parents=True, exist_ok=True)
-            plot_coverage(selection, out / "selection" / "coverage.png")
-            (out / "selection" / "selection.json").write_text(json.dumps(selection.to_json(), indent=2))
-        t = selection.table()
-        log(
-            f"light selection: {t['lights_selected']} of {t['candidates']} lights ({t['lights_for_diffuse']} for "
-            "diffuse); "
-            f"diffuse coverage {t['diffuse_coverage']:.1%} (all: {t['diffuse_coverage_all_candidates']:.1%}), "
-            f"specular {t['specular_coverage']:.1%} (all: {t['specular_coverage_all_candidates']:.1%})"
-        )
+            write_plan(selection, out / "selection" / PLAN_FILE, out / "selection" / FIGURE_FILE)
+        log(selection_line(selection))
     with stages.stage("render textures"):
         with bar(len(positions), "render", cfg.output.progress, unit="image") as pb:
             scan.write_textures(folder, positions, progress=pb)
     with stages.stage("observations"):
-        capture = loader.load(folder, cfg, log, geometry=geom)
+        capture = CylindricalScanLoader().load(folder, cfg, log, geometry=geom)
     capture.warnings[:0] = scale_warnings
     return capture, selection

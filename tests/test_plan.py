@@ -1,0 +1,89 @@
+"""python -m torchrefl.plan: light selection without a fit writes the plan the rig reads, with the lights a
+selection-enabled synthetic run chooses for the same config."""
+
+import json
+
+import numpy as np
+import pytest
+
+from torchrefl.config import load_config
+from torchrefl.core.progress import Stages
+from torchrefl.errors import OutputError
+from torchrefl.plan import main, plan_files
+from torchrefl.rig.dry_run import match_grid, synthetic_scene
+from torchrefl.rig.model import RigModel
+from torchrefl.rig.plan import load_plan
+from torchrefl.rig.settings import RigSettings
+from torchrefl.synthetic.capture import synthetic_capture
+
+#: the default config at a quarter of its resolution (the same object and light grid), rendered at 1 sub-sample
+SMALL = [
+    "synthetic.columns=128",
+    "synthetic.rows=113",
+    "synthetic.angle_step_deg=2.8",
+    "synthetic.height_step_mm=2.24",
+    "synthetic.supersample=1",
+    "output.progress=false",
+]
+
+
+@pytest.fixture(scope="module")
+def planned(tmp_path_factory):
+    out = tmp_path_factory.mktemp("plan") / "plan"
+    assert main(["default", *SMALL, "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_plan_folder_holds_the_plan_and_its_figure(planned):
+    assert sorted(p.name for p in planned.iterdir()) == ["coverage.png", "selection.json"]
+    assert (planned / "coverage.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_rig_reads_the_plan(planned):
+    doc = json.loads((planned / "selection.json").read_text())
+    model = RigModel(match_grid(RigSettings(), synthetic_scene("default", SMALL)))
+    targets = load_plan(planned / "selection.json", model)
+    assert len(targets) == len(doc["chosen"]) > 0
+    # every planned light is a node of the rig's grid, at the node the selection chose (flat index j*columns + i)
+    columns = model.grid.columns
+    assert [t.grid for t in targets] == [(c % columns, c // columns) for c in doc["chosen"]]
+
+
+def test_plan_chooses_the_lights_of_a_selection_enabled_run(planned, tmp_path):
+    cfg = load_config("default", [*SMALL, "selection.enabled=true"])
+    _, selection = synthetic_capture(cfg, tmp_path, Stages(), lambda message: None)
+    doc = json.loads((planned / "selection.json").read_text())
+    assert doc["chosen"] == [int(c) for c in selection.chosen]
+    assert np.allclose(doc["positions_mm"], selection.positions[selection.chosen])
+    run_doc = json.loads((tmp_path / "selection" / "selection.json").read_text())
+    assert run_doc == doc
+
+
+def test_plan_does_not_need_selection_enabled(tmp_path, capsys):
+    out = tmp_path / "p.json"
+    assert main(["default", *SMALL, "selection.enabled=false", "selection.num_lights=3", "--out", str(out)]) == 0
+    assert len(json.loads(out.read_text())["chosen"]) == 3
+    assert (tmp_path / "p_coverage.png").is_file()
+    printed = capsys.readouterr().out
+    assert "3 of 60 lights" in printed and str(out) in printed
+
+
+def test_an_existing_plan_is_kept_without_overwrite(planned, capsys):
+    before = (planned / "selection.json").read_text()
+    assert main(["default", *SMALL, "--out", str(planned), "--quiet"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert (planned / "selection.json").read_text() == before
+
+
+def test_a_capture_without_a_stand_in_is_refused(tmp_path, capsys):
+    assert main(["diligent_ball", "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err
+    assert "capture.kind" in err and "synthetic_cylindrical" in err
+    assert not (tmp_path / "p").exists()
+
+
+def test_out_names_a_json_file_or_a_folder(tmp_path):
+    assert plan_files(tmp_path / "a.json").figure == tmp_path / "a_coverage.png"
+    assert plan_files(tmp_path / "d").plan == tmp_path / "d" / "selection.json"
+    with pytest.raises(OutputError, match="plan.png"):
+        plan_files(tmp_path / "plan.png")
