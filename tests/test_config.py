@@ -35,7 +35,7 @@ def test_every_field_has_a_default_and_a_doc():
     walk(Config)
 
 
-@pytest.mark.parametrize("name", ["default.yaml", "diligent_ball.yaml"])
+@pytest.mark.parametrize("name", ["default.yaml", "quick.yaml", "diligent_ball.yaml"])
 def test_bundled_configs_load(name):
     cfg = load_config(ROOT / "configs" / name)
     assert cfg.fit.model == "local"

@@ -184,6 +184,7 @@ def test_diligent_ball_bundled_config(tmp_path):
         main(
             [
                 str(ROOT / "configs" / "diligent_ball.yaml"),
+                f"capture.path={BALL}",
                 f"output.dir={out}",
                 "output.progress=false",
                 "output.map_lights=0",
@@ -204,6 +205,7 @@ def test_diligent_ball_subset(tmp_path):
     subset = list(range(0, 96, 3))
     args = [
         str(ROOT / "configs" / "diligent_ball.yaml"),
+        f"capture.path={BALL}",
         f"output.dir={out}",
         f"capture.light_subset={subset}",
         "fit.holdout=[5,11,17,23,29]",
@@ -237,6 +239,7 @@ def test_auto_on_photometric_stereo_is_local_and_radiosity_and_photon_are_refuse
     out = tmp_path / "ball_auto"
     base = [
         str(ROOT / "configs" / "diligent_ball.yaml"),
+        f"capture.path={BALL}",
         f"output.dir={out}",
         "capture.light_subset=[0,10,20,30,40]",
         "fit.holdout=[]",

@@ -21,6 +21,10 @@ class CaptureError(TorchReflError):
     """Capture data (images, light tables, masks, normals) is missing or inconsistent."""
 
 
+class DataMissingError(CaptureError):
+    """The capture folder that capture.path names does not exist; the message says how to get the data."""
+
+
 class GeometryError(TorchReflError):
     """Geometry (range image, mesh, normals) is unusable: NaN, non-unit, degenerate."""
 

@@ -11,11 +11,13 @@ import scipy.io
 import torch
 from PIL import Image
 
+import torchrefl
 from torchrefl.capture.images import write_png
 from torchrefl.capture.photometric_stereo import load_photometric_stereo
-from torchrefl.errors import CaptureError, GeometryError
+from torchrefl.errors import CaptureError, DataMissingError, GeometryError
 
-SHARED = Path(__file__).resolve().parents[2] / ".." / "shared"
+ROOT = Path(__file__).resolve().parents[2]
+SHARED = ROOT / ".." / "shared"
 BALL = SHARED / "data" / "diligent_ball"
 
 H, W, P = 6, 8, 4
@@ -145,8 +147,18 @@ def _expect(root, cls, *fragments, **kwargs):
     return msg
 
 
-def test_missing_folder(tmp_path):
-    _expect(tmp_path / "nowhere", CaptureError, "nowhere")
+def test_missing_folder_says_how_to_get_the_data(tmp_path):
+    msg = _expect(tmp_path / "nowhere", DataMissingError, "nowhere")
+    assert "https://sites.google.com/site/photometricstereodata/single" in msg
+    assert "capture.path=/path/to/DiLiGenT/pmsData/ballPNG" in msg
+
+
+def test_bundled_config_without_the_data_stops_with_the_download_hint(tmp_path):
+    """configs/diligent_ball.yaml names no real folder: run as is, it stops with the one DataMissingError."""
+    with pytest.raises(DataMissingError) as e:
+        torchrefl.fit(ROOT / "configs" / "diligent_ball.yaml", [f"output.dir={tmp_path / 'out'}"], quiet=True)
+    assert "/path/to/DiLiGenT/pmsData/ballPNG" in str(e.value) and "photometricstereodata" in str(e.value)
+    assert isinstance(e.value, CaptureError)
 
 
 @pytest.mark.parametrize(

@@ -53,14 +53,17 @@ def test_committed_notebook_has_no_outputs():
         assert c.outputs == [] and c.execution_count is None, f"stored outputs in cell:\n{c.source[:200]}"
 
 
-@pytest.fixture(scope="module")
-def executed():
-    """The notebook run by a kernel that imports this tree's torchrefl (PYTHONPATH first: the kernel inherits it)."""
-    nb = nbformat.read(NOTEBOOK, as_version=4)
-    env = {
-        "PYTHONPATH": os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
-        "TORCHREFL_DILIGENT_BALL": str(BALL),
-    }
+def _with_ball_dir(nb, ball_dir):
+    """The notebook with BALL_DIR set as a user sets it: a cell after the parameters cell (as papermill injects)."""
+    params = nb.cells.index(_cell(nb, "BALL_DIR = None"))
+    if ball_dir is not None:
+        nb.cells.insert(params + 1, nbformat.v4.new_code_cell(f"BALL_DIR = Path({str(ball_dir)!r})"))
+    return nb
+
+
+def _execute(nb):
+    """Run `nb` in a kernel that imports this tree's torchrefl (PYTHONPATH first: the kernel inherits it)."""
+    env = {"PYTHONPATH": os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p])}
     saved = {k: os.environ.get(k) for k in env}
     os.environ.update(env)
     try:
@@ -75,6 +78,13 @@ def executed():
             else:
                 os.environ[k] = v
     return nb
+
+
+@pytest.fixture(scope="module")
+def executed():
+    """The whole notebook, with the DiLiGenT ball of ../shared/data when it is there."""
+    nb = nbformat.read(NOTEBOOK, as_version=4)
+    return _execute(_with_ball_dir(nb, BALL if BALL.is_dir() else None))
 
 
 def test_tour_runs_this_tree(executed):
@@ -102,11 +112,29 @@ def test_tour_synthetic_section(executed):
 
 
 def test_tour_diligent_ball_section(executed):
-    first, second = _cell(executed, "HAVE_BALL = BALL_DIR.is_dir()"), _cell(executed, "show_light(ball.folder")
+    first, second = _cell(executed, "except DataMissingError"), _cell(executed, "show_light(ball.folder")
     if not BALL.is_dir():
-        assert "DiLiGenT ball data not found" in _text(first) and _images(first) == 0 and _images(second) == 0
-        pytest.skip(f"{BALL} not present: the notebook skipped its section, as checked")
-    assert "DiLiGenT ball fitted" in _text(first) and _images(first) == 1
+        pytest.skip(f"{BALL} not present (test_tour_without_the_ball_says_what_it_skipped covers that case)")
+    assert "DiLiGenT ball fitted" in _text(first) and _images(first) == 1 and "SKIPPED" not in _text(first)
     assert _images(second) == 2  # the held-out triple and the relit views
     held = _held_out(_text(second))
     assert held["count"] > 1000 and held["mean_abs_diff_8bit"] < 1.0
+
+
+def test_tour_without_the_ball_says_what_it_skipped():
+    """BALL_DIR left at None (the data not downloaded): section 2 prints a visible SKIPPED line with the download hint
+    and draws nothing. Only the parameters, set-up and section 2 cells run (a few seconds)."""
+    nb = nbformat.read(NOTEBOOK, as_version=4)
+    keep = (
+        "BALL_DIR = None",
+        "WORK = tempfile.TemporaryDirectory",
+        "except DataMissingError",
+        "show_light(ball.folder",
+    )
+    nb.cells = [_cell(nb, marker) for marker in keep]
+    nb = _execute(nb)
+    first, second = (_text(_cell(nb, m)) for m in keep[2:])
+    assert "SKIPPED section 2 (the DiLiGenT ball)" in first, first
+    assert "https://sites.google.com/site/photometricstereodata/single" in first and "capture.path=" in first, first
+    assert "SKIPPED" in second, second
+    assert _images(_cell(nb, keep[2])) == 0 and _images(_cell(nb, keep[3])) == 0

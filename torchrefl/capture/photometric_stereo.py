@@ -37,7 +37,7 @@ from torchrefl.capture.images import read_image, read_images
 from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.core.surface import UNIT_TOLERANCE, Surface
-from torchrefl.errors import CaptureError, GeometryError
+from torchrefl.errors import CaptureError, DataMissingError, GeometryError
 
 FILENAMES = "filenames.txt"
 LIGHT_DIRECTIONS = "light_directions.txt"
@@ -48,6 +48,8 @@ NORMALS_KEY = "Normal_gt"
 # light directions are stored with 4 decimals: accept rounding, reject vectors that are not unit
 DIRECTION_TOLERANCE = 1e-2
 _IMAGE_NAME = re.compile(r"^\d+\.png$", re.IGNORECASE)
+#: the DiLiGenT benchmark's project page (torchrefl does not ship the data)
+DILIGENT_URL = "https://sites.google.com/site/photometricstereodata/single"
 
 
 def _require_file(path: Path) -> Path:
@@ -320,7 +322,11 @@ def _observations(
 def _check_options(folder: Path, saturation_level, kappa) -> np.ndarray:
     """The folder, saturation_level and kappa checked (CaptureError); returns kappa as (3,) float64."""
     if not folder.is_dir():
-        raise CaptureError(f"{folder}: photometric stereo folder missing (expected the DiLiGenT layout)")
+        raise DataMissingError(
+            f"{folder}: photometric stereo folder not found (capture.path; expected a folder in the DiLiGenT layout). "
+            f"The DiLiGenT data is not shipped with torchrefl: download DiLiGenT from {DILIGENT_URL}, unpack it "
+            "and point capture.path at one object's folder, e.g. capture.path=/path/to/DiLiGenT/pmsData/ballPNG"
+        )
     if not 0.0 < float(saturation_level) <= 1.0:
         raise CaptureError(f"saturation_level={saturation_level!r} for {folder}, expected a value in (0, 1]")
     kappa_arr = np.asarray(kappa, dtype=np.float64).reshape(-1)
