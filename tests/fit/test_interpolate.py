@@ -1,8 +1,19 @@
 """Interpolation of undetermined texels (W x W window, then the median of the determined texels)."""
 
+import numpy as np
 import torch
 
-from torchrefl.fit.interpolate import fill_undetermined
+from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.fit.interpolate import fill_undetermined as fill_texels
+
+
+def fill_undetermined(grid, known, inside, **options):
+    """fill_texels on every cell of the (H, W, C) grid as one texel of a plain TexelGrid, back on the grid."""
+    H, W, C = grid.shape
+    out, how = fill_texels(
+        TexelGrid(np.arange(H * W), (H, W)), grid.reshape(H * W, C), known.reshape(-1), inside.reshape(-1), **options
+    )
+    return out.reshape(H, W, C), how.reshape(H, W)
 
 
 def test_holes_in_a_linear_ramp_are_filled_by_neighbours():

@@ -3,6 +3,7 @@ alone, however large, flags none; held-out and unestimated texels are not judged
 
 import torch
 
+from torchrefl.core.texel_grid import TexelGrid
 from torchrefl.fit.misfit import misfit_texels, near_edge
 
 
@@ -45,8 +46,8 @@ def test_only_texels_next_to_an_edge_or_untrusted_geometry_may_be_misfits():
     index = torch.arange(H * W)
     trusted = torch.ones(H * W, dtype=torch.bool)
     trusted[5 * W + 5] = False
-    near = near_edge((H, W), index, trusted).view(H, W)
+    near = near_edge(TexelGrid(index.numpy(), (H, W)), trusted).view(H, W)
     assert near[0].all() and near[:, 0].all() and near[3:8, 3:8].all()
     assert not near[2, 2] and not near[2, 7] and not near[7, 2]
-    off_surface = near_edge((H, W), index[index != 0], torch.ones(H * W - 1, dtype=torch.bool))
+    off_surface = near_edge(TexelGrid(index[index != 0].numpy(), (H, W)), torch.ones(H * W - 1, dtype=torch.bool))
     assert off_surface[:2].all()  # (0, 1), (0, 2): next to the missing texel (0, 0)

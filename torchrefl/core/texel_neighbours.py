@@ -56,12 +56,12 @@ def texel_window(neighbours: TexelNeighbours, radius: int, texels=None) -> np.nd
 
 def window_median(
     neighbours: TexelNeighbours, values: torch.Tensor, known: torch.Tensor, texels: torch.Tensor, window: int
-) -> torch.Tensor:
-    """(M, C) the median, channel by channel, of values (T, C) over the known (T,) bool texels in the W x W window
-    (W = window, odd) of each of texels (M,) int64; NaN where the window holds no known texel."""
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The median, channel by channel, of values (T, C) over the known (T,) bool texels in the W x W window (W =
+    window, odd; texel_window) of each of texels (M,) int64: (median (M, C), NaN where the window holds no known
+    texel; found (M,) bool, the window holds one)."""
     win = torch.from_numpy(texel_window(neighbours, window // 2, texels.cpu().numpy()))  # (M, K)
-    ok = win >= 0
-    ok &= known.cpu()[win.clamp_min(0)]
+    ok = (win >= 0) & known.cpu()[win.clamp_min(0)]
     gathered = values.cpu()[win.clamp_min(0)]  # (M, K, C)
     gathered = torch.where(ok[..., None], gathered, torch.full_like(gathered, float("nan")))
-    return gathered.nanmedian(1).values.to(values.device)
+    return gathered.nanmedian(1).values.to(values.device), ok.any(1).to(values.device)
