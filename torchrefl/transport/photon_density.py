@@ -98,7 +98,8 @@ def _grid_neighbours(neighbours: TexelNeighbours, sigma: float, radius: int, nor
     """The kernel shared by spread_on_grid and smoothing_matrix: a function of t_from (M,) that yields, per grid
     offset within `radius` (window_offsets), (t_to (M,), weight (M,)): the texel at that offset on the surface
     (neighbours.neighbour; -1 where there is none) and exp(-|offset|^2 / (2 sigma^2)) times, with normals (T, 3)
-    and normal_sigma > 0, exp(-|n - n'|^2 / (2 normal_sigma^2)) (kornia's joint bilateral weights with the normals as guide)."""
+    and normal_sigma > 0, exp(-|n - n'|^2 / (2 normal_sigma^2)) (kornia's joint bilateral weights with the normals
+    as guide)."""
     nrm = (
         None if normals is None or normal_sigma <= 0 else np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
     )
