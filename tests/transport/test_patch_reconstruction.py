@@ -12,8 +12,7 @@ from torchrefl.transport.patches import texel_patches
 
 def operator(s, patches, size=2, angle=30.0):
     return linear_reconstruction(
-        s.texel_index.numpy(),
-        s.grid_shape,
+        s.neighbours,
         s.positions.numpy(),
         s.normals.numpy(),
         patches.texel_patch.numpy(),
