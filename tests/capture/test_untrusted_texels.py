@@ -46,3 +46,19 @@ def test_every_direction_counts_and_holes_and_the_seam_are_handled():
     plain = shadow_edge_observations(seam[None], TexelGrid(wall_index, (9, 12)), n)[0]
     first = (wall_index % 12 == 0) & (wall_index // 12 == 2)
     assert wrapped[first].all() and not plain[first].any()
+
+
+def test_on_an_atlas_the_neighbour_across_the_seam_counts():
+    """The open cylinder's one chart meets itself along a UV seam: a shadowed texel in the chart's first column
+    flags its left neighbour, which is in the last column of the atlas (the plain grid of the same texels finds no
+    texel there)."""
+    from conftest import atlas_cylinder
+
+    s = atlas_cylinder().surface
+    nb = s.neighbours
+    first = (nb.cols == nb.cols.min()) & (nb.rows == 10)
+    last = (nb.cols == nb.cols.max()) & (nb.rows == 10)
+    edge = shadow_edge_observations(first[None], nb, s.normals.numpy())[0]
+    assert edge[last].all() and edge.sum() == 4
+    plain = shadow_edge_observations(first[None], TexelGrid(s.texel_index.numpy(), s.grid_shape), s.normals.numpy())[0]
+    assert not plain[last].any() and plain.sum() == 3

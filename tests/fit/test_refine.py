@@ -114,3 +114,17 @@ def test_no_texel_ends_a_refinement_worse_than_it_started(guarded):
     with torch.no_grad():
         worse = obj.per_texel(params) > before * (1 + 1e-9)
     assert (not bool(worse.any())) if guarded else int(worse.sum()) > 5
+
+
+def test_the_smoothing_pairs_cross_the_seams_of_an_atlas():
+    """On a cube's atlas every texel at a chart's border is paired with the texel across the cube's edge (half a
+    texel on each side: sqrt(0.5) mm apart), and no pair joins charts that only sit side by side in the atlas."""
+    from conftest import atlas_cube
+
+    s = atlas_cube(side=8).surface
+    pairs = neighbour_pairs(s.neighbours).numpy()
+    chart, p = s.extras["chart"], s.positions.numpy()
+    seam = chart[pairs[:, 0]] != chart[pairs[:, 1]]
+    assert seam.sum() == 12 * 8  # 12 cube edges of 8 texels
+    d = np.linalg.norm(p[pairs[:, 0]] - p[pairs[:, 1]], axis=1)
+    assert np.allclose(d[seam], np.sqrt(0.5)) and np.allclose(d[~seam], 1.0)

@@ -15,6 +15,7 @@ from torchrefl.transport.photon_density import (
     kernel_std,
     smooth_on_grid,
     smoothing_matrix,
+    spread_on_grid,
 )
 
 
@@ -123,3 +124,26 @@ def test_more_photons_narrow_the_automatic_kernel():
     assert kernel_std(1_600_000, 34_449, KERNEL_PHOTONS) == pytest.approx(
         kernel_std(400_000, 34_449, KERNEL_PHOTONS) / 2
     )
+
+
+def test_on_an_atlas_the_kernel_gathers_on_the_surface_not_from_charts_beside_it_in_the_atlas():
+    """The cube's charts sit one gutter texel apart in the atlas, so a radius-3 grid window reaches the chart
+    beside it, whose texels are a face away in 3-D (the plain grid's operator has such entries). On the Surface's
+    neighbours every entry joins texels within the window's reach on the surface (3 sqrt(2) mm), and entries
+    across the cube's edges exist."""
+    from conftest import atlas_cube
+
+    s = atlas_cube(side=8, gap=1).surface
+    p, chart = s.positions.numpy(), s.extras["chart"]
+
+    def reach(M):
+        i, j = M.coalesce().indices().numpy()
+        return np.linalg.norm(p[i] - p[j], axis=1), chart[i] != chart[j]
+
+    d, cross = reach(smoothing_matrix(s.neighbours, 1.0))
+    assert d.max() <= 3 * np.sqrt(2) + 1e-9 and cross.any()
+    d_plain, _ = reach(smoothing_matrix(TexelGrid(s.texel_index.numpy(), s.grid_shape), 1.0))
+    assert d_plain.max() > 6.0
+    obs = np.arange(s.num_texels)
+    to, src, _ = spread_on_grid(obs, s.num_texels, s.neighbours, 1.0)
+    assert np.linalg.norm(p[to] - p[obs[src]], axis=1).max() <= np.sqrt(2) + 1e-9
