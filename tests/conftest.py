@@ -113,3 +113,25 @@ def noisy_glossy_scene(T=300, seed=0, outliers=0, noise=0.5):
     obs.intensity = images
     obs.valid &= clean.max(-1).values < 0.99
     return obs, terms, (pd, ps, sigma)
+
+
+def atlas_cube(side: int = 8, texture_size: int = 32, gap: int = 1):
+    """The cube of tests/geometry/atlas_meshes.py (side x side texels of 1 mm per face, charts `gap` texels apart
+    in a 3 x 2 atlas layout, turned and mirrored) as an AtlasGeometry (its surface carries AtlasNeighbours)."""
+    sys.path.insert(0, str(Path(__file__).parent / "geometry"))
+    from atlas_meshes import cube_atlas
+
+    from torchrefl.geometry.atlas_surface import atlas_geometry
+
+    return atlas_geometry(cube_atlas(side_texels=side, texture_size=texture_size, gap=gap), texture_size)
+
+
+def atlas_cylinder(texture_size: int = 32):
+    """The open cylinder of tests/geometry/atlas_meshes.py (radius 10 mm, height 20 mm; one chart whose first and
+    last texel columns meet across a UV seam) as an AtlasGeometry."""
+    sys.path.insert(0, str(Path(__file__).parent / "geometry"))
+    from atlas_meshes import open_cylinder
+
+    from torchrefl.geometry.atlas_surface import atlas_geometry
+
+    return atlas_geometry(open_cylinder(10.0, 20.0), texture_size)

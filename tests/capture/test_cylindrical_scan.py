@@ -265,7 +265,7 @@ def test_observations_at_a_cast_shadows_edge_are_excluded_and_counted(scan_folde
     geom = load_scan_geometry(step, threads=1, dtype=torch.float64)
     obs, stats = load_scan_observations(geom, threads=1, dtype=torch.float64)
     s = geom.surface
-    edge = shadow_edge_observations(obs.shadowed.numpy(), s.texel_index.numpy(), s.grid_shape, s.normals.numpy())
+    edge = shadow_edge_observations(obs.shadowed.numpy(), s.neighbours, s.normals.numpy())
     assert stats["shadowed_observations"] > 0 and edge.sum() > 0
     assert not obs.valid[torch.from_numpy(edge)].any()
     assert 0 < stats["shadow_edge_observations"] <= int(edge.sum())

@@ -4,6 +4,7 @@ import numpy as np
 from conftest import fold_surface
 
 from torchrefl.capture.untrusted_texels import shadow_edge_observations
+from torchrefl.core.texel_grid import TexelGrid
 
 
 def test_lit_texels_next_to_a_cast_shadow_on_their_face_are_flagged():
@@ -14,7 +15,7 @@ def test_lit_texels_next_to_a_cast_shadow_on_their_face_are_flagged():
     s = fold_surface(8, 24)  # columns 0-11 the floor, 12-23 the wall
     col = s.texel_index.numpy() % 24
     shadowed = np.stack([col < 5, col >= 12])
-    edge = shadow_edge_observations(shadowed, s.texel_index.numpy(), s.grid_shape, s.normals.numpy())
+    edge = shadow_edge_observations(shadowed, s.neighbours, s.normals.numpy())
     assert edge.shape == shadowed.shape
     assert np.array_equal(edge[0], col == 5)
     assert not edge[1].any()
@@ -29,17 +30,35 @@ def test_every_direction_counts_and_holes_and_the_seam_are_handled():
     index = s.texel_index.numpy()
     row, col = index // 24, index % 24
     centre = (row == 4) & (col == 5)
-    edge = shadow_edge_observations(centre[None], index, s.grid_shape, s.normals.numpy())[0]
+    edge = shadow_edge_observations(centre[None], s.neighbours, s.normals.numpy())[0]
     four = ((row == 3) | (row == 5)) & (col == 5) | (row == 4) & ((col == 4) | (col == 6))
     assert np.array_equal(edge, four)
     keep = ~((row == 4) & (col == 6))  # a hole right of the shadowed texel
-    edge = shadow_edge_observations(centre[keep][None], index[keep], s.grid_shape, s.normals.numpy()[keep])[0]
+    edge = shadow_edge_observations(centre[keep][None], TexelGrid(index[keep], s.grid_shape), s.normals.numpy()[keep])[
+        0
+    ]
     assert np.array_equal(edge, four[keep])
     wall = col >= 12  # the wall alone as a 9 x 12 grid: its last column is next to its first when the scan wraps
     wall_index = row[wall] * 12 + (col[wall] - 12)
     seam = (wall_index % 12 == 11) & (wall_index // 12 == 2)
     n = s.normals.numpy()[wall]
-    wrapped = shadow_edge_observations(seam[None], wall_index, (9, 12), n, wrap=True)[0]
-    plain = shadow_edge_observations(seam[None], wall_index, (9, 12), n)[0]
+    wrapped = shadow_edge_observations(seam[None], TexelGrid(wall_index, (9, 12), wrap=True), n)[0]
+    plain = shadow_edge_observations(seam[None], TexelGrid(wall_index, (9, 12)), n)[0]
     first = (wall_index % 12 == 0) & (wall_index // 12 == 2)
     assert wrapped[first].all() and not plain[first].any()
+
+
+def test_on_an_atlas_the_neighbour_across_the_seam_counts():
+    """The open cylinder's one chart meets itself along a UV seam: a shadowed texel in the chart's first column
+    flags its left neighbour, which is in the last column of the atlas (the plain grid of the same texels finds no
+    texel there)."""
+    from conftest import atlas_cylinder
+
+    s = atlas_cylinder().surface
+    nb = s.neighbours
+    first = (nb.cols == nb.cols.min()) & (nb.rows == 10)
+    last = (nb.cols == nb.cols.max()) & (nb.rows == 10)
+    edge = shadow_edge_observations(first[None], nb, s.normals.numpy())[0]
+    assert edge[last].all() and edge.sum() == 4
+    plain = shadow_edge_observations(first[None], TexelGrid(s.texel_index.numpy(), s.grid_shape), s.normals.numpy())[0]
+    assert not plain[last].any() and plain.sum() == 3

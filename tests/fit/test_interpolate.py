@@ -1,8 +1,19 @@
 """Interpolation of undetermined texels (W x W window, then the median of the determined texels)."""
 
+import numpy as np
 import torch
 
-from torchrefl.fit.interpolate import fill_undetermined
+from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.fit.interpolate import fill_undetermined as fill_texels
+
+
+def fill_undetermined(grid, known, inside, **options):
+    """fill_texels on every cell of the (H, W, C) grid as one texel of a plain TexelGrid, back on the grid."""
+    H, W, C = grid.shape
+    out, how = fill_texels(
+        TexelGrid(np.arange(H * W), (H, W)), grid.reshape(H * W, C), known.reshape(-1), inside.reshape(-1), **options
+    )
+    return out.reshape(H, W, C), how.reshape(H, W)
 
 
 def test_holes_in_a_linear_ramp_are_filled_by_neighbours():
@@ -61,3 +72,27 @@ def test_one_extreme_determined_texel_does_not_spread_into_its_neighbours():
     out, how = fill_undetermined(grid, known, inside, window=5)
     assert (how[:, 3:5] == 2).all()
     torch.testing.assert_close(out[:, 3:5], grid[:1, :1].expand(9, 2, 2), rtol=0, atol=1e-12)
+
+
+def test_on_an_atlas_the_window_reaches_across_seams_and_not_across_the_gutter():
+    """A cube whose face 0 is undetermined: with one pass of a 3 x 3 window its border texels take the neighbouring
+    faces' value across the cube's edges (window code 2), its interior the median (code 4). On the plain grid of the
+    same atlas the charts' gutter cuts face 0 off: its texels all take the median."""
+    from conftest import atlas_cube
+
+    s = atlas_cube(side=8, gap=1).surface
+    chart = torch.from_numpy(s.extras["chart"])
+    values = torch.where(chart == 0, 99.0, 0.25).double()[:, None]
+    known = chart != 0
+    inside = torch.ones(s.num_texels, dtype=torch.bool)
+    out, how = fill_texels(s.neighbours, values, known, inside, window=3, max_passes=1)
+    rows, cols = s.neighbours.rows, s.neighbours.cols
+    face = chart == 0
+    r, c = torch.from_numpy(rows), torch.from_numpy(cols)
+    border = face & ((r == r[face].min()) | (r == r[face].max()) | (c == c[face].min()) | (c == c[face].max()))
+    assert (how[border] == 2).all() and (how[face & ~border] == 4).all()
+    assert torch.all(out[face] == 0.25)
+    _, plain = fill_texels(
+        TexelGrid(s.texel_index.numpy(), s.grid_shape), values, known, inside, window=3, max_passes=1
+    )
+    assert (plain[face] == 4).all()

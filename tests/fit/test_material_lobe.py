@@ -7,6 +7,7 @@ import pytest
 import torch
 from conftest import dome_scene, point_light_observations
 
+from torchrefl.core.texel_grid import TexelGrid
 from torchrefl.fit.material_lobe import MIN_CLUSTER, cluster_lobes, colour_clusters
 from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.local import local_terms, render_reference
@@ -27,7 +28,7 @@ def test_a_colour_with_smooth_variation_is_one_cluster_and_a_border_splits_two()
     pd[island.ravel()] = [0.3, 0.6, 0.2]
     members = torch.ones(H * W, dtype=torch.bool)
     members[5] = False  # a texel with a measured lobe: in no cluster
-    label = colour_clusters(grid_index(), (H, W), torch.from_numpy(pd), members)
+    label = colour_clusters(TexelGrid(grid_index().numpy(), (H, W)), torch.from_numpy(pd), members)
     red_label, blue_label = label[W + 1], label[W + 25]
     assert red_label >= 0 and blue_label >= 0 and red_label != blue_label
     assert (label.reshape(H, W)[:, :20][~np.isin(np.arange(H * W), [5]).reshape(H, W)[:, :20]] == red_label).all()

@@ -1,13 +1,15 @@
 """Refinement: LBFGS and Adam recover known parameters from noisy 8-bit observations; robust loss."""
 
+import numpy as np
 import pytest
 import torch
 from conftest import noisy_glossy_scene as noisy_scene
 
 from torchrefl.core.observation_classes import classify
 from torchrefl.core.params import TexelParams
+from torchrefl.core.texel_grid import TexelGrid
 from torchrefl.fit.closed_form import closed_form
-from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine, robust_loss
+from torchrefl.fit.refine import Objective, Prior, neighbour_pairs, refine, robust_loss
 from torchrefl.transport.local import predict
 
 
@@ -50,9 +52,9 @@ def test_robust_losses_agree_near_zero_and_grow_slower():
         assert abs(float(v[0] - l2[0])) < 1e-6 and v[1] < l2[1]
 
 
-def test_grid_neighbours():
+def test_neighbour_pairs():
     idx = torch.tensor([0, 1, 3, 4, 8])  # 3 x 3 grid, texels 0,1,3,4,8 valid
-    pairs = {tuple(p) for p in grid_neighbours(idx, (3, 3)).tolist()}
+    pairs = {tuple(p) for p in neighbour_pairs(TexelGrid(idx.numpy(), (3, 3))).tolist()}
     assert pairs == {(0, 1), (2, 3), (0, 2), (1, 3)}
 
 
@@ -97,7 +99,7 @@ def test_no_texel_ends_a_refinement_worse_than_it_started(guarded):
     """An optimiser that overshoots (Adam at a far too large rate) leaves some texels worse than their start; the
     guard gives them their start back. The control: a smoothness term too small to matter turns the guard off."""
     obs, terms, (pd, ps, sigma) = noisy_scene(T=60, seed=6)
-    pairs = None if guarded else grid_neighbours(torch.arange(60), (6, 10))
+    pairs = None if guarded else neighbour_pairs(TexelGrid(np.arange(60), (6, 10)))
     obj = Objective(
         lambda a, b, c: predict(terms, a, b, c),
         obs.intensity,
@@ -112,3 +114,17 @@ def test_no_texel_ends_a_refinement_worse_than_it_started(guarded):
     with torch.no_grad():
         worse = obj.per_texel(params) > before * (1 + 1e-9)
     assert (not bool(worse.any())) if guarded else int(worse.sum()) > 5
+
+
+def test_the_smoothing_pairs_cross_the_seams_of_an_atlas():
+    """On a cube's atlas every texel at a chart's border is paired with the texel across the cube's edge (half a
+    texel on each side: sqrt(0.5) mm apart), and no pair joins charts that only sit side by side in the atlas."""
+    from conftest import atlas_cube
+
+    s = atlas_cube(side=8).surface
+    pairs = neighbour_pairs(s.neighbours).numpy()
+    chart, p = s.extras["chart"], s.positions.numpy()
+    seam = chart[pairs[:, 0]] != chart[pairs[:, 1]]
+    assert seam.sum() == 12 * 8  # 12 cube edges of 8 texels
+    d = np.linalg.norm(p[pairs[:, 0]] - p[pairs[:, 1]], axis=1)
+    assert np.allclose(d[seam], np.sqrt(0.5)) and np.allclose(d[~seam], 1.0)

@@ -2,6 +2,7 @@
 objective than LBFGS, holds what it does not train, follows the priors, and its normal equations carry the
 objective's exact gradient (float64)."""
 
+import numpy as np
 import pytest
 import torch
 from conftest import noisy_glossy_scene as glossy_scene
@@ -9,10 +10,11 @@ from conftest import noisy_glossy_scene as glossy_scene
 from torchrefl.config import Config
 from torchrefl.core.observation_classes import T_SPEC, classify
 from torchrefl.core.params import TexelParams
+from torchrefl.core.texel_grid import TexelGrid
 from torchrefl.errors import FitError
 from torchrefl.fit.closed_form import closed_form
 from torchrefl.fit.pipeline import refinement_optimizer
-from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine, robust_loss
+from torchrefl.fit.refine import Objective, Prior, neighbour_pairs, refine, robust_loss
 from torchrefl.fit.texel_lm import _normal_equations, _TexelProblem, irls_weight, levenberg_marquardt
 from torchrefl.transport.local import predict
 
@@ -132,7 +134,11 @@ def test_coupled_objectives_are_refused_and_the_pipeline_uses_lbfgs():
     with pytest.raises(FitError, match="couples texels"):
         levenberg_marquardt(shared, obj, local_model(terms), 5)
     smooth = Objective(
-        obj.predict, obs.intensity, obs.valid, smoothness=1.0, neighbours=grid_neighbours(torch.arange(30), (5, 6))
+        obj.predict,
+        obs.intensity,
+        obs.valid,
+        smoothness=1.0,
+        neighbours=neighbour_pairs(TexelGrid(np.arange(30), (5, 6))),
     )
     with pytest.raises(FitError, match="couples texels"):
         levenberg_marquardt(start(obs, terms), smooth, local_model(terms), 5)

@@ -12,8 +12,7 @@ from torchrefl.transport.patches import texel_patches
 
 def operator(s, patches, size=2, angle=30.0):
     return linear_reconstruction(
-        s.texel_index.numpy(),
-        s.grid_shape,
+        s.neighbours,
         s.positions.numpy(),
         s.normals.numpy(),
         patches.texel_patch.numpy(),
@@ -88,3 +87,17 @@ def test_a_bad_patch_size_is_refused():
     patches = texel_patches(s, 2, 30.0)
     with pytest.raises(ConfigError, match="radiosity.patch_size"):
         operator(s, patches, size=0)
+
+
+def test_on_an_atlas_the_neighbouring_patches_are_on_the_surface():
+    """On the cube's atlas (charts one gutter texel apart, opposite faces side by side) a texel's plane takes
+    patches of its own face and of the faces across the cube's edges, never of the opposite face that only sits
+    beside its own in the atlas (no normal test here: max_angle_deg 180)."""
+    from conftest import atlas_cube
+
+    s = atlas_cube(side=8, gap=1).surface
+    patches = texel_patches(s, 4)
+    t, q = operator(s, patches, size=4, angle=180.0).coalesce().indices().numpy()
+    facing = np.einsum("mi,mi->m", s.normals.numpy()[t], patches.normals.numpy()[q])
+    assert facing.min() > -0.5  # no opposite face
+    assert (facing < 0.5).any()  # the faces across the edges

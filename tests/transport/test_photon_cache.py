@@ -83,7 +83,7 @@ def cache_of(
         bin_per_sigma=bin_per_sigma,
         emitter_pd=pd.numpy() if linear else None,
         smoothing=smoothing,
-        grid=(s.texel_index, s.grid_shape, s.normals),
+        grid=(s.neighbours, s.normals),
         smoothing_normal=smoothing_normal,
         specular_smoothing=specular_smoothing,
     )
@@ -149,7 +149,7 @@ def test_the_linear_cache_follows_the_emitters_pd():
             0.02,
             emitter_pd=pd.numpy() if linear else None,
             smoothing=1.0,
-            grid=(s.texel_index, s.grid_shape),
+            grid=(s.neighbours,),
         )
 
     new = torch.full((T, 3), 0.3, dtype=torch.float64)
@@ -315,7 +315,7 @@ def test_normal_aware_smoothing_needs_the_normals(traced):
             10.0,
             0.02,
             smoothing=1.0,
-            grid=(s.texel_index, s.grid_shape),
+            grid=(s.neighbours,),
             smoothing_normal=0.1,
         )
 
@@ -327,14 +327,14 @@ def test_spreading_keeps_a_constant_field_and_does_not_cross_the_fold():
     T = s.num_texels
     for normals, ns in ((None, 0.0), (s.normals, 0.1)):
         obs = np.concatenate([np.arange(T), T + np.arange(T)])  # lights 0 and 1
-        to, src, w = spread_on_grid(obs, T, s.texel_index, s.grid_shape, 1.0, normals, ns)
+        to, src, w = spread_on_grid(obs, T, s.neighbours, 1.0, normals, ns)
         received = np.bincount(to, weights=w, minlength=2 * T)
         np.testing.assert_allclose(received, 1.0, rtol=1e-12)
         assert ((to // T) == (obs[src] // T)).all()
     floor = (s.normals[:, 2] > 0.5).numpy()
-    to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)
+    to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.neighbours, 1.0, s.normals, 0.1)
     assert floor[to[w > 1e-12]].all()
-    to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.texel_index, s.grid_shape, 1.0)
+    to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.neighbours, 1.0)
     assert not floor[to[w > 1e-3]].all()  # the plain kernel does cross
 
 

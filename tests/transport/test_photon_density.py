@@ -7,6 +7,7 @@ import pytest
 import torch
 from conftest import fold_surface
 
+from torchrefl.core.texel_grid import TexelGrid
 from torchrefl.transport.photon_density import (
     KERNEL_PHOTONS,
     SLOPE_RIDGE,
@@ -14,6 +15,7 @@ from torchrefl.transport.photon_density import (
     kernel_std,
     smooth_on_grid,
     smoothing_matrix,
+    spread_on_grid,
 )
 
 
@@ -54,7 +56,7 @@ def test_the_smoothing_operator_is_the_local_plane_fit(sigma, normal_sigma):
     keep[45:52] = False  # texels missing from the set
     index, normals = s.texel_index[keep].numpy(), s.normals[keep].numpy()
     values = np.random.default_rng(0).random((len(index), 3))
-    M = smoothing_matrix(index, s.grid_shape, sigma, normals, normal_sigma)
+    M = smoothing_matrix(TexelGrid(index, s.grid_shape), sigma, normals, normal_sigma)
     ref = plane_fit_reference(values, index, s.grid_shape, sigma, normals, normal_sigma)
     np.testing.assert_allclose(apply_on_grid(M, torch.from_numpy(values)[None])[0].numpy(), ref, rtol=1e-9, atol=1e-12)
     assert torch.autograd.gradcheck(lambda v: apply_on_grid(M, v), (torch.from_numpy(values)[None].requires_grad_(),))
@@ -67,7 +69,7 @@ def test_inside_a_region_the_operator_is_kornias_normalised_filter(sigma, normal
     s = fold_surface(16, 40)
     index, normals = s.texel_index.numpy(), s.normals
     values = torch.rand(2, s.num_texels, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
-    M = smoothing_matrix(index, s.grid_shape, sigma, normals.numpy(), normal_sigma)
+    M = smoothing_matrix(TexelGrid(index, s.grid_shape), sigma, normals.numpy(), normal_sigma)
     ref = smooth_on_grid(values, s.texel_index, s.grid_shape, sigma, normals if normal_sigma else None, normal_sigma)
     r, c = index // 40, index % 40
     radius = int(np.ceil(3 * sigma))
@@ -83,7 +85,7 @@ def test_a_ramp_towards_a_fold_is_kept_where_the_normalised_kernel_flattens_it()
     s = fold_surface(12, 40)
     col = s.texel_index.numpy() % 40
     ramp = torch.from_numpy(1.0 + 0.1 * np.minimum(col, 39 - col))[None, :, None].expand(1, -1, 3).double()
-    M = smoothing_matrix(s.texel_index.numpy(), s.grid_shape, 2.0, s.normals.numpy(), 0.1)
+    M = smoothing_matrix(s.neighbours, 2.0, s.normals.numpy(), 0.1)
     plane = apply_on_grid(M, ramp)[0, :, 0].numpy()
     normalised = smooth_on_grid(ramp, s.texel_index, s.grid_shape, 2.0, s.normals, 0.1)[0, :, 0].numpy()
     at_fold = (col == 19) | (col == 20)
@@ -98,7 +100,7 @@ def smoothed_noise(rows: int, cols: int, photons: int, seed: int = 0) -> float:
     T = rows * cols
     counts = np.bincount(rng.integers(0, T, size=photons), minlength=T).astype(np.float64)
     std = kernel_std(photons, T, KERNEL_PHOTONS)
-    M = smoothing_matrix(np.arange(T), (rows, cols), std)
+    M = smoothing_matrix(TexelGrid(np.arange(T), (rows, cols)), std)
     smooth = torch.sparse.mm(M, torch.from_numpy(counts)[:, None]).numpy()[:, 0].reshape(rows, cols)
     pad = int(np.ceil(3 * std))
     inner = smooth[pad:-pad, pad:-pad]
@@ -122,3 +124,26 @@ def test_more_photons_narrow_the_automatic_kernel():
     assert kernel_std(1_600_000, 34_449, KERNEL_PHOTONS) == pytest.approx(
         kernel_std(400_000, 34_449, KERNEL_PHOTONS) / 2
     )
+
+
+def test_on_an_atlas_the_kernel_gathers_on_the_surface_not_from_charts_beside_it_in_the_atlas():
+    """The cube's charts sit one gutter texel apart in the atlas, so a radius-3 grid window reaches the chart
+    beside it, whose texels are a face away in 3-D (the plain grid's operator has such entries). On the Surface's
+    neighbours every entry joins texels within the window's reach on the surface (3 sqrt(2) mm), and entries
+    across the cube's edges exist."""
+    from conftest import atlas_cube
+
+    s = atlas_cube(side=8, gap=1).surface
+    p, chart = s.positions.numpy(), s.extras["chart"]
+
+    def reach(M):
+        i, j = M.coalesce().indices().numpy()
+        return np.linalg.norm(p[i] - p[j], axis=1), chart[i] != chart[j]
+
+    d, cross = reach(smoothing_matrix(s.neighbours, 1.0))
+    assert d.max() <= 3 * np.sqrt(2) + 1e-9 and cross.any()
+    d_plain, _ = reach(smoothing_matrix(TexelGrid(s.texel_index.numpy(), s.grid_shape), 1.0))
+    assert d_plain.max() > 6.0
+    obs = np.arange(s.num_texels)
+    to, src, _ = spread_on_grid(obs, s.num_texels, s.neighbours, 1.0)
+    assert np.linalg.norm(p[to] - p[obs[src]], axis=1).max() <= np.sqrt(2) + 1e-9

@@ -189,7 +189,7 @@ def test_fold_texels_get_their_own_irradiance_when_patches_split_at_the_fold():
     )
     terms = local_terms("lambertian", s.normals, obs)
     pd = torch.full((s.num_texels, 3), 0.7, dtype=torch.float64)
-    M = smoothing_matrix(s.texel_index.numpy(), s.grid_shape, 1.0, s.normals.numpy(), 0.1)
+    M = smoothing_matrix(s.neighbours, 1.0, s.normals.numpy(), 0.1)
 
     def column_h(patch_size, angle, samples):
         P, F = form_factors_for_surface(

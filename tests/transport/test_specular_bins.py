@@ -50,7 +50,7 @@ def test_specular_entries_are_spread_and_merged_per_light_as_all_at_once():
     theta_h = rng.uniform(0.0, 0.6, M)
     weight = rng.uniform(0.0, 1.0, (3, M))
     sigma = rng.uniform(0.05, 0.4, T)
-    spread = lambda obs: spread_on_grid(obs, T, s.texel_index, s.grid_shape, 1.5, s.normals, 0.1)
+    spread = lambda obs: spread_on_grid(obs, T, s.neighbours, 1.5, s.normals, 0.1)
     (obs, th, w), count = spread_and_merge(e_obs, theta_h, weight, spread, sigma, T, 0.004, 0.25)
     to, src, k = spread(e_obs)
     ref = merge_entries(to, theta_h[src], weight[:, src] * k, sigma, T, 0.004, 0.25)

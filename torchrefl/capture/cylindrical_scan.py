@@ -47,6 +47,7 @@ from torchrefl.core.observations import Observations
 from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
 from torchrefl.core.surface import Surface
+from torchrefl.core.texel_grid import TexelGrid
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import CaptureError, GeometryError
 from torchrefl.geometry.footprint import unfit_windows
@@ -211,6 +212,7 @@ def load_scan_geometry(
         mesh_faces=faces,
         units="mm",
         source=str(folder / "range.npy"),
+        neighbours=TexelGrid(idx, r.shape, wrap=rig.covers_full_turn()),
     )
     tracer = RayTracer(verts, faces, threads=threads)
     mixed = mixed_footprint_grid(r, valid, geo, rig).ravel()[idx]
@@ -311,13 +313,7 @@ def _excluded_observations(
         "not seen by the camera (facing away or occluded)": every(~og["seen"]),
         "not lit (n.l at or below the threshold)": ~og["lit"],
         "in cast shadow": og["shadowed"],
-        SHADOW_EDGE: shadow_edge_observations(
-            og["shadowed"],
-            geom.surface.texel_index.numpy(),
-            geom.surface.grid_shape,
-            geom.surface.normals.numpy(),
-            wrap=geom.rig.covers_full_turn(),
-        ),
+        SHADOW_EDGE: shadow_edge_observations(og["shadowed"], geom.surface.neighbours, geom.surface.normals.numpy()),
         f"saturated (>= {saturation_level:g})": saturated,
         "not finite": ~finite,
         f"edge texels (geometry.edge_width {edge_width})": every(texels["edge"]),

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from torchrefl.capture.cylindrical_rig import CylindricalRig
-from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.core.texel_neighbours import TexelNeighbours
 from torchrefl.geometry.cylindrical import cylindrical_points
 from torchrefl.geometry.footprint import mixed_footprints
 from torchrefl.geometry.range_image import RangeGeometry
@@ -38,23 +38,20 @@ def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, r
 SAME_FACE_COS = 0.9
 
 
-def shadow_edge_observations(
-    shadowed: np.ndarray, texel_index, grid_shape, normals: np.ndarray, wrap: bool = False
-) -> np.ndarray:
-    """(P, T) bool: lit observations (not in cast shadow) of texels with a grid neighbour (4-neighbourhood) on the
-    same face (normals within SAME_FACE_COS) that is in cast shadow. The texel's colour integrates a footprint
-    reaching half-way to its neighbours, so the shadow's edge may cross it, while the model shades the texel's
-    centre only: such an observation reads anything between lit and dark (on the fold at full size they were
-    0.4 % of the fitted observations and 47 % of the squared image residual at the true parameters). wrap: the
-    columns close around (a scan of the full turn), so the first and last columns are neighbours."""
+def shadow_edge_observations(shadowed: np.ndarray, neighbours: TexelNeighbours, normals: np.ndarray) -> np.ndarray:
+    """(P, T) bool: lit observations (not in cast shadow) of texels with a surface neighbour (4-neighbourhood of
+    neighbours, the Surface's: on a scan of the full turn the first and last columns are neighbours, on an atlas
+    the texel across a seam is one) on the same face (normals within SAME_FACE_COS) that is in cast shadow. The
+    texel's colour integrates a footprint reaching half-way to its neighbours, so the shadow's edge may cross it,
+    while the model shades the texel's centre only: such an observation reads anything between lit and dark (on
+    the fold at full size they were 0.4 % of the fitted observations and 47 % of the squared image residual at
+    the true parameters)."""
     shadowed = np.asarray(shadowed, dtype=bool)
-    grid = TexelGrid(texel_index, grid_shape)
     n = np.asarray(normals, dtype=np.float64)
     edge = np.zeros_like(shadowed)
-    W = grid.grid_shape[1]
+    t = np.arange(neighbours.num_texels)
     for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0)):
-        cols = grid.cols + dx
-        other = grid.at(grid.rows + dy, cols % W if wrap else cols)
+        other = neighbours.neighbour(t, dy, dx)
         same = np.flatnonzero((other >= 0) & (np.einsum("ti,ti->t", n, n[np.maximum(other, 0)]) >= SAME_FACE_COS))
         edge[:, same] |= shadowed[:, other[same]]
     return edge & ~shadowed

@@ -3,7 +3,9 @@
 A Surface is a grid of texels (H, W) of which T are valid; only valid texels are
 stored. Texels carry a 3-D position, a unit normal and an area; the triangle mesh
 that rays are traced against travels with it (None when the capture has no depth,
-as in photometric stereo).
+as in photometric stereo). `neighbours` says which texel is next to which on the surface (core/texel_neighbours.py):
+the capture kind hands it over (the scan's grid wrapping on a full turn, a mesh atlas's charts and seams); the
+default is the plain grid.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from typing import Optional
 import numpy as np
 import torch
 
+from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.core.texel_neighbours import TexelNeighbours
 from torchrefl.errors import GeometryError
 
 UNIT_TOLERANCE = 1e-3
@@ -31,6 +35,8 @@ class Surface:
     mesh_vertices / mesh_faces: the triangle mesh rays are traced against
         ((V, 3) float, (F, 3) int) or None when the capture has no depth.
     units: length unit of positions.
+    neighbours: the texels' neighbours on the surface (core/texel_neighbours.py), given by the capture kind;
+        None: the plain grid, TexelGrid(texel_index, grid_shape).
     """
 
     grid_shape: tuple[int, int]
@@ -43,9 +49,19 @@ class Surface:
     units: str = "mm"
     source: str = "<memory>"
     extras: dict = field(default_factory=dict)
+    neighbours: Optional[TexelNeighbours] = None
 
     def __post_init__(self) -> None:
         self.validate()
+        if self.neighbours is None:
+            self.neighbours = TexelGrid(self.texel_index.cpu().numpy(), self.grid_shape)
+        elif self.neighbours.num_texels != self.num_texels or tuple(self.neighbours.grid_shape) != tuple(
+            self.grid_shape
+        ):
+            raise GeometryError(
+                f"surface from {self.source}: field 'neighbours' covers {self.neighbours.num_texels} texels on a "
+                f"{tuple(self.neighbours.grid_shape)} grid, expected {self.num_texels} on {tuple(self.grid_shape)}"
+            )
 
     @property
     def num_texels(self) -> int:
@@ -113,4 +129,5 @@ class Surface:
             units=self.units,
             source=self.source,
             extras=self.extras,
+            neighbours=self.neighbours,
         )

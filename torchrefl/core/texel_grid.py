@@ -2,7 +2,8 @@
 
 A Surface's T valid texels sit on an (H, W) grid at flat indices texel_index (row * W + col). TexelGrid maps a
 texel and a grid offset to the texel there, or -1 outside the grid or the texel set; `grid_flat` is the same
-lookup on a full grid (every cell present), e.g. the blocks of patches.
+lookup on a full grid (every cell present), e.g. the blocks of patches. TexelGrid is the scan's and photometric
+stereo's TexelNeighbours (core/texel_neighbours.py); with wrap (a scan of the full turn) the columns close around.
 """
 
 from __future__ import annotations
@@ -22,18 +23,27 @@ class TexelGrid:
     """T texels at flat indices texel_index (T,) (row * W + col, distinct) of an (H, W) grid.
 
     rows, cols: (T,) int64 grid row and column of each texel; slot: (H W,) int64 texel at each grid cell, -1
-    where there is none."""
+    where there is none; wrap: column W is column 0 again (a scan of the full turn); region: (T,) int64 zeros (one
+    piece of surface: any block of the grid may form a patch)."""
 
-    def __init__(self, texel_index, grid_shape: tuple[int, int]):
+    def __init__(self, texel_index, grid_shape: tuple[int, int], wrap: bool = False):
         self.grid_shape = (int(grid_shape[0]), int(grid_shape[1]))
         H, W = self.grid_shape
+        self.wrap = bool(wrap)
         self.index = np.asarray(texel_index, dtype=np.int64)
         self.rows, self.cols = self.index // W, self.index % W
         self.slot = np.full(H * W, -1, dtype=np.int64)
         self.slot[self.index] = np.arange(len(self.index))
+        self.region = np.zeros(len(self.index), dtype=np.int64)
+
+    @property
+    def num_texels(self) -> int:
+        return int(len(self.index))
 
     def at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """(M,) int64 texel at grid cells (rows, cols) (M,), -1 outside the grid or where there is no texel."""
+        """(M,) int64 texel at grid cells (rows, cols) (M,), -1 outside the grid or where there is no texel
+        (columns taken modulo W with wrap)."""
+        cols = np.asarray(cols, dtype=np.int64) % self.grid_shape[1] if self.wrap else cols
         cell = grid_flat(rows, cols, self.grid_shape)
         return np.where(cell >= 0, np.take(self.slot, np.maximum(cell, 0)), -1)
 

@@ -153,15 +153,10 @@ def fill_lobes(
     if not known.any():
         none = torch.zeros(surface.num_texels, dtype=torch.bool)
         return torch.full_like(ps, 1e-3), torch.full_like(sigma, 0.5 * (sigma_min + sigma_max)), none, none
-    grid_vals = surface.to_grid(torch.cat([ps, sigma[:, None]], 1).double())
-    filled, how = fill_undetermined(
-        torch.from_numpy(grid_vals),
-        torch.from_numpy(surface.to_grid(known.numpy(), fill=False)),
-        torch.from_numpy(surface.to_grid(defined.numpy(), fill=False)),
-        window=window,
-    )
-    flat = surface.from_grid(filled.numpy()).to(ps.dtype)
+    values = torch.cat([ps, sigma[:, None]], 1).double()
+    filled, how = fill_undetermined(surface.neighbours, values, known, defined, window=window)
+    flat = filled.to(ps.dtype)
     ps = torch.where(known[:, None], ps, flat[:, :-1])
     sigma = torch.where(known, sigma, flat[:, -1])
     ps, sigma, matched = colour_matched_lobes(surface.positions, pd, ps, sigma, known, defined & ~known, n_spec)
-    return ps, sigma, surface.from_grid(how.numpy() == FILL_MEDIAN) & ~known & ~matched, matched
+    return ps, sigma, (how == FILL_MEDIAN) & ~known & ~matched, matched

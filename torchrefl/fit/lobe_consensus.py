@@ -23,20 +23,21 @@ from typing import Callable
 import torch
 
 from torchrefl.core.surface import Surface
-from torchrefl.fit.interpolate import window_median
+from torchrefl.core.texel_neighbours import window_median
 
 #: a measured sigma further than this factor from its measured neighbours' median is an outlier of the lobe map
 OUTLIER_RATIO = 1.5
 
 
 def neighbour_median(surface: Surface, values: torch.Tensor, measured: torch.Tensor, window: int) -> torch.Tensor:
-    """(T,) the median of values (T,) over the measured (T,) texels in each measured texel's W x W window (itself
-    included); NaN at the texels that are not measured."""
-    grid = torch.from_numpy(surface.to_grid(values.detach().cpu().double().numpy()))[None, None]
-    known = torch.from_numpy(surface.to_grid(measured.cpu().numpy(), fill=False))
-    med = window_median(grid, known.to(torch.float64)[None, None], known, window)
-    out = surface.from_grid(med[0, 0].numpy()).to(values.dtype)
-    return torch.where(measured.cpu(), out, torch.full_like(out, float("nan"))).to(values.device)
+    """(T,) the median of values (T,) over the measured (T,) texels in each measured texel's W x W window on the
+    surface (itself included; core/texel_neighbours.window_median); NaN at the texels that are not measured."""
+    measured = measured.cpu()
+    texels = torch.nonzero(measured)[:, 0]
+    med, _ = window_median(surface.neighbours, values.detach().cpu().double()[:, None], measured, texels, window)
+    out = torch.full((surface.num_texels,), float("nan"), dtype=values.dtype)
+    out[texels] = med[:, 0].to(values.dtype)
+    return out.to(values.device)
 
 
 def agree_with_neighbours(

@@ -20,20 +20,21 @@ import torch
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.core.texel_neighbours import TexelNeighbours
 from torchrefl.fit.material_fill import COLOUR_FLOOR, COLOUR_TOLERANCE
 
 #: the fewest texels one lobe is fitted to (a smaller cluster keeps its lobe)
 MIN_CLUSTER = 50
 
 
-def colour_clusters(texel_index, grid_shape: tuple[int, int], pd: torch.Tensor, members: torch.Tensor) -> np.ndarray:
-    """(T,) int64 cluster of each texel: the members (T,) bool joined to their 4-neighbours on the (H, W) grid of
-    their colour (largest channel difference of log(Pd + COLOUR_FLOOR) <= COLOUR_TOLERANCE); clusters of at least
-    MIN_CLUSTER texels numbered 0.., -1 for the rest and for texels that are not members."""
+def colour_clusters(neighbours: TexelNeighbours, pd: torch.Tensor, members: torch.Tensor) -> np.ndarray:
+    """(T,) int64 cluster of each texel: the members (T,) bool joined to their 4-neighbours on the surface
+    (neighbours.pairs(), the Surface's: across an atlas's seams) of their colour (largest channel difference of
+    log(Pd + COLOUR_FLOOR) <= COLOUR_TOLERANCE); clusters of at least MIN_CLUSTER texels numbered 0.., -1 for the
+    rest and for texels that are not members."""
     T = len(members)
     m = members.cpu().numpy()
-    pairs = TexelGrid(np.asarray(texel_index), grid_shape).pairs()
+    pairs = neighbours.pairs()
     colour = np.log(pd.detach().cpu().double().numpy().clip(0, None) + COLOUR_FLOOR)
     i, j = pairs[:, 0], pairs[:, 1]
     joined = m[i] & m[j] & (np.abs(colour[i] - colour[j]).max(-1) <= COLOUR_TOLERANCE)

@@ -14,24 +14,23 @@ from __future__ import annotations
 
 import torch
 
+from torchrefl.core.texel_neighbours import TexelNeighbours, texel_window
+
 #: robust deviations (1.4826 x the median absolute deviation) above the median texel RMS residual
 MISFIT_DEVIATIONS = 8.0
 #: the deviation is at least this many 8-bit DN (a noise-free synthetic fit has a near-zero spread)
 MIN_DEVIATION_DN = 0.1
-#: texels within this many texels (grid distance) of an edge or of untrusted geometry may be misfits
+#: texels within this many texels (window radius on the surface) of an edge or of untrusted geometry may be misfits
 NEAR_EDGE = 2
 
 
-def near_edge(grid_shape: tuple, texel_index: torch.Tensor, trusted: torch.Tensor) -> torch.Tensor:
-    """(T,) bool: texels within NEAR_EDGE grid texels of a grid cell that is not a trusted texel (off the surface,
-    or untrusted geometry). texel_index (T,) flat grid indices; trusted (T,) bool."""
-    H, W = grid_shape
-    good = torch.zeros(H * W, dtype=torch.float64)
-    good[texel_index] = trusted.to(torch.float64)
-    k = 2 * NEAR_EDGE + 1
-    outside = torch.nn.functional.pad(1.0 - good.view(1, 1, H, W), (NEAR_EDGE,) * 4, value=1.0)  # off the grid: edge
-    bad = torch.nn.functional.max_pool2d(outside, k, stride=1)
-    return bad.view(-1)[texel_index] > 0.5
+def near_edge(neighbours: TexelNeighbours, trusted: torch.Tensor) -> torch.Tensor:
+    """(T,) bool: texels whose window of radius NEAR_EDGE on the surface (core/texel_neighbours.texel_window: the
+    Surface's neighbours, across an atlas's seams) holds a cell that is not a trusted texel (off the surface, or
+    untrusted geometry). trusted (T,) bool."""
+    win = torch.from_numpy(texel_window(neighbours, NEAR_EDGE))
+    good = (win >= 0) & trusted.cpu()[win.clamp_min(0)]
+    return ~good.all(1)
 
 
 def misfit_texels(

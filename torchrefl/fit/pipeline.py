@@ -22,7 +22,7 @@ from torchrefl.fit.initialise import COVER_MATERIAL, COVER_MISFIT, initialise_lo
 from torchrefl.fit.misfit import MISFIT_DEVIATIONS, misfit_texels, near_edge
 from torchrefl.fit.observe import observe
 from torchrefl.fit.reestimate import reestimate
-from torchrefl.fit.refine import Objective, Prior, grid_neighbours, refine
+from torchrefl.fit.refine import Objective, Prior, neighbour_pairs, refine
 from torchrefl.fit.result import FitResult
 from torchrefl.fit.texel_lm import levenberg_marquardt
 from torchrefl.transport.levels.auto import choose, named_level, prepare
@@ -82,7 +82,7 @@ class ObjectiveFactory:
                 )
             )
         s = inputs.surface
-        self.neighbours = grid_neighbours(s.texel_index, s.grid_shape).to(device) if fc.smoothness > 0 else None
+        self.neighbours = neighbour_pairs(s.neighbours).to(device) if fc.smoothness > 0 else None
         self.intensity = inputs.obs.intensity.to(device)
         self.fc = fc
         self.pooled: torch.Tensor | None = None  # texels whose lobe is their material's (pool)
@@ -223,7 +223,7 @@ def drop_misfits(result: FitResult, capture: Capture, log) -> None:
     lose their estimate: coverage code 6, out of the masks every metric uses."""
     s = capture.surface
     trusted = torch.ones(s.num_texels, dtype=torch.bool) if capture.untrusted is None else ~capture.untrusted.bool()
-    edge = near_edge(s.grid_shape, s.texel_index, trusted)
+    edge = near_edge(s.neighbours, trusted)
     bad = misfit_texels(result.predicted, capture.obs.intensity, result.fit_mask, result.estimated) & edge
     result.misfit = int(bad.sum())
     if not result.misfit:

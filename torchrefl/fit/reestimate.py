@@ -93,7 +93,7 @@ def material_lobes(
     with torch.no_grad():
         pd, ps, sigma = (x.detach().cpu() for x in params.values())
         members = inp.fit_mask.any(0) & ~done.cpu()
-        cluster = colour_clusters(inp.surface.texel_index, inp.surface.grid_shape, pd, members)
+        cluster = colour_clusters(inp.surface.neighbours, pd, members)
         if cluster.max() < 0:
             return None
         profile = profiled_fit(inp.terms, inp.obs.intensity, inp.fit_mask, rc.ps_channels, rc.ps_max, indirect)

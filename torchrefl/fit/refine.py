@@ -18,7 +18,7 @@ from typing import Callable, Optional
 import torch
 
 from torchrefl.core.params import TexelParams
-from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.core.texel_neighbours import TexelNeighbours
 from torchrefl.errors import FitError
 
 _LOG_EPS = 1e-3
@@ -212,6 +212,7 @@ def _minimise(params, objective, optimizer, iterations, learning_rate, progress,
     return history
 
 
-def grid_neighbours(texel_index: torch.Tensor, grid_shape: tuple[int, int]) -> torch.Tensor:
-    """(E, 2) pairs of valid texels that are right or down neighbours on the (H, W) grid."""
-    return torch.from_numpy(TexelGrid(texel_index.cpu().numpy(), grid_shape).pairs())
+def neighbour_pairs(neighbours: TexelNeighbours) -> torch.Tensor:
+    """(E, 2) pairs of adjacent texels on the surface, each once (neighbours.pairs(): on a grid the right and down
+    neighbours; on an atlas across seams too)."""
+    return torch.from_numpy(neighbours.pairs())

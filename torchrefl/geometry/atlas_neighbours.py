@@ -123,7 +123,8 @@ class AtlasNeighbours:
     grid_shape (S, S); index (T,) flat texel index; rows, cols (T,); slot (S S,) texel at each cell, -1 in the
     gutter; chart (T,); step (T, 4) int64 neighbour of each texel in each of DIRECTIONS, -1 where none; turn
     (T, 4) int64 index of the frame change of that step (0: none); step_length (T, 4) expected 3-D length of a
-    unit step (|J_f step|); edges (E, 2) int64 every adjacent pair (t < t') once, seams included."""
+    unit step (|J_f step|); edges (E, 2) int64 every adjacent pair (t < t') once, seams included; region (T,) the
+    chart (core/texel_neighbours.TexelNeighbours: a patch block never joins two charts)."""
 
     def __init__(self, texel_index, grid_shape, chart, positions, normals, jacobians):
         self.grid_shape = (int(grid_shape[0]), int(grid_shape[1]))
@@ -133,6 +134,7 @@ class AtlasNeighbours:
         self.slot = np.full(H * W, -1, dtype=np.int64)
         self.slot[self.index] = np.arange(len(self.index))
         self.chart = np.asarray(chart, dtype=np.int64)
+        self.region = self.chart  # TexelNeighbours: patches never join two charts
         self.positions = np.asarray(positions, dtype=np.float64)
         self.normals = np.asarray(normals, dtype=np.float64)
         self.jacobians = np.asarray(jacobians, dtype=np.float64)  # (T, 3, 2)

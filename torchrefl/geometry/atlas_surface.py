@@ -23,8 +23,8 @@ class AtlasGeometry:
     mesh: the mesh the maps belong to (with the atlas xatlas made when the file had no UVs). parametrised: True
     when the atlas was made here, so the mesh must be written into the run folder (mesh_file.write_obj).
     texels: the rasterised atlas. surface: the Surface (grid (S, S), positions and normals in the world frame,
-    mm; extras 'face' (T,) int64, 'barycentric' (T, 3) float64, 'chart' (T,) int64). neighbours: the texels'
-    surface neighbours (atlas_neighbours)."""
+    mm; extras 'face' (T,) int64, 'barycentric' (T, 3) float64, 'chart' (T,) int64; its `neighbours` are these).
+    neighbours: the texels' surface neighbours (atlas_neighbours)."""
 
     mesh: MeshData
     parametrised: bool
@@ -68,6 +68,8 @@ def atlas_geometry(
     texels = rasterise_atlas(mesh, texture_size, conservative=conservative)
     positions, normals = texel_geometry(mesh, texels, face_normals, crease_angle_deg)
     S = int(texture_size)
+    jac = face_jacobians(mesh.vertices, mesh.faces, uv_to_texel_xy(mesh.uvs, S))[texels.face]
+    neighbours = AtlasNeighbours(texels.texel_index, (S, S), texels.chart, positions, normals, jac)
     surface = Surface(
         grid_shape=(S, S),
         texel_index=torch.from_numpy(texels.texel_index),
@@ -79,9 +81,8 @@ def atlas_geometry(
         units="mm",
         source=mesh.source,
         extras={"face": texels.face, "barycentric": texels.barycentric, "chart": texels.chart},
+        neighbours=neighbours,
     )
-    jac = face_jacobians(mesh.vertices, mesh.faces, uv_to_texel_xy(mesh.uvs, S))[texels.face]
-    neighbours = AtlasNeighbours(texels.texel_index, (S, S), texels.chart, positions, normals, jac)
     return AtlasGeometry(mesh, parametrised, texels, surface, neighbours)
 
 

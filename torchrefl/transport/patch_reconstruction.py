@@ -13,6 +13,11 @@ patches whose normal is more than `max_angle_deg` from the texel's left out), an
 the texel. A linear field is reproduced exactly, at an edge too. Where the patches do not determine a slope
 (a single patch, or patches in one line) a small ridge on the slope makes it the weighted mean. The result
 is one sparse (T, Q) matrix, built once and applied at every evaluation.
+
+The patches around a texel are those of the 3 x 3 blocks of its region around its block (texel_patches' blocks;
+on an atlas its chart's), and the patches of the texels one block side away in the eight directions on the
+surface (the Surface's neighbours: across an atlas's seams, round a full-turn scan), which on a plain grid are
+among the first.
 """
 
 from __future__ import annotations
@@ -24,14 +29,14 @@ import torch
 
 from torchrefl.core.lobe_sampling import tangent_frame
 from torchrefl.core.texel_grid import grid_flat
+from torchrefl.core.texel_neighbours import TexelNeighbours
 from torchrefl.errors import ConfigError
 
 RIDGE = 1e-6  # slope regulariser: RIDGE x (sum of the weights) x pitch^2 on each slope component
 
 
 def linear_reconstruction(
-    texel_index,
-    grid_shape: tuple[int, int],
+    neighbours: TexelNeighbours,
     positions,
     normals,
     texel_patch,
@@ -42,42 +47,46 @@ def linear_reconstruction(
 ) -> torch.Tensor:
     """Sparse (T, Q) float64 operator: texel values = R @ patch values (module docstring).
 
-    texel_index (T,) flat grid index of each texel on the (H, W) grid; positions, normals (T, 3); texel_patch
-    (T,) patch of each texel; patch_centres, patch_normals (Q, 3); patch_size: texels per patch side (the
-    blocks of texel_patches: the neighbourhood is the patches of the 3 x 3 blocks around the texel's; the
-    Gaussian's std is the patch pitch, the median distance between neighbouring centroids)."""
+    neighbours: the Surface's (core/texel_neighbours.py); positions, normals (T, 3); texel_patch (T,) patch of
+    each texel; patch_centres, patch_normals (Q, 3); patch_size: texels per patch side (the blocks of
+    texel_patches: the neighbourhood is the module docstring's; the Gaussian's std is the patch pitch, the median
+    distance between neighbouring centroids)."""
     if isinstance(patch_size, bool) or not isinstance(patch_size, (int, np.integer)) or patch_size < 1:
         raise ConfigError(f"radiosity.patch_size must be an integer >= 1, got {patch_size!r}")
-    index = np.asarray(texel_index, dtype=np.int64)
     x = np.asarray(positions, dtype=np.float64)
     n = np.asarray(normals, dtype=np.float64)
     tp = np.asarray(texel_patch, dtype=np.int64)
     c = np.asarray(patch_centres, dtype=np.float64)
     cn = np.asarray(patch_normals, dtype=np.float64)
-    T, Q = len(index), len(c)
-    H, W = grid_shape
+    T, Q = neighbours.num_texels, len(c)
+    H, W = neighbours.grid_shape
     # candidates: the patches of the 3 x 3 blocks around the texel's block (a block may hold several patches
     # where it was split at a crease), the texel's own patch first; their number does not grow with the size
     s_ = int(patch_size)
     bh, bw = -(-H // s_), -(-W // s_)
-    row, col = index // W, index % W
-    brow, bcol = row // s_, col // s_
+    region = np.asarray(neighbours.region, dtype=np.int64)
+    brow, bcol = neighbours.rows // s_, neighbours.cols // s_
     pblock = np.full(Q, -1, dtype=np.int64)
-    pblock[tp] = brow * bw + bcol
+    pblock[tp] = (region * bh + brow) * bw + bcol  # texel_patches' block ids
     order = np.argsort(pblock, kind="stable")
-    count = np.bincount(np.maximum(pblock, 0), minlength=bh * bw)
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    keys, count = np.unique(pblock[pblock >= 0], return_counts=True)  # the blocks that hold patches
+    keys, count = (keys, count) if len(keys) else (np.full(1, -1), np.zeros(1, dtype=np.int64))
+    start = np.concatenate([[0], np.cumsum(count)[:-1]]) + int((pblock < 0).sum())
     most = int(count.max()) if Q else 0
     cand = []
     for dr in (-1, 0, 1):
         for dc in (-1, 0, 1):
             nb = grid_flat(brow + dr, bcol + dc, (bh, bw))
-            ok, nb = nb >= 0, np.maximum(nb, 0)
+            key = (region * bh) * bw + nb
+            at = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
+            ok = (nb >= 0) & (keys[at] == key)
+            n_at = np.where(ok, count[at], 0)
             for j in range(most):
-                has = ok & (j < count[nb])
-                cand.append(np.where(has, order[np.minimum(start[nb] + j, Q - 1)], -1))
+                has = ok & (j < n_at)
+                cand.append(np.where(has, order[np.minimum(start[at] + j, Q - 1)], -1))
     cand = np.stack(cand, 1) if cand else np.full((T, 0), -1, dtype=np.int64)  # (T, 9 most)
     cand = np.concatenate([tp[:, None], np.where(cand == tp[:, None], -1, cand)], 1)
+    cand = _add_surface_neighbours(cand, neighbours, tp, s_)
     valid = cand >= 0
     q = np.maximum(cand, 0)
     valid &= np.einsum("tmi,ti->tm", cn[q], n) >= math.cos(math.radians(max_angle_deg))
@@ -110,6 +119,26 @@ def plane_intercept_rows(moments: np.ndarray, slope_ridge: float) -> np.ndarray:
     moments[:, 2, 2] += ridge
     e1 = np.broadcast_to(np.array([1.0, 0.0, 0.0]), (len(moments), 3))[..., None]
     return np.linalg.solve(moments, e1)[..., 0]
+
+
+def _add_surface_neighbours(cand: np.ndarray, neighbours: TexelNeighbours, tp: np.ndarray, step: int) -> np.ndarray:
+    """cand (T, M) with columns appended for the patches of the texels `step` texels away on the surface in the
+    eight directions that cand does not hold yet (-1 where there is none); unchanged when there is no such patch
+    (a plain grid)."""
+    t = np.arange(len(tp))
+    extra = []
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy == 0 and dx == 0:
+                continue
+            other = neighbours.neighbour(t, dy * step, dx * step)
+            p = np.where(other >= 0, tp[np.maximum(other, 0)], -1)
+            held = (cand == p[:, None]).any(1)
+            for e in extra:
+                held |= e == p
+            extra.append(np.where(held, -1, p))
+    extra = [e for e in extra if (e >= 0).any()]
+    return np.concatenate([cand, np.stack(extra, 1)], 1) if extra else cand
 
 
 def _pitch2(d: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -1,5 +1,7 @@
 """Patches for the radiosity level: square blocks of texels on the texel grid, split where the texel
-normals disagree (`texel_patches`: a patch does not straddle a fold); a mesh face belongs to the
+normals disagree (`texel_patches`: a patch does not straddle a fold) and by the region of the Surface's
+neighbours (core/texel_neighbours.py: on an atlas the chart, so a block never joins two charts that only sit
+side by side in the atlas; on a grid one region); a mesh face belongs to the
 patch of the texel at its first vertex (`face_patches`, which relies on the vertex layout of
 torchrefl.geometry.range_mesh.grid_triangulation; `face_corners` gives the patches and normals of
 all three corners for the form factors' corner rule).
@@ -28,8 +30,9 @@ class Patches:
     member_offsets: (Q + 1,) int64 and member_texels: (M,) int64, CSR lists of member texels
         (indices into the Surface's texels, increasing within a patch): patch q owns
         member_texels[member_offsets[q]:member_offsets[q + 1]].
-    block: (Q, 2) int64, (block row, block column) of each patch on the texel grid (the patches
-        a block was split into at a crease share it).
+    block: (Q, 2) int64, (region * ceil(H / patch_size) + block row, block column) of each patch on the
+        texel grid, region that of the Surface's neighbours (0 on a grid; the chart on an atlas) (the patches a
+        block was split into at a crease share it).
     patch_size: texels per block side.
     """
 
@@ -72,15 +75,15 @@ class Patches:
 def texel_patches(surface: Surface, patch_size: int, split_angle_deg: float = 180.0) -> Patches:
     """Square blocks of patch_size x patch_size texels on the (H, W) texel grid, split at creases.
 
-    Block (i, j) holds the valid texels with row // patch_size == i and col // patch_size == j
-    (blocks at the bottom and right borders may be smaller); blocks with no valid texel are no
-    patch. A block whose texel normals differ by more than split_angle_deg is split (`split_by_normal`):
-    its first texel (lowest index) seeds a patch with every texel of the block within split_angle_deg of
-    that texel's normal, the first of the rest seeds the next, and so on. A patch thus never straddles a
-    fold or crease, where one shared mean normal, form-factor row and irradiance would be wrong for the
-    texels on both sides (180 = never split). Patches are numbered by increasing block index
-    i * ceil(W / patch_size) + j, then by split order; patch_size=1 gives one texel per patch, numbered
-    like the texels.
+    Block (i, j) of region g holds the valid texels of region g (surface.neighbours.region: one region on a
+    grid, the chart on an atlas) with row // patch_size == i and col // patch_size == j (blocks at the bottom
+    and right borders may be smaller); blocks with no valid texel are no patch. A block whose texel normals
+    differ by more than split_angle_deg is split (`split_by_normal`): its first texel (lowest index) seeds a
+    patch with every texel of the block within split_angle_deg of that texel's normal, the first of the rest
+    seeds the next, and so on. A patch thus never straddles a fold or crease, where one shared mean normal,
+    form-factor row and irradiance would be wrong for the texels on both sides (180 = never split). Patches are
+    numbered by increasing block index (g * ceil(H / patch_size) + i) * ceil(W / patch_size) + j, then by split
+    order; patch_size=1 gives one texel per patch, numbered like the texels.
     """
     if isinstance(patch_size, bool) or not isinstance(patch_size, (int, np.integer)) or patch_size < 1:
         raise ConfigError(f"patch_size must be an integer >= 1 (texels per block side), got {patch_size!r}")
@@ -88,8 +91,9 @@ def texel_patches(surface: Surface, patch_size: int, split_angle_deg: float = 18
     H, W = surface.grid_shape
     flat = surface.texel_index.cpu().long()
     row, col = flat // W, flat % W
-    bw = -(-W // s)
-    block_id = (row // s) * bw + (col // s)
+    bh, bw = -(-H // s), -(-W // s)
+    region = torch.from_numpy(np.asarray(surface.neighbours.region, dtype=np.int64))
+    block_id = (region * bh + row // s) * bw + (col // s)
     if not (isinstance(split_angle_deg, (int, float, np.number)) and 0.0 <= float(split_angle_deg) <= 180.0):
         raise ConfigError(
             f"split_angle_deg must be a number in [0, 180] (degrees between texel normals that split "

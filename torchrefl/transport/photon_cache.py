@@ -24,8 +24,8 @@ Photons reaching the texel at n.wi <= min_cos_light feed H but not the specular 
 does not use grazing light either).
 
 Density estimation (the kernels are in torchrefl.transport.photon_density). A texel's H from its own
-photons is noisy (a few photons per light and texel);
-with `smoothing` > 0 (texels) H is smoothed over neighbouring texels of the grid with Gaussian weights
+photons is noisy (a few photons per light and texel); with `smoothing` > 0 (texels) H is smoothed over
+neighbouring texels on the surface (the Surface's neighbours) with Gaussian weights
 (std `smoothing`): the photon-map gather radius, trading noise for blur where the indirect light changes
 fast. With `smoothing_normal` s > 0 a neighbour also weighs exp(-|n - n'|^2 / (2 s^2)) by how far its
 normal n' is from the texel's n (a joint bilateral filter guided by the normals, as kornia's
@@ -36,7 +36,7 @@ fitted with these weights through its neighbours, which inside a region is the n
 equal to kornia's there) and next to a fold or an edge, where the neighbours lie on one side, keeps the rise
 of the light towards the fold that the normalised kernel flattens. The
 specular entries stay per texel unless `specular_smoothing` > 0 spreads each photon's entry over
-its grid neighbours with the same kind of kernel (spread_on_grid): per-texel entries come from a few
+its surface neighbours with the same kind of kernel (spread_on_grid): per-texel entries come from a few
 photons each, and that noise, multiplying Ps in the fit, biases Ps down (errors in variables). Where the
 all-diffuse paths come from the radiosity level, torchrefl.transport.specular_gather replaces their
 specular entries by gathered ones without photon noise (build_cache(specular_paths_only=True) then keeps
@@ -195,8 +195,9 @@ class PhotonCache:
 
 
 def _grid_parts(grid: tuple) -> tuple:
-    """(texel_index, grid_shape, normals or None) of a grid tuple (texel_index, grid_shape[, normals])."""
-    return grid[0], grid[1], (grid[2] if len(grid) > 2 else None)
+    """(neighbours, normals or None) of a grid tuple (neighbours[, normals]): the Surface's neighbours
+    (core/texel_neighbours.py) and its texel normals (T, 3)."""
+    return grid[0], (grid[1] if len(grid) > 1 else None)
 
 
 def build_cache(
@@ -228,12 +229,12 @@ def build_cache(
     hits: from PhotonTracer.trace over sources.positions.reshape(-1, 3) (source s = p * K + k);
     areas (T,), normals (T, 3), view_dirs (T, 3) or (P, T, 3); keep (P, T) bool observations that are
     predicted (fitted or evaluated); sigma (T,) current roughness (prunes the specular entries);
-    smoothing: std of the Gaussian density-estimation kernel in texels (needs grid = (texel_index, grid_shape)
-    or (texel_index, grid_shape, normals (T, 3))); smoothing_normal: the kernel's normal-difference std (needs
+    smoothing: std of the Gaussian density-estimation kernel in texels (needs grid = (neighbours,) or
+    (neighbours, normals (T, 3)), neighbours the Surface's); smoothing_normal: the kernel's normal-difference std (needs
     the normals in grid; 0 = plain Gaussian); specular_smoothing: std (texels) of the kernel that spreads the
-    specular entries over grid neighbours (spread_on_grid; 0 = per texel); theta_bin, bin_per_sigma: merged
+    specular entries over surface neighbours (spread_on_grid; 0 = per texel); theta_bin, bin_per_sigma: merged
     photons' theta_h bins are max(theta_bin, bin_per_sigma * sigma_t) wide; threads: worker threads;
-    smoother: smoothing_matrix(texel_index, grid_shape, smoothing, normals, smoothing_normal) built by the caller
+    smoother: smoothing_matrix(neighbours, smoothing, normals, smoothing_normal) built by the caller
     once for many caches (built here when None);
     emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd;
     diffuse_paths: False leaves the photons whose paths were diffuse at every scattering (hits.specular_path
@@ -257,11 +258,11 @@ def build_cache(
             hits, obs_idx, normals, view_dirs, brdf, sigma, sigma_max, min_cos_light, threads
         ).select(sel, flux)
         if specular_smoothing > 0 and grid is None:
-            raise ConfigError("photon.specular_smoothing > 0 needs the texel grid (texel_index, grid_shape)")
+            raise ConfigError("photon.specular_smoothing > 0 needs the texel neighbours (grid = (neighbours,))")
         spread = None
         if specular_smoothing > 0:
-            index, shape, gnormals = _grid_parts(grid)
-            spread = lambda obs: spread_on_grid(obs, T, index, shape, specular_smoothing, gnormals, smoothing_normal)
+            nbrs, gnormals = _grid_parts(grid)
+            spread = lambda obs: spread_on_grid(obs, T, nbrs, specular_smoothing, gnormals, smoothing_normal)
         if e_obs.size:
             merged, count = spread_and_merge(e_obs, theta_h, weight, spread, sigma, T, theta_bin, bin_per_sigma)
             empty = (torch.from_numpy(merged[0]), *(torch.from_numpy(x).to(dtype) for x in merged[1:]))
@@ -388,16 +389,13 @@ def _smooth_irradiance(irradiance: torch.Tensor, grid, smoother, smoothing: floa
     """build_cache's density estimation: (irradiance smoothed over the grid, the smoother it used, built here
     when None)."""
     if grid is None:
-        raise ConfigError("photon.smoothing > 0 needs the texel grid (texel_index, grid_shape)")
-    if smoothing_normal > 0 and _grid_parts(grid)[2] is None:
-        raise ConfigError(
-            "photon.smoothing_normal > 0 needs the texel normals in the grid (texel_index, grid_shape, normals)"
-        )
-    index, shape, normals = _grid_parts(grid)
+        raise ConfigError("photon.smoothing > 0 needs the texel neighbours (grid = (neighbours,))")
+    if smoothing_normal > 0 and _grid_parts(grid)[1] is None:
+        raise ConfigError("photon.smoothing_normal > 0 needs the texel normals in the grid (neighbours, normals)")
+    nbrs, normals = _grid_parts(grid)
     if smoother is None:
         smoother = smoothing_matrix(
-            np.asarray(index),
-            shape,
+            nbrs,
             smoothing,
             None if normals is None else np.asarray(normals, dtype=np.float64),
             smoothing_normal,

@@ -10,6 +10,11 @@ edges) the normalised kernel returns the interior's value and the plane does not
 upper plate's three rows next to the crease gathered 2-9 % too little of the light that came by a specular
 scattering (docs/results/fold.md). spread_on_grid spreads point entries over their grid neighbours (the specular
 entries) with the normalised kernel. torchrefl.transport.photon_cache describes where the cache uses each.
+
+The operators' neighbours are the Surface's (core/texel_neighbours.py): the texel at offset (dy, dx) is
+neighbours.neighbour(t, dy, dx), so on an atlas a window reaches across chart seams (walking, keeping its heading)
+and never takes a texel of another chart that only sits beside it in the atlas; on a full-turn scan it wraps.
+smooth_on_grid, kornia's filter on the grid image, is the plain-grid reference the tests compare them with.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ import numpy as np
 import torch
 
 from torchrefl.core.lobe_sampling import column_dot
-from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.core.texel_neighbours import TexelNeighbours, window_offsets
 from torchrefl.transport.patch_reconstruction import plane_intercept_rows
 
 KERNEL_PHOTONS = 10_000  # photons of one light under the automatic irradiance kernel (photon.smoothing: null)
@@ -89,24 +94,21 @@ def smooth_on_grid(
     return out.reshape(-1, C, T).permute(0, 2, 1).reshape(*lead, T, C)
 
 
-def _grid_neighbours(
-    texel_index, grid_shape: tuple[int, int], sigma: float, radius: int, normals=None, normal_sigma: float = 0.0
-):
+def _grid_neighbours(neighbours: TexelNeighbours, sigma: float, radius: int, normals=None, normal_sigma: float = 0.0):
     """The kernel shared by spread_on_grid and smoothing_matrix: a function of t_from (M,) that yields, per grid
-    offset within `radius`, (t_to (M,), weight (M,)): the texel at that offset (-1 outside the grid or the
-    texel set) and exp(-|offset|^2 / (2 sigma^2)) times, with normals (T, 3) and normal_sigma > 0,
-    exp(-|n - n'|^2 / (2 normal_sigma^2)) (kornia's joint bilateral weights with the normals as guide)."""
-    grid = TexelGrid(texel_index, grid_shape)
+    offset within `radius` (window_offsets), (t_to (M,), weight (M,)): the texel at that offset on the surface
+    (neighbours.neighbour; -1 where there is none) and exp(-|offset|^2 / (2 sigma^2)) times, with normals (T, 3)
+    and normal_sigma > 0, exp(-|n - n'|^2 / (2 normal_sigma^2)) (kornia's joint bilateral weights with the normals
+    as guide)."""
     nrm = (
         None if normals is None or normal_sigma <= 0 else np.ascontiguousarray(np.asarray(normals, dtype=np.float64).T)
     )
-    offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
+    offsets = window_offsets(radius)
 
     def kernel(t_from: np.ndarray):
-        r, c = np.take(grid.rows, t_from), np.take(grid.cols, t_from)
         n_from = None if nrm is None else np.take(nrm, t_from, axis=1)
         for dy, dx in offsets:
-            to = grid.at(r + dy, c + dx)
+            to = neighbours.neighbour(t_from, dy, dx)
             w = np.where(to >= 0, math.exp(-(dy * dy + dx * dx) / (2.0 * sigma * sigma)), 0.0)
             if n_from is not None:
                 d = n_from - np.take(nrm, np.maximum(to, 0), axis=1)
@@ -117,20 +119,21 @@ def _grid_neighbours(
 
 
 def smoothing_matrix(
-    texel_index, grid_shape: tuple[int, int], sigma: float, normals=None, normal_sigma: float = 0.0
+    neighbours: TexelNeighbours, sigma: float, normals=None, normal_sigma: float = 0.0
 ) -> torch.Tensor:
     """Local linear smoothing as a sparse (T, T) float64 operator (rows sum to one), built once and applied at
     every evaluation. Each texel's value is the intercept of the weighted least-squares plane a + b dy + c dx
-    through the values of the texels at grid offsets (dy, dx) within radius ceil(3 sigma), weighted by
+    through the values of the texels at offsets (dy, dx) on the surface (the Surface's neighbours) within radius
+    ceil(3 sigma), weighted by
     smooth_on_grid's kernel (Gaussian of std sigma texels, times the normal test with normals (T, 3) and
     normal_sigma > 0): the normalised kernel wherever the weighted neighbourhood is symmetric, and free of its
     bias where it is one-sided (a linear field is kept, up to the ridge). A small ridge on the slopes
     (SLOPE_RIDGE) keeps them determined where the neighbours lie in a line; the weights can be negative at an
     edge."""
-    T = len(np.asarray(texel_index))
+    T = neighbours.num_texels
     radius = int(math.ceil(3 * sigma))
-    kernel = _grid_neighbours(texel_index, grid_shape, sigma, radius, normals, normal_sigma)
-    offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
+    kernel = _grid_neighbours(neighbours, sigma, radius, normals, normal_sigma)
+    offsets = window_offsets(radius)
     moments = np.zeros((T, 3, 3))
     parts = []
     for (dy, dx), (to, w) in zip(offsets, kernel(np.arange(T))):
@@ -160,22 +163,21 @@ def apply_on_grid(matrix: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
 def spread_on_grid(
     obs: np.ndarray,
     T: int,
-    texel_index,
-    grid_shape: tuple[int, int],
+    neighbours: TexelNeighbours,
     sigma: float,
     normals=None,
     normal_sigma: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Spread point entries at flat observation indices obs = p T + t over the grid neighbours of t, with the
+    """Spread point entries at flat observation indices obs = p T + t over the neighbours of t on the surface, with the
     kernel of smooth_on_grid (Gaussian of std `sigma` texels, truncated at radius max(1, round(sigma)) to bound the
     number of copies, times the normal test)
     normalised at each receiving texel (normalised convolution: a constant field stays constant).
     Returns (obs of the copies, index of the entry each copy comes from, weight of each copy)."""
-    index = np.asarray(texel_index, dtype=np.int64)
-    kernel = _grid_neighbours(texel_index, grid_shape, sigma, max(1, int(round(sigma))), normals, normal_sigma)
-    mass = np.zeros(len(index))
-    for to, w in kernel(np.arange(len(index))):
-        mass += np.bincount(np.maximum(to, 0), weights=np.where(to >= 0, w, 0.0), minlength=len(index))
+    n = neighbours.num_texels
+    kernel = _grid_neighbours(neighbours, sigma, max(1, int(round(sigma))), normals, normal_sigma)
+    mass = np.zeros(n)
+    for to, w in kernel(np.arange(n)):
+        mass += np.bincount(np.maximum(to, 0), weights=np.where(to >= 0, w, 0.0), minlength=n)
     t_e, p_e = obs % T, obs // T
     out_obs, out_src, out_w = [], [], []
     for to, w in kernel(t_e):

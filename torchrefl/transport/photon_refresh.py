@@ -34,7 +34,7 @@ class PhotonRefresh:
     dtype: torch.dtype
     device: torch.device
     smoothing: float = 0.0
-    grid: tuple | None = None
+    grid: tuple | None = None  # (neighbours[, normals (T, 3)]): the Surface's, for the density kernels
     linear_emitters: bool = False
     smoothing_normal: float = 0.0
     specular_smoothing: float = 0.0
@@ -54,11 +54,10 @@ class PhotonRefresh:
         if self.smoothing <= 0 or self.grid is None:
             return None
         if getattr(self, "_smoother", None) is None:
-            index, shape = self.grid[0], self.grid[1]
-            normals = self.grid[2] if len(self.grid) > 2 else None
+            neighbours = self.grid[0]
+            normals = self.grid[1] if len(self.grid) > 1 else None
             self._smoother = smoothing_matrix(
-                np.asarray(index),
-                shape,
+                neighbours,
                 self.smoothing,
                 None if normals is None else np.asarray(normals, dtype=np.float64),
                 self.smoothing_normal,

@@ -142,7 +142,7 @@ class PhotonLevel(TransportLevel):
             obs.intensity.dtype,
             inp.device,
             smoothing=self.smoothing,
-            grid=(surface.texel_index, surface.grid_shape, surface.normals.double()),
+            grid=(surface.neighbours, surface.normals.double()),
             smoothing_normal=SMOOTHING_NORMAL,
             specular_smoothing=self.specular_smoothing,
             radiosity_irradiance=self.radiosity.indirect if self.hybrid else None,

@@ -132,8 +132,7 @@ class RadiosityLevel(TransportLevel):
         if size == 1:
             return ""
         self._reconstruct = linear_reconstruction(
-            s.texel_index.numpy(),
-            s.grid_shape,
+            s.neighbours,
             s.positions.double().numpy(),
             s.normals.double().numpy(),
             patches.texel_patch.numpy(),
