@@ -1,6 +1,7 @@
 """Shared test scene: texels on a gently curved patch lit by point lights, observations from
 the exact local model (so closed forms and fits can be checked against known parameters)."""
 
+import json
 import math
 import sys
 from pathlib import Path
@@ -135,3 +136,15 @@ def atlas_cylinder(texture_size: int = 32):
     from torchrefl.geometry.atlas_surface import atlas_geometry
 
     return atlas_geometry(open_cylinder(10.0, 20.0), texture_size)
+
+
+@pytest.fixture
+def write_json(tmp_path):
+    """write_json(name, doc) -> the path of tmp_path / name holding doc as JSON (a str is written as it is)."""
+
+    def write(name: str, doc):
+        path = tmp_path / name
+        path.write_text(doc if isinstance(doc, str) else json.dumps(doc))
+        return path
+
+    return write
