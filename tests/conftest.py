@@ -148,3 +148,19 @@ def write_json(tmp_path):
         return path
 
     return write
+
+
+#: the doc-command test (tests/docs/test_doc_commands.py) whose skipped blocks are listed at the end of a run
+DOC_TEST = "test_doc_block_runs_as_written"
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The doc blocks that were not run, each with its marker's reason, listed at the end of every run that had some
+    (a conftest.py in a test folder would shadow this module for `from conftest import ...`)."""
+    skipped = [r for r in terminalreporter.stats.get("skipped", []) if DOC_TEST in r.nodeid]
+    if not skipped:
+        return
+    terminalreporter.section("doc blocks not run (their markers in the markdown)")
+    for report in skipped:
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        terminalreporter.write_line(reason.removeprefix("Skipped: "))
