@@ -1,0 +1,281 @@
+"""Synthetic mesh_views scenes: a mesh object photographed by calibrated cameras under point lights, written as a
+capture folder in the mesh_views format (docs/capture-formats.md):
+
+    mesh.obj            v, vt (the atlas), vn (exact normals), f v/vt/vn; or mesh.ply without UVs; millimetres
+    scene.yaml          units: mm
+    cameras.json        {"cameras": [{name, width, height, fx, fy, cx, cy, k1, k2, p1, p2, k3, R, t}, ...]}
+    lights.json         {"lights": [{name, type: point, position, intensity}, ...]}
+    images.json         {encoding: linear16, saturation_level, kappa, images: [{file, camera, light, exposure}]}
+    images/<camera>_<light>.png   16-bit linear RGB: round(65535 (kappa exposure L_o + noise)), clipped
+    truth.npz           pd (S, S, 3), ps (S, S, 3), sigma (S, S), region (S, S) on the atlas (NaN / -1 in the
+                        gutter), brdf
+
+Objects (synthetic.uv_objects): `ellipsoid` (convex, non-uniform glossy papers, a mesh with UVs),
+`ellipsoid_no_uv` (the same surface as mesh.ply without UVs: its truth lies on the atlas that xatlas makes of
+it, as the loader makes it) and `bowl` (a deep concavity, rendered with path-traced interreflection). The
+images come from synthetic.views_render.ViewsRenderer; cameras, lights and pairing from synthetic.views_layout.
+
+The truth maps are written through one function of the texel centres' surface points (truth_maps: the object's
+material at each point); the texel centres come from the atlas (atlas_texels).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import trimesh
+import yaml
+
+from torchrefl.capture.images import write_png
+from torchrefl.config import opt
+from torchrefl.errors import ConfigError, GeometryError
+from torchrefl.synthetic.uv_objects import VIEWS_OBJECTS, ViewsObject, make_views_object
+from torchrefl.synthetic.views_layout import (
+    ViewCamera,
+    ViewImage,
+    ViewLight,
+    direction,
+    pair_images,
+    ring_cameras,
+)
+from torchrefl.synthetic.views_render import ViewsRenderer
+
+# per object: camera ring elevations (deg) and light [azimuth, elevation] (deg) when the config leaves them null
+_PRESETS = {
+    "ellipsoid": ([-15.0, 30.0], [[30.0, 20.0], [150.0, -10.0], [270.0, 40.0]]),
+    "ellipsoid_no_uv": ([-15.0, 30.0], [[30.0, 20.0], [150.0, -10.0], [270.0, 40.0]]),
+    "bowl": ([35.0, 65.0], [[0.0, 60.0], [120.0, 75.0], [240.0, 50.0]]),
+}
+
+
+@dataclass
+class MeshViewsConfig:
+    """A synthetic mesh_views scene (synthetic.mesh_views)."""
+
+    object: str = opt("ellipsoid", "the object: ellipsoid, ellipsoid_no_uv (written without UVs), bowl", VIEWS_OBJECTS)
+    texture_size: int = opt(
+        128, "side of the truth atlas, texels (a multiple of 16 keeps material borders on texel edges)", low=16
+    )
+    width: int = opt(320, "image width, px", low=8)
+    height: int = opt(240, "image height, px", low=8)
+    focal_px: float = opt(520.0, "focal length, px", low=1.0)
+    camera_distance_mm: float = opt(300.0, "distance of the cameras from the object's centre, mm", low=1.0)
+    camera_elevations_deg: Optional[list] = opt(None, "one camera ring per elevation, deg; null = the object's")
+    cameras_per_ring: int = opt(5, "cameras per ring, evenly spaced in azimuth", low=1)
+    light_distance_mm: float = opt(350.0, "distance of the point lights from the object's centre, mm", low=1.0)
+    lights_deg: Optional[list] = opt(
+        None, "point lights as [azimuth, elevation] about the centre, deg; null = the object's"
+    )
+    lights_per_view: int = opt(2, "lights paired with each camera (the closest to it in direction)", low=1)
+    light_intensity: list = opt([60000.0] * 3, "RGB radiant intensity Y of every light (full range x mm^2 per kappa)")
+    exposures: list = opt([1.0], "exposure factors of the images, cycled over the images in order")
+    supersample: int = opt(2, "sub-pixel rays per pixel side", low=1)
+    noise_dn: float = opt(0.3, "Gaussian sensor noise, 8-bit digital numbers", low=0.0)
+    indirect_samples: int = opt(
+        16, "interreflection paths per sub-sample (concave objects only; 0 = direct only)", low=0
+    )
+    brdf: str = opt("torrance_sparrow", "BRDF of the rendering", ("torrance_sparrow", "ward", "ward_normalised"))
+
+
+@dataclass
+class MeshViewsScene:
+    """What a folder shows: the object, its cameras, lights and images (pairings)."""
+
+    object: ViewsObject
+    cameras: list[ViewCamera]
+    lights: list[ViewLight]
+    images: list[ViewImage]
+
+
+@dataclass
+class WrittenCapture:
+    """A written folder: its path, the mesh file's name, the scene, and the truth maps (S, S, ...) written."""
+
+    folder: Path
+    mesh_file: str
+    scene: MeshViewsScene
+    truth: dict
+
+
+def build_scene(cfg: MeshViewsConfig, seed: int = 0) -> MeshViewsScene:
+    """The object, the camera rings about its bounding box's centre, the lights and the pairing of cfg."""
+    obj = make_views_object(cfg.object, seed)
+    v = obj.mesh.vertices
+    centre = (v.min(0) + v.max(0)) / 2.0
+    rings, lights_deg = _PRESETS[cfg.object]
+    rings = cfg.camera_elevations_deg if cfg.camera_elevations_deg is not None else rings
+    lights_deg = cfg.lights_deg if cfg.lights_deg is not None else lights_deg
+    cams = ring_cameras(
+        centre, cfg.camera_distance_mm, rings, cfg.cameras_per_ring, cfg.width, cfg.height, cfg.focal_px
+    )
+    intensity = np.asarray(cfg.light_intensity, dtype=np.float64)
+    if intensity.shape != (3,) or (intensity < 0).any():
+        raise ConfigError(f"light_intensity is {cfg.light_intensity}, expected three values >= 0 (RGB)")
+    lights = []
+    for k, entry in enumerate(lights_deg):
+        if len(entry) != 2:
+            raise ConfigError(f"lights_deg[{k}] is {entry}, expected [azimuth, elevation] in degrees")
+        pos = centre + cfg.light_distance_mm * direction(*entry)
+        lights.append(ViewLight(f"L{k:02d}", pos, intensity.copy()))
+    return MeshViewsScene(obj, cams, lights, pair_images(cams, lights, cfg.lights_per_view, cfg.exposures, centre))
+
+
+# ---------------------------------------------------------------------------- the atlas and the truth
+
+
+def truth_maps(obj: ViewsObject, positions: np.ndarray, faces: np.ndarray) -> dict:
+    """The true material at texel centres: positions (T, 3) on the mesh, faces (T,) their triangles ->
+    pd, ps (T, 3), sigma, region (T,)."""
+    return obj.mesh.material(np.asarray(positions, dtype=np.float64), np.asarray(faces, dtype=np.int64))
+
+
+def atlas_uv(obj: ViewsObject) -> tuple[np.ndarray, np.ndarray]:
+    """Per-corner atlas coordinates (F, 3, 2) of the object's faces and the faces (F,) they belong to: the mesh's
+    own UVs, or for a mesh without UVs the atlas xatlas makes of it (xatlas.parametrize with its defaults keeps
+    the face order)."""
+    if obj.uv is not None:
+        return obj.uv[obj.mesh.faces], np.arange(len(obj.mesh.faces))
+    import xatlas
+
+    _, indices, uvs = xatlas.parametrize(
+        np.asarray(obj.mesh.vertices, dtype=np.float32), np.asarray(obj.mesh.faces, dtype=np.uint32)
+    )
+    return np.asarray(uvs, dtype=np.float64)[indices], np.arange(len(indices))
+
+
+def atlas_texels(corner_uv: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The texels of an S x S atlas whose centres lie in UV triangles: flat texel index row * S + col (K,),
+    the triangle (K,) (the first one for centres on shared edges) and the barycentric weights (K, 3)."""
+    S = int(size)
+    x = corner_uv[..., 0] * S - 0.5  # texel centre (row, col) sits at x = col, y = row
+    y = (1.0 - corner_uv[..., 1]) * S - 0.5
+    c0, c1 = np.ceil(x.min(1) - 1e-9).astype(int), np.floor(x.max(1) + 1e-9).astype(int)
+    r0, r1 = np.ceil(y.min(1) - 1e-9).astype(int), np.floor(y.max(1) + 1e-9).astype(int)
+    w, h = np.maximum(c1 - c0 + 1, 0), np.maximum(r1 - r0 + 1, 0)
+    face = np.repeat(np.arange(len(x)), w * h)
+    k = np.arange(len(face)) - np.repeat(np.cumsum(w * h) - w * h, w * h)
+    col, row = c0[face] + k % w[face], r0[face] + k // w[face]
+    a, b, c = (np.stack([x[face, i], y[face, i]], -1) for i in range(3))
+    pt = np.stack([col, row], -1).astype(np.float64)
+    cross = lambda p, q: p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]  # noqa: E731
+    area = cross(b - a, c - a)
+    ok = np.abs(area) > 1e-12
+    safe = np.where(ok, area, 1.0)
+    wb, wc = cross(pt - a, c - a) / safe, cross(b - a, pt - a) / safe
+    bary = np.stack([1.0 - wb - wc, wb, wc], -1)
+    inside = ok & (bary.min(1) >= -1e-9) & (col >= 0) & (col < S) & (row >= 0) & (row < S)
+    texel = (row * S + col)[inside]
+    texel, first = np.unique(texel, return_index=True)
+    return texel, face[inside][first], bary[inside][first]
+
+
+def truth_on_atlas(obj: ViewsObject, size: int) -> dict:
+    """truth.npz's maps on the S x S atlas: pd, ps (S, S, 3), sigma (S, S) (NaN in the gutter), region (S, S)
+    (-1 in the gutter)."""
+    corner_uv, faces = atlas_uv(obj)
+    texel, tri, bary = atlas_texels(corner_uv, size)
+    corners = obj.mesh.vertices[obj.mesh.faces[faces[tri]]]
+    m = truth_maps(obj, np.einsum("kc,kci->ki", bary, corners), faces[tri])
+    S = int(size)
+    out = {
+        "pd": np.full((S * S, 3), np.nan),
+        "ps": np.full((S * S, 3), np.nan),
+        "sigma": np.full(S * S, np.nan),
+        "region": np.full(S * S, -1, dtype=np.int64),
+    }
+    for key in out:
+        out[key][texel] = m[key]
+    return {k: v.reshape((S, S) + v.shape[1:]) for k, v in out.items()}
+
+
+# ---------------------------------------------------------------------------- files
+
+
+def write_obj(path: Path, obj: ViewsObject) -> None:
+    """mesh.obj: v, vt, vn and f v/vt/vn with one index per corner (seam vertices are duplicated in the mesh)."""
+    v, vt, vn = obj.mesh.vertices, obj.uv, obj.vertex_normals
+    f = obj.mesh.faces + 1
+    lines = ["# torchrefl synthetic mesh_views object, millimetres"]
+    lines += [f"v {a:.9g} {b:.9g} {c:.9g}" for a, b, c in v]
+    lines += [f"vt {a:.9g} {b:.9g}" for a, b in vt]
+    lines += [f"vn {a:.9g} {b:.9g} {c:.9g}" for a, b, c in vn]
+    lines += [f"f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}" for a, b, c in f]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def write_mesh(folder: Path, obj: ViewsObject) -> str:
+    """Write mesh.obj (with UVs) or mesh.ply (without); returns the file name."""
+    if obj.uv is not None:
+        write_obj(folder / "mesh.obj", obj)
+        return "mesh.obj"
+    mesh = trimesh.Trimesh(obj.mesh.vertices, obj.mesh.faces, vertex_normals=obj.vertex_normals, process=False)
+    mesh.export(folder / "mesh.ply")
+    return "mesh.ply"
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    path.write_text(json.dumps(doc, indent=2) + "\n")
+
+
+def write_capture(
+    folder,
+    cfg: MeshViewsConfig,
+    *,
+    seed: int = 0,
+    kappa=(np.pi,) * 3,
+    saturation_level: float = 0.995,
+    threads: int = 2,
+    progress=None,
+) -> WrittenCapture:
+    """Render cfg's scene and write it as a mesh_views folder (module doc); progress: called with (done, total)
+    images."""
+    folder = Path(folder)
+    if cfg.texture_size % 16:
+        raise ConfigError(f"texture_size is {cfg.texture_size}, expected a multiple of 16")
+    scene = build_scene(cfg, seed)
+    (folder / "images").mkdir(parents=True, exist_ok=True)
+    mesh_file = write_mesh(folder, scene.object)
+    (folder / "scene.yaml").write_text(yaml.safe_dump({"units": "mm"}))
+    _write_json(folder / "cameras.json", {"cameras": [c.to_json() for c in scene.cameras]})
+    _write_json(folder / "lights.json", {"lights": [light.to_json() for light in scene.lights]})
+    renderer = ViewsRenderer(
+        scene.object,
+        brdf=cfg.brdf,
+        kappa=kappa,
+        supersample=cfg.supersample,
+        indirect_samples=cfg.indirect_samples,
+        noise_dn=cfg.noise_dn,
+        seed=seed,
+        threads=threads,
+    )
+    lights = {light.name: light for light in scene.lights}
+    done = 0
+    for k, cam in enumerate(scene.cameras):
+        mine = [i for i, im in enumerate(scene.images) if im.camera == cam.name]
+        view = renderer.radiance(cam, [lights[scene.images[i].light] for i in mine], camera_index=k)
+        covered = view.covered.reshape(cam.height, cam.width)
+        for j, i in enumerate(mine):
+            values = view.values[j].reshape(cam.height, cam.width, 3)
+            image = renderer.sensor(values, covered, scene.images[i].exposure, i)
+            write_png(folder / scene.images[i].file, image, bits=16)
+            done += 1
+            if progress is not None:
+                progress(done, len(scene.images))
+    _write_json(
+        folder / "images.json",
+        {
+            "encoding": "linear16",
+            "saturation_level": float(saturation_level),
+            "kappa": [float(k) for k in kappa],
+            "images": [im.to_json() for im in scene.images],
+        },
+    )
+    truth = truth_on_atlas(scene.object, cfg.texture_size)
+    if not np.isfinite(truth["sigma"]).any():
+        raise GeometryError(f"{folder}: the atlas of {cfg.object} covers no texel of a {cfg.texture_size}^2 grid")
+    np.savez(folder / "truth.npz", **truth, brdf=cfg.brdf)
+    return WrittenCapture(folder, mesh_file, scene, truth)
