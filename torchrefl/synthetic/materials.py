@@ -168,19 +168,26 @@ class FoldMaterials:
         region = np.where(plate == 0, np.where(x < self.cuts[0], 0, 1), np.where(x < self.cuts[1], 2, 3))
         band = (plate == 0) & (a >= self.band[0]) & (a < self.band[1]) & (x >= self.band_x[0]) & (x < self.band_x[1])
         region = np.where(band, 4, region)
-        pd = np.array([p[0] for p in _GLOSSY_PAPERS])[region]
-        ps = np.array([p[1] for p in _GLOSSY_PAPERS])[region]
-        sigma = np.array([p[2] for p in _GLOSSY_PAPERS])[region]
         ph = self.phase
-        pd = pd * (1 + 0.15 * np.sin(2 * np.pi * 1.5 * x + ph[0]) * np.cos(np.pi * a))[:, None]
-        ps = ps * (1 + 0.15 * np.sin(2 * np.pi * x + ph[1]) * np.cos(np.pi * 1.2 * a + ph[2]))
-        sigma = sigma * (1 + 0.15 * np.cos(2 * np.pi * x + ph[2]) * np.sin(np.pi * a + ph[0]))
-        return {
-            "pd": pd.astype(np.float64),
-            "ps": np.repeat(ps[:, None], 3, axis=1).astype(np.float64),
-            "sigma": sigma.astype(np.float64),
-            "region": region.astype(np.int64),
-        }
+        return _varied_papers(
+            region,
+            1 + 0.15 * np.sin(2 * np.pi * 1.5 * x + ph[0]) * np.cos(np.pi * a),
+            1 + 0.15 * np.sin(2 * np.pi * x + ph[1]) * np.cos(np.pi * 1.2 * a + ph[2]),
+            1 + 0.15 * np.cos(2 * np.pi * x + ph[2]) * np.sin(np.pi * a + ph[0]),
+        )
+
+
+def _varied_papers(region: np.ndarray, pd_factor, ps_factor, sigma_factor) -> dict:
+    """The material dict of _GLOSSY_PAPERS[region] (N,) with Pd, Ps and sigma scaled by the factors (N,)."""
+    pd = np.array([p[0] for p in _GLOSSY_PAPERS])[region] * pd_factor[:, None]
+    ps = np.array([p[1] for p in _GLOSSY_PAPERS])[region] * ps_factor
+    sigma = np.array([p[2] for p in _GLOSSY_PAPERS])[region] * sigma_factor
+    return {
+        "pd": pd.astype(np.float64),
+        "ps": np.repeat(ps[:, None], 3, axis=1).astype(np.float64),
+        "sigma": sigma.astype(np.float64),
+        "region": region.astype(np.int64),
+    }
 
 
 class AtlasMaterials:
@@ -209,16 +216,10 @@ class AtlasMaterials:
         region = np.searchsorted(self.cuts, u, side="right")
         band = (v >= self.band[0]) & (v < self.band[1]) & (u >= self.band_u[0]) & (u < self.band_u[1])
         region = np.where(band, 4, region)
-        pd = np.array([p[0] for p in _GLOSSY_PAPERS])[region]
-        ps = np.array([p[1] for p in _GLOSSY_PAPERS])[region]
-        sigma = np.array([p[2] for p in _GLOSSY_PAPERS])[region]
         ph, a, b = self.phase, 2 * np.pi * u, np.pi * v
-        pd = pd * (1 + 0.15 * np.sin(2 * a + ph[0]) * np.cos(b))[:, None]
-        ps = ps * (1 + 0.15 * np.sin(a + ph[1]) * np.cos(1.5 * b + ph[2]))
-        sigma = sigma * (1 + 0.15 * np.cos(a + ph[2]) * np.sin(2 * b + ph[0]))
-        return {
-            "pd": pd.astype(np.float64),
-            "ps": np.repeat(ps[:, None], 3, axis=1).astype(np.float64),
-            "sigma": sigma.astype(np.float64),
-            "region": region.astype(np.int64),
-        }
+        return _varied_papers(
+            region,
+            1 + 0.15 * np.sin(2 * a + ph[0]) * np.cos(b),
+            1 + 0.15 * np.sin(a + ph[1]) * np.cos(1.5 * b + ph[2]),
+            1 + 0.15 * np.cos(a + ph[2]) * np.sin(2 * b + ph[0]),
+        )

@@ -231,19 +231,10 @@ def write_capture(
     threads: int = 2,
     progress=None,
 ) -> WrittenCapture:
-    """Render cfg's scene and write it as a mesh_views folder (module doc); progress: called with (done, total)
-    images."""
-    folder = Path(folder)
+    """Build cfg's scene (build_scene), render it and write it as a mesh_views folder (write_scene)."""
     if cfg.texture_size % 16:
         raise ConfigError(f"texture_size is {cfg.texture_size}, expected a multiple of 16")
-    scene = build_scene(cfg, seed)
-    (folder / "images").mkdir(parents=True, exist_ok=True)
-    mesh_file = write_mesh(folder, scene.object)
-    (folder / "scene.yaml").write_text(yaml.safe_dump({"units": "mm"}))
-    _write_json(folder / "cameras.json", {"cameras": [c.to_json() for c in scene.cameras]})
-    _write_json(folder / "lights.json", {"lights": [light.to_json() for light in scene.lights]})
-    renderer = ViewsRenderer(
-        scene.object,
+    renderer = dict(
         brdf=cfg.brdf,
         kappa=kappa,
         supersample=cfg.supersample,
@@ -252,10 +243,34 @@ def write_capture(
         seed=seed,
         threads=threads,
     )
+    scene = build_scene(cfg, seed)
+    return write_scene(
+        folder, scene, ViewsRenderer(scene.object, **renderer), cfg.texture_size, saturation_level, progress
+    )
+
+
+def write_scene(
+    folder,
+    scene: MeshViewsScene,
+    renderer: ViewsRenderer,
+    texture_size: int,
+    saturation_level: float = 0.995,
+    progress=None,
+) -> WrittenCapture:
+    """Write `scene` as a mesh_views folder (module doc), its images rendered by `renderer` (whose object is the
+    scene's), its truth on a texture_size^2 atlas; progress: called with (done, total) images."""
+    folder = Path(folder)
+    (folder / "images").mkdir(parents=True, exist_ok=True)
+    mesh_file = write_mesh(folder, scene.object)
+    (folder / "scene.yaml").write_text(yaml.safe_dump({"units": "mm"}))
+    _write_json(folder / "cameras.json", {"cameras": [c.to_json() for c in scene.cameras]})
+    _write_json(folder / "lights.json", {"lights": [light.to_json() for light in scene.lights]})
     lights = {light.name: light for light in scene.lights}
     done = 0
     for k, cam in enumerate(scene.cameras):
         mine = [i for i, im in enumerate(scene.images) if im.camera == cam.name]
+        if not mine:
+            continue
         view = renderer.radiance(cam, [lights[scene.images[i].light] for i in mine], camera_index=k)
         covered = view.covered.reshape(cam.height, cam.width)
         for j, i in enumerate(mine):
@@ -270,12 +285,14 @@ def write_capture(
         {
             "encoding": "linear16",
             "saturation_level": float(saturation_level),
-            "kappa": [float(k) for k in kappa],
+            "kappa": [float(k) for k in renderer.kappa],
             "images": [im.to_json() for im in scene.images],
         },
     )
-    truth = truth_on_atlas(scene.object, cfg.texture_size)
+    truth = truth_on_atlas(scene.object, texture_size)
     if not np.isfinite(truth["sigma"]).any():
-        raise GeometryError(f"{folder}: the atlas of {cfg.object} covers no texel of a {cfg.texture_size}^2 grid")
-    np.savez(folder / "truth.npz", **truth, brdf=cfg.brdf)
+        raise GeometryError(
+            f"{folder}: the atlas of {scene.object.mesh.name} covers no texel of a {texture_size}^2 grid"
+        )
+    np.savez(folder / "truth.npz", **truth, brdf=renderer.brdf)
     return WrittenCapture(folder, mesh_file, scene, truth)

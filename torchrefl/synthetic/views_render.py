@@ -33,10 +33,6 @@ OFFSET_MM = 0.01  # shadow and path rays start this far from the surface (the sy
 LEVELS = 65535  # 16-bit full scale
 
 
-def _t(x) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float64))
-
-
 @dataclass
 class RenderedView:
     """values: (P, N, 3) noiseless kappa * L_o (fraction of full range, exposure 1) per light and pixel;
@@ -75,9 +71,10 @@ class ViewsRenderer:
         self.tracer = RayTracer(obj.mesh.vertices, obj.mesh.faces, threads=threads)
 
     def _g(self, n, l, v, mat) -> np.ndarray:
+        args = (n, l, v, mat["pd"], mat["ps"], mat["sigma"])
         with torch.no_grad():
             return brdf_mod.cosine_weighted_brdf(
-                self.brdf, _t(n), _t(l), _t(v), _t(mat["pd"]), _t(mat["ps"]), _t(mat["sigma"])
+                self.brdf, *(torch.as_tensor(a, dtype=torch.float64) for a in args)
             ).numpy()
 
     def radiance(
