@@ -9,6 +9,7 @@ import pytest
 import trimesh
 
 from torchrefl.capture.images import read_image
+from torchrefl.geometry.atlas_surface import load_atlas_geometry
 from torchrefl.synthetic.mesh_views import MeshViewsConfig, MeshViewsScene, write_capture, write_scene
 from torchrefl.synthetic.objects import MeshObject
 from torchrefl.synthetic.uv_objects import ViewsObject
@@ -167,3 +168,31 @@ def test_a_pixel_of_a_lambertian_quad_matches_the_hand_computation(tmp_path):
     P = surface_at(*far)
     assert P[0] > 51 and P[1] > 51
     assert (img[far[1], far[0]] == 0).all()
+
+
+def test_a_mesh_without_uvs_is_written_as_ply_with_its_truth_on_the_loaders_atlas(tmp_path):
+    cfg = MeshViewsConfig(object="ellipsoid_no_uv", **{**SMALL, "texture_size": 64})
+    written = write_capture(tmp_path, cfg, seed=0)
+    assert written.mesh_file == "mesh.ply" and not (tmp_path / "mesh.obj").exists()
+    assert getattr(trimesh.load(tmp_path / "mesh.ply", process=False).visual, "uv", None) is None
+    geom = load_atlas_geometry(tmp_path / "mesh.ply", 64)  # what the loader does with a mesh without UVs
+    assert geom.parametrised
+    finite = np.flatnonzero(np.isfinite(written.truth["sigma"]).ravel())
+    assert np.array_equal(finite, geom.texels.texel_index)
+    assert (written.truth["region"].ravel()[finite] >= 0).all() and (written.truth["region"] == -1).any()
+    m = written.scene.object.mesh.material(geom.surface.positions.numpy(), geom.texels.face)
+    np.testing.assert_allclose(written.truth["pd"].reshape(-1, 3)[finite], m["pd"], rtol=1e-9)
+
+
+def test_the_bowls_inside_and_outside_lie_on_their_documented_atlas_rows(tmp_path):
+    cfg = MeshViewsConfig(object="bowl", **{**SMALL, "indirect_samples": 1})
+    truth = write_capture(tmp_path, cfg, seed=0).truth
+    S = SMALL["texture_size"]
+    rows = np.arange(S)[:, None] * np.ones(S, dtype=int)[None]
+    region = truth["region"]
+    inside = (region >= 0) & (region <= 4)
+    assert (rows[inside] < S * 11 / 16).all() and (rows[region == 5] >= S * 11 / 16).all()
+    assert inside.sum() > 0.6 * S * S and (region == 5).sum() > 0.1 * S * S
+    paint = truth["pd"][region == 5]
+    assert np.ptp(paint, axis=0).max() == 0  # the outside: one uniform matte paint
+    assert np.ptp(truth["sigma"][inside]) > 0.1

@@ -16,7 +16,9 @@ it, as the loader makes it) and `bowl` (a deep concavity, rendered with path-tra
 images come from synthetic.views_render.ViewsRenderer; cameras, lights and pairing from synthetic.views_layout.
 
 The truth maps are written through one function of the texel centres' surface points (truth_maps: the object's
-material at each point); the texel centres come from the atlas (atlas_texels).
+material at each point) on the atlas of the written mesh file as the loader makes it (truth_on_atlas: read back,
+parametrised by xatlas at texture_size when it has no UVs, rasterised), so the loader's capture.texture_size must
+equal the writer's texture_size.
 """
 
 from __future__ import annotations
@@ -32,7 +34,10 @@ import yaml
 
 from torchrefl.capture.images import write_png
 from torchrefl.config import opt
-from torchrefl.errors import ConfigError, GeometryError
+from torchrefl.errors import ConfigError
+from torchrefl.geometry.atlas import rasterise_atlas
+from torchrefl.geometry.atlas_parametrise import parametrise
+from torchrefl.geometry.mesh_file import read_mesh
 from torchrefl.synthetic.uv_objects import VIEWS_OBJECTS, ViewsObject, make_views_object
 from torchrefl.synthetic.views_layout import (
     ViewCamera,
@@ -133,53 +138,17 @@ def truth_maps(obj: ViewsObject, positions: np.ndarray, faces: np.ndarray) -> di
     return obj.mesh.material(np.asarray(positions, dtype=np.float64), np.asarray(faces, dtype=np.int64))
 
 
-def atlas_uv(obj: ViewsObject) -> tuple[np.ndarray, np.ndarray]:
-    """Per-corner atlas coordinates (F, 3, 2) of the object's faces and the faces (F,) they belong to: the mesh's
-    own UVs, or for a mesh without UVs the atlas xatlas makes of it (xatlas.parametrize with its defaults keeps
-    the face order)."""
-    if obj.uv is not None:
-        return obj.uv[obj.mesh.faces], np.arange(len(obj.mesh.faces))
-    import xatlas
-
-    _, indices, uvs = xatlas.parametrize(
-        np.asarray(obj.mesh.vertices, dtype=np.float32), np.asarray(obj.mesh.faces, dtype=np.uint32)
-    )
-    return np.asarray(uvs, dtype=np.float64)[indices], np.arange(len(indices))
-
-
-def atlas_texels(corner_uv: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The texels of an S x S atlas whose centres lie in UV triangles: flat texel index row * S + col (K,),
-    the triangle (K,) (the first one for centres on shared edges) and the barycentric weights (K, 3)."""
-    S = int(size)
-    x = corner_uv[..., 0] * S - 0.5  # texel centre (row, col) sits at x = col, y = row
-    y = (1.0 - corner_uv[..., 1]) * S - 0.5
-    c0, c1 = np.ceil(x.min(1) - 1e-9).astype(int), np.floor(x.max(1) + 1e-9).astype(int)
-    r0, r1 = np.ceil(y.min(1) - 1e-9).astype(int), np.floor(y.max(1) + 1e-9).astype(int)
-    w, h = np.maximum(c1 - c0 + 1, 0), np.maximum(r1 - r0 + 1, 0)
-    face = np.repeat(np.arange(len(x)), w * h)
-    k = np.arange(len(face)) - np.repeat(np.cumsum(w * h) - w * h, w * h)
-    col, row = c0[face] + k % w[face], r0[face] + k // w[face]
-    a, b, c = (np.stack([x[face, i], y[face, i]], -1) for i in range(3))
-    pt = np.stack([col, row], -1).astype(np.float64)
-    cross = lambda p, q: p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]  # noqa: E731
-    area = cross(b - a, c - a)
-    ok = np.abs(area) > 1e-12
-    safe = np.where(ok, area, 1.0)
-    wb, wc = cross(pt - a, c - a) / safe, cross(b - a, pt - a) / safe
-    bary = np.stack([1.0 - wb - wc, wb, wc], -1)
-    inside = ok & (bary.min(1) >= -1e-9) & (col >= 0) & (col < S) & (row >= 0) & (row < S)
-    texel = (row * S + col)[inside]
-    texel, first = np.unique(texel, return_index=True)
-    return texel, face[inside][first], bary[inside][first]
-
-
-def truth_on_atlas(obj: ViewsObject, size: int) -> dict:
-    """truth.npz's maps on the S x S atlas: pd, ps (S, S, 3), sigma (S, S) (NaN in the gutter), region (S, S)
-    (-1 in the gutter)."""
-    corner_uv, faces = atlas_uv(obj)
-    texel, tri, bary = atlas_texels(corner_uv, size)
-    corners = obj.mesh.vertices[obj.mesh.faces[faces[tri]]]
-    m = truth_maps(obj, np.einsum("kc,kci->ki", bary, corners), faces[tri])
+def truth_on_atlas(obj: ViewsObject, mesh_file: Path, size: int) -> dict:
+    """truth.npz's maps on the S x S atlas of the written mesh file, made as the loader makes it
+    (geometry.mesh_file.read_mesh; geometry.atlas_parametrise.parametrise when the file has no UVs;
+    geometry.atlas.rasterise_atlas): pd, ps (S, S, 3), sigma (S, S) (NaN in the gutter), region (S, S) (-1 there).
+    The file keeps the object's face order, so the texels' faces index the object's own triangles."""
+    mesh = read_mesh(mesh_file)
+    if mesh.uvs is None:
+        mesh = parametrise(mesh, size)
+    texels = rasterise_atlas(mesh, size)
+    positions = np.einsum("tk,tki->ti", texels.barycentric, mesh.vertices[mesh.faces[texels.face]])
+    m = truth_maps(obj, positions, texels.face)
     S = int(size)
     out = {
         "pd": np.full((S * S, 3), np.nan),
@@ -188,7 +157,7 @@ def truth_on_atlas(obj: ViewsObject, size: int) -> dict:
         "region": np.full(S * S, -1, dtype=np.int64),
     }
     for key in out:
-        out[key][texel] = m[key]
+        out[key][texels.texel_index] = m[key]
     return {k: v.reshape((S, S) + v.shape[1:]) for k, v in out.items()}
 
 
@@ -289,10 +258,6 @@ def write_scene(
             "images": [im.to_json() for im in scene.images],
         },
     )
-    truth = truth_on_atlas(scene.object, texture_size)
-    if not np.isfinite(truth["sigma"]).any():
-        raise GeometryError(
-            f"{folder}: the atlas of {scene.object.mesh.name} covers no texel of a {texture_size}^2 grid"
-        )
+    truth = truth_on_atlas(scene.object, folder / mesh_file, texture_size)
     np.savez(folder / "truth.npz", **truth, brdf=renderer.brdf)
     return WrittenCapture(folder, mesh_file, scene, truth)
