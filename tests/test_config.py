@@ -1,6 +1,8 @@
 """Config: strict YAML, nearest-key hints, overrides, types, ranges, help, resolved dump."""
 
 import dataclasses
+import functools
+import re
 from pathlib import Path
 
 import pytest
@@ -53,7 +55,7 @@ def test_unknown_top_level_key(tmp_path):
 
 
 def test_wrong_type_and_choice_and_range(tmp_path):
-    with pytest.raises(ConfigError, match="fit.iterations.*expected int"):
+    with pytest.raises(ConfigError, match="fit.iterations.*expected a whole number such as 60"):
         load_config(write(tmp_path, "fit:\n  iterations: many\n"))
     with pytest.raises(ConfigError, match="reflectance.brdf.*'phong'"):
         load_config(write(tmp_path, "reflectance:\n  brdf: phong\n"))
@@ -134,6 +136,45 @@ def test_help_lists_every_option():
     text = "\n".join(describe())
     for key in ("fit.holdout", "output.dir", "selection.grid.spacing_mm", "reflectance.brdf", "synthetic.range_bits"):
         assert key in text
+
+
+def test_help_shows_defaults_as_they_are_written_on_the_command_line():
+    """Issue 33: --help showed `synthetic.range_bits = None`, `output.progress = True` and quoted strings, none of
+    which the command line reads back as meant (None is the text 'None')."""
+    lines = {line.split(" = ")[0].strip(): line.split(" = ", 1)[1] for line in describe() if " = " in line}
+    assert lines["synthetic.range_bits"].startswith("null  --")
+    assert lines["output.progress"].startswith("true  --")
+    assert lines["output.dir"].startswith("outputs/default  --")
+    assert lines["synthetic.size_mm"].startswith("[62.0, 95.0, 50.0]  --")
+    assert lines["synthetic.texture_bits"].startswith("8 {8, 16}  --")
+    assert not any(word in line for line in describe() for word in ("None", "True", "False", "'outputs"))
+    # every default as shown reads back, as an override, to the default itself
+    default = load_config(None)
+    for key, shown in lines.items():
+        value = shown.split("  --")[0].split(" {")[0]
+        again = load_config(None, [f"{key}={value}"] if value != "''" else [f"{key}="])
+        value_of = lambda cfg: functools.reduce(getattr, key.split("."), cfg)  # noqa: E731
+        assert value_of(again) == value_of(default), key
+
+
+@pytest.mark.parametrize(
+    "override, how",
+    [
+        ("fit.iterations=many", "expected a whole number such as 60"),
+        ("fit.smoothness=strong", "expected a number such as 0.0"),
+        ("reflectance.sigma_min=1e-4", r"expected a number such as 0.01 \(YAML reads 1e-4 as text: write 0.0001\)"),
+        ("fit.holdout=5,11", r"expected a list such as \[5, 11\]"),
+        ("synthetic.range_bits=None", r"or null for none \(write null, not None\)"),
+        ("output.progress=maybe", "expected true or false"),
+        ("output.dir=2024", "expected text .*quote"),
+        ("capture.kappa=3", r"expected a list such as \[3.14"),
+    ],
+)
+def test_a_value_of_the_wrong_type_says_how_to_write_one(override, how):
+    """Issue 33: `expected int or null` did not say that null, not None, is how to write none, nor how to write a
+    list on the command line."""
+    with pytest.raises(ConfigError, match=f"^{re.escape(override)} on the command line: .*{how}"):
+        load_config(None, [override])
 
 
 def test_relative_capture_path_from_the_command_line_is_relative_to_cwd(tmp_path, monkeypatch):

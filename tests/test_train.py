@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from report.test_run_folder import tiny_capture_args
 
 from torchrefl.train import main
 
@@ -312,3 +313,34 @@ def test_the_automatic_median_is_stated_with_the_model_reason(small_run, tmp_pat
     m = json.loads((out / "metrics.json").read_text())
     assert m["capture"]["range_median_size"] == 5 and abs(m["capture"]["range_noise_mm"] - 0.2) < 0.05
     assert "geometry: range median 5 x 5 against" in m["model_reason"]
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_the_summary_goes_to_stdout_and_logs_and_progress_to_stderr(tmp_path, capsys, quiet):
+    """Issue 33: the summary table was logged to stderr (and printed on stdout only with --quiet), and --quiet left
+    the progress bars on unless output.progress was false as well."""
+    out = tmp_path / "run"
+    argv = tiny_capture_args(tmp_path, f"output.dir={out}") + (["--quiet"] if quiet else [])
+    assert main(argv) == 0
+    streams = capsys.readouterr()
+    assert "== torchrefl summary ==" in streams.out and f"run folder: {out}" in streams.out
+    assert "[capture] done" not in streams.out and "fit (none)" not in streams.out
+    assert "torchrefl summary" not in streams.err
+    if quiet:
+        assert streams.err == ""
+    else:
+        assert "[capture] done" in streams.err and "fit (none)" in streams.err  # a log line and the fit's bar
+    assert "== torchrefl summary ==" in (out / "log.txt").read_text()
+
+
+@pytest.mark.parametrize("argv", [[], ["--quiet"], ["--overwrite", "--quiet"]])
+def test_no_config_prints_a_short_usage_naming_config(argv, capsys):
+    """Issue 33: with no arguments argparse said `the following arguments are required: config, overrides`
+    (overrides are optional)."""
+    assert main(argv) == 2
+    streams = capsys.readouterr()
+    assert streams.out == ""
+    assert streams.err.startswith("usage: python -m torchrefl.train CONFIG [dotted.key=value ...]")
+    assert "CONFIG is missing" in streams.err and "--list" in streams.err and "configs/default.yaml" in streams.err
+    assert "arguments are required" not in streams.err
+    assert len(streams.err.splitlines()) <= 3

@@ -31,6 +31,7 @@ from torchrefl.config_loading import (
     override_where,
     parse_override,
     read_yaml_mapping,
+    yaml_value,
 )
 from torchrefl.errors import ConfigError
 
@@ -401,7 +402,8 @@ def dump_config(cfg: Config, path: str | Path) -> None:
 
 
 def describe(cls=Config, prefix: str = "") -> list[str]:
-    """One line per option: dotted key, default, choices, doc (for --help)."""
+    """One line per option: dotted key, default, choices, doc (for --help), values written as on the command line
+    (null, true, [1, 2])."""
     lines = []
     inst = cls()
     for name, (f, tp) in _field_types(cls).items():
@@ -412,9 +414,9 @@ def describe(cls=Config, prefix: str = "") -> list[str]:
             lines.extend(describe(tp, prefix + name + "."))
             continue
         meta = f.metadata
-        choices = f" {{{', '.join(map(str, meta['choices']))}}}" if meta.get("choices") else ""
-        default = getattr(inst, name)
-        lines.append(f"  {prefix}{name} = {default!r}{choices}  -- {meta.get('doc', '')}")
+        choices = f" {{{', '.join(map(yaml_value, meta['choices']))}}}" if meta.get("choices") else ""
+        default = yaml_value(getattr(inst, name))
+        lines.append(f"  {prefix}{name} = {default}{choices}  -- {meta.get('doc', '')}")
     return lines
 
 

@@ -35,24 +35,64 @@ def _type_name(tp) -> str:
     return getattr(tp, "__name__", str(tp))
 
 
+def yaml_value(value: Any) -> str:
+    """`value` as it is written in a YAML file or a dotted.key=value override: null, true, [5, 11], outputs/x."""
+    text = yaml.safe_dump(value, default_flow_style=True, width=10**6)
+    return text.removesuffix("\n...\n").strip()
+
+
+#: how to write a value of each plain type, for wrong-type messages (`example` is a valid value, e.g. the default)
+_HOW_TO_WRITE = {
+    bool: lambda example: "true or false",
+    int: lambda example: f"a whole number such as {yaml_value(example if isinstance(example, int) else 5)}",
+    float: lambda example: f"a number such as {yaml_value(example if isinstance(example, float) else 0.5)}",
+    str: lambda example: "text (in YAML, quote text that reads as a number, true/false or null: '2024')",
+    list: lambda example: f"a list such as {yaml_value(example) if example else '[5, 11]'}",
+}
+
+
+def _how_to_write(tp, value: Any, example: Any, optional: bool) -> str:
+    """What a value of type `tp` looks like, with a hint for the usual slips (None for null, 1e-4 read as text)."""
+    plain = list if typing.get_origin(tp) is list else tp
+    how = _HOW_TO_WRITE[plain](example) if plain in _HOW_TO_WRITE else _type_name(tp)
+    if optional:
+        how += ", or null for none"
+    if isinstance(value, str) and value.strip().lower() == "none":
+        how += " (write null, not None)" if optional else " (this key cannot be null)"
+    elif isinstance(value, str) and plain is float and _reads_as_number(value):
+        how += f" (YAML reads {value} as text: write {yaml_value(float(value))})"
+    return how
+
+
+def _reads_as_number(text: str) -> bool:
+    try:
+        return math.isfinite(float(text))
+    except ValueError:
+        return False
+
+
 def _coerce(value: Any, tp, key: str, where: str, meta: dict) -> Any:
-    """Check `value` against type `tp` (and choices/range); return it converted."""
+    """Check `value` against type `tp` (and choices/range); return it converted. meta["example"], when given,
+    is a valid value of the key (its current value) shown in wrong-type messages."""
     origin = typing.get_origin(tp)
+    optional = False
     if origin in (Union, types.UnionType):
         args = typing.get_args(tp)
         if value is None and type(None) in args:
             return None
-        inner = [a for a in args if a is not type(None)][0]
-        return _coerce(value, inner, key, where, meta)
-    value = _coerce_type(value, tp, key, where)
+        optional = type(None) in args
+        tp = [a for a in args if a is not type(None)][0]
+    value = _coerce_type(value, tp, key, where, meta.get("example"), optional)
     _check_choices_and_range(value, key, where, meta)
     return value
 
 
-def _coerce_type(value: Any, tp, key: str, where: str) -> Any:
+def _coerce_type(value: Any, tp, key: str, where: str, example: Any = None, optional: bool = False) -> Any:
     """`value` checked against the plain (non-Optional) type `tp`; floats converted to float and checked finite."""
     origin = typing.get_origin(tp)
-    bad = lambda: ConfigError(f"{where}: key '{key}' = {value!r} has the wrong type, expected {_type_name(tp)}")
+    bad = lambda: ConfigError(
+        f"{where}: key '{key}' = {value!r} has the wrong type, expected {_how_to_write(tp, value, example, optional)}"
+    )
     if tp is bool:
         if not isinstance(value, bool):
             raise bad()
@@ -106,7 +146,7 @@ def _apply(obj, data: dict, prefix: str, where: str, sources: dict | None = None
         if _is_section(tp):
             _apply(getattr(obj, key), value if value is not None else {}, dotted + ".", where, sources)
         else:
-            setattr(obj, key, _coerce(value, tp, dotted, where, dict(f.metadata)))
+            setattr(obj, key, _coerce(value, tp, dotted, where, dict(f.metadata, example=getattr(obj, key))))
             if sources is not None:
                 sources[dotted] = where
 

@@ -1,11 +1,15 @@
 """One run of the pipeline for a config: capture -> fit -> outputs, into cfg.output.dir.
 
 The run folder is a transaction (torchrefl.report.run_folder): checked before any work, written in a
-staging folder beside it and moved into place whole, with a completeness marker written last.
+staging folder beside it and moved into place whole, with a completeness marker written last. A named error
+found before any work (no stage completed, nothing written but config.yaml and log.txt) leaves nothing behind;
+a run that fails after doing work keeps its files in NAME.failed. The error itself is not printed here: it
+propagates (the command line prints it once), with a note saying where a failed run's files are.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -27,7 +31,7 @@ from torchrefl.version import __version__
 
 
 class RunLog:
-    """Writes timestamped lines to log.txt and to stderr."""
+    """Writes timestamped lines to log.txt and (unless quiet, or echo=False) to stderr."""
 
     def __init__(self, path: Path, quiet: bool = False):
         self.path = path
@@ -36,11 +40,11 @@ class RunLog:
         path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(path, "w")
 
-    def __call__(self, msg: str) -> None:
+    def __call__(self, msg: str, echo: bool = True) -> None:
         line = f"[{time.perf_counter() - self.start:7.2f}s] {msg}"
         self._fh.write(line + "\n")
         self._fh.flush()
-        if not self.quiet:
+        if echo and not self.quiet:
             print(line, file=sys.stderr)
 
     def close(self):
@@ -81,31 +85,46 @@ def _pipeline(cfg: Config, out: Path, target: Path, stages: Stages, log) -> dict
     return write_outputs(cfg, out, cap, res, selection, stages, str(device))
 
 
+def quiet_config(cfg: Config) -> Config:
+    """A copy of `cfg` that shows no progress bars (output.progress false): what a quiet run works with."""
+    return dataclasses.replace(cfg, output=dataclasses.replace(cfg.output, progress=False))
+
+
 def run(cfg: Config, quiet: bool = False, overwrite: bool = False) -> dict:
     """Run the pipeline for a loaded config; returns the metrics dict. The output folder is checked first
-    (OutputError); an earlier run there is replaced only with overwrite=True, and only when this run completes."""
+    (OutputError); an earlier run there is replaced only with overwrite=True, and only when this run completes.
+    quiet: no log lines and no progress bars on stderr (log.txt is still written). Log lines go to stderr; the
+    summary table only to log.txt (the caller shows it: the command line prints it on stdout)."""
     target = output_folder(cfg.output.dir)
+    if cfg.capture.kind != "synthetic_cylindrical":
+        loader_for(cfg.capture.kind)  # an unknown kind is refused before the staging folder is made
     staged = StagedRunFolder(target, overwrite)
     log = RunLog(staged.path / "log.txt", quiet=quiet)
     stages = Stages(log)
     try:
         atomic_write_text(staged.path / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
-        metrics = _pipeline(cfg, staged.path, target, stages, log)
+        metrics = _pipeline(quiet_config(cfg) if quiet else cfg, staged.path, target, stages, log)
         start = time.perf_counter()
         staged.commit()
         log(f"run folder {target} complete: marker written and moved into place in {time.perf_counter() - start:.3f} s")
-        log(summary_table(metrics))
+        log(summary_table(metrics), echo=False)
         return metrics
     except BaseException as exc:
         where = f"stage '{stages.failed}'" if stages.failed else "run setup"
         if isinstance(exc, KeyboardInterrupt):
-            log(f"interrupted in {where}")
+            log(f"interrupted in {where}", echo=False)
         elif isinstance(exc, TorchReflError):
-            log(f"error in {where}: {exc}")
+            log(f"error in {where}: {exc}", echo=False)
         else:
-            log(f"crashed in {where}: {type(exc).__name__}: {exc}")
+            log(f"crashed in {where}: {type(exc).__name__}: {exc}", echo=False)
+        if isinstance(exc, TorchReflError) and not stages.completed and staged.wrote_nothing():
+            log.close()
+            staged.discard()  # found before any work: nothing to keep, the error says it all
+            raise
         kept = staged.abandon()
-        log(f"the run did not complete: {target} is unchanged; this run's files and log are in {kept}")
+        note = f"the run stopped in {where}: {target} is unchanged; this run's files and log are in {kept}"
+        log(note, echo=False)
+        exc.add_note(note)
         raise
     finally:
         log.close()

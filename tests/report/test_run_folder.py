@@ -9,6 +9,7 @@ import os
 import numpy as np
 import pytest
 import yaml
+from capture.test_photometric_stereo import make_folder
 from report.test_run_result import write_run
 
 from torchrefl.errors import OutputError
@@ -101,6 +102,26 @@ def test_commit_replaces_an_earlier_run_whole(tmp_path):
     np.testing.assert_array_equal(run.pd, np.load(old / "params.npz")["pd"])
 
 
+def test_overwrite_never_deletes_a_users_files_but_os_metadata_goes_with_the_run(tmp_path, capsys):
+    """Issue 33: --overwrite replaced a finished run folder whole, deleting the figure a user had saved in it.
+    Now such a folder is refused before any work, naming the file; a .DS_Store alone does not stop the run."""
+    run = tmp_path / "run"
+    write_run(run)
+    (run / "figure.png").write_bytes(b"my figure")
+    (run / ".DS_Store").write_bytes(b"Bud1")
+    for overwrite in (False, True):
+        with pytest.raises(OutputError, match=r"1 file\(s\) it did not write \(e\.g\. \['figure\.png'\]\).*move them"):
+            StagedRunFolder(run, overwrite)
+    argv = tiny_capture_args(tmp_path, f"output.dir={run}", "--overwrite", "--quiet")
+    assert main(argv) == 2
+    assert "figure.png" in capsys.readouterr().err
+    assert (run / "figure.png").read_bytes() == b"my figure"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ps", "ps.yaml", "run"]  # no staging or failed folder
+    (run / "figure.png").unlink()
+    assert main(argv) == 0
+    assert not (run / ".DS_Store").exists() and load_run(run).unrecorded == ()
+
+
 def test_a_stale_staging_folder_of_a_killed_run_is_removed(tmp_path):
     stale = tmp_path / ".run.staging-999999999"
     stale.mkdir()
@@ -109,11 +130,15 @@ def test_a_stale_staging_folder_of_a_killed_run_is_removed(tmp_path):
     assert not stale.exists() and staged.path.is_dir()
 
 
-def failing_config(tmp_path, **extra):
-    data = {"capture": {"kind": "cylindrical_scan", "path": str(tmp_path / "no_capture_here")}, **extra}
-    path = tmp_path / "bad.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path
+def tiny_capture_args(tmp_path, *extra):
+    """main() arguments for a run on an 8 x 6, 4-light photometric stereo folder (a run takes a fraction of a
+    second: no refinement)."""
+    make_folder(tmp_path / "ps")
+    cfg = tmp_path / "ps.yaml"
+    cfg.write_text(
+        yaml.safe_dump({"capture": {"kind": "photometric_stereo", "path": "ps"}, "fit": {"optimizer": "none"}})
+    )
+    return [str(cfg), *extra]
 
 
 def test_a_failing_run_leaves_the_earlier_run_whole_and_logs_the_error(tmp_path, capsys):
@@ -123,14 +148,38 @@ def test_a_failing_run_leaves_the_earlier_run_whole_and_logs_the_error(tmp_path,
     run = tmp_path / "run"
     params = write_run(run)
     before = {p.name: p.read_bytes() for p in run.iterdir()}
-    assert main([str(failing_config(tmp_path)), f"output.dir={run}", "--overwrite", "--quiet"]) == 2
-    assert "no_capture_here" in capsys.readouterr().err
+    # the capture is read (work done), then fit.holdout names a light the capture does not have
+    argv = tiny_capture_args(tmp_path, f"output.dir={run}", "fit.holdout=[99]", "--overwrite", "--quiet")
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("fit.holdout") == 1 and f"files and log are in {tmp_path / 'run.failed'}" in err
     assert {p.name: p.read_bytes() for p in run.iterdir()} == before
     np.testing.assert_array_equal(load_run(run).pd, params["pd"])
     log = (tmp_path / "run.failed" / "log.txt").read_text()
-    assert "[capture] failed after" in log and "[capture] done" not in log
-    assert "error in stage 'capture'" in log and "no_capture_here" in log
+    assert "[capture] done" in log and "[precompute] failed after" in log and "[precompute] done" not in log
+    assert "error in stage 'precompute'" in log and "fit.holdout" in log
     assert not any(p.name.startswith(".run.staging") for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("fit.optimiser=lm", "unknown key 'fit.optimiser'"),  # a bad key: refused by the config loader
+        ("capture.path=nowhere", "nowhere"),  # a missing capture folder: refused by the capture stage
+        ("output.dir=", "output.dir is empty"),  # a bad output.dir: refused before the staging folder
+    ],
+)
+def test_an_error_found_before_any_work_leaves_nothing_and_is_printed_once(
+    tmp_path, capsys, monkeypatch, override, message
+):
+    """Issue 33: a run refused for a missing capture folder left run.failed/ (config.yaml, log.txt) and its error
+    was printed twice (the log line on stderr, then the command line's message)."""
+    monkeypatch.chdir(tmp_path)
+    argv = tiny_capture_args(tmp_path, "output.dir=run")
+    assert main([*argv, override]) == 2
+    err = capsys.readouterr().err
+    assert err.count(message) == 1 and "Traceback" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ps", "ps.yaml"]
 
 
 def test_an_interrupted_run_is_logged_as_interrupted(tmp_path, capsys, monkeypatch):

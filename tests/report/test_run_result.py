@@ -169,17 +169,12 @@ def test_bad_run_folders_name_the_file(tmp_path):
 
 
 def test_a_folder_without_a_valid_marker_is_incomplete_or_mixed(tmp_path):
-    """Issue 19: new params beside old metrics and maps, a failed run's config beside an old params.npz, files
-    of an earlier run left beside the new ones: load_run refuses each, naming the folder and why."""
+    """Issue 19: new params beside old metrics and maps, a failed run's config beside an old params.npz: load_run
+    refuses each, naming the folder and why."""
     run = tmp_path / "run"
     write_run(run)
     (run / "run_complete.json").unlink()
     with pytest.raises(RunFolderError, match="no completeness marker.*incomplete"):
-        load_run(run)
-    write_run(run)
-    (run / "maps").mkdir()
-    (run / "maps" / "light_007_diff.png").write_bytes(b"an earlier run's map")
-    with pytest.raises(RunFolderError, match=r"mixed folder.*light_007_diff\.png"):
         load_run(run)
     write_run(run := tmp_path / "run2")
     (run / "config.yaml").write_text("reflectance:\n  brdf: lambertian\n  sigma_max: 0.6\n")  # a later run's config
@@ -196,6 +191,37 @@ def test_a_folder_without_a_valid_marker_is_incomplete_or_mixed(tmp_path):
     write_run(run := tmp_path / "run5")
     (run / "run_complete.json").write_text('{"format": 1, "files": [1, 2]}')
     with pytest.raises(RunFolderError, match="damaged completeness marker"):
+        load_run(run)
+
+
+def test_files_the_run_did_not_write_are_ignored_and_named_in_the_summary(tmp_path):
+    """Issue 33: a saved figure or a .DS_Store in a finished run folder made load_run refuse the whole run as a
+    mixed folder. The run's own files are still checked; the others are listed, not read."""
+    run = tmp_path / "run"
+    params = write_run(run)
+    (run / ".DS_Store").write_bytes(b"\x00\x00\x00\x01Bud1")
+    (run / "figure.png").write_bytes(b"my figure")
+    (run / "maps").mkdir()
+    (run / "maps" / "light_007_diff.png").write_bytes(b"a map the run did not write")
+    result = load_run(run)
+    np.testing.assert_array_equal(result.pd, params["pd"])
+    assert result.unrecorded == (".DS_Store", "figure.png", "maps/light_007_diff.png")
+    assert result.summary().splitlines()[-1] == (
+        "  3 file(s) in the folder not written by the run (ignored): .DS_Store, figure.png, maps/light_007_diff.png"
+    )
+    write_run(tmp_path / "clean")
+    assert "not written by the run" not in load_run(tmp_path / "clean").summary()
+    many = tmp_path / "many"
+    write_run(many)
+    for i in range(7):
+        (many / f"note_{i}.txt").write_text("mine")
+    last = load_run(many).summary().splitlines()[-1]
+    assert last.endswith(
+        "7 file(s) in the folder not written by the run (ignored): "
+        + ", ".join(["note_0.txt", "note_1.txt", "note_2.txt", "note_3.txt", "note_4.txt", "..."])
+    )
+    (run / "params.npz").write_bytes((run / "params.npz").read_bytes()[:-1] + b"?")  # the run's own file changed
+    with pytest.raises(RunFolderError, match=r"params\.npz: content differs"):
         load_run(run)
 
 

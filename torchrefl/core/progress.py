@@ -21,6 +21,7 @@ class Stages:
         self.timing: dict[str, float] = {}
         self.log = log
         self.failed: str | None = None  # the stage an exception or an interruption left
+        self.completed: list[str] = []  # the stages that finished, in order
 
     @contextmanager
     def stage(self, name: str):
@@ -30,6 +31,7 @@ class Stages:
         outcome = "done"
         try:
             yield
+            self.completed.append(name)
         except BaseException as exc:
             outcome = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
             self.failed = self.failed or name

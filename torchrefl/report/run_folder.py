@@ -3,10 +3,13 @@
 The rule (also in docs/outputs.md's terms): a run writes into `.NAME.staging-PID` beside the target
 folder NAME. When it completes, the completeness marker (run_marker) is written last and the staging
 folder takes the target's place in one step: an empty or absent target is simply replaced; a target
-that holds an earlier run is replaced only with `--overwrite` (else refused before any work); a target
-that holds anything else is always refused. A run that fails or is interrupted leaves the target as it
-was and its own files (log.txt first) in NAME.failed. A run killed outright leaves its staging folder,
-which the next run into the same target removes.
+that holds an earlier run is replaced only with `--overwrite` (else refused before any work), and only
+when it holds no file the earlier run did not write (OS metadata such as .DS_Store aside): a run never
+deletes a user's files; a target that holds anything else is always refused. A run that fails or is
+interrupted leaves the target as it was and its own files (log.txt first) in NAME.failed, except a named
+error found before any work (torchrefl.run: no stage completed, nothing written but config.yaml and
+log.txt), which leaves nothing (discard). A run killed outright leaves its staging folder, which the next
+run into the same target removes.
 """
 
 from __future__ import annotations
@@ -17,14 +20,16 @@ import shutil
 from pathlib import Path
 
 from torchrefl.core.atomic_files import fsync_dir
-from torchrefl.errors import OutputError
-from torchrefl.report.run_marker import CONFIG, LOG, MARKER, write_marker
+from torchrefl.errors import OutputError, RunFolderError
+from torchrefl.report.run_marker import CONFIG, LOG, MARKER, read_marker, run_files, unrecorded_files, write_marker
 
 STAGING = ".{name}.staging-{pid}"
 FAILED = "{name}.failed"
 REPLACED = "-replaced"
 RENAME_EXCHANGE = 2
 AT_FDCWD = -100
+#: files an operating system's file browser leaves in folders: replaced with the run that holds them
+OS_METADATA = (".DS_Store", "Thumbs.db", "desktop.ini")
 
 
 def output_folder(raw: str, option: str = "output.dir") -> Path:
@@ -53,6 +58,17 @@ def output_folder(raw: str, option: str = "output.dir") -> Path:
 def holds_a_run(folder: Path) -> bool:
     """Whether `folder` holds a torchrefl run, complete (marker) or not (config.yaml and log.txt)."""
     return (folder / MARKER).is_file() or ((folder / CONFIG).is_file() and (folder / LOG).is_file())
+
+
+def users_files(folder: Path) -> list[str]:
+    """The files in the completed run `folder` that the run did not write, OS metadata (.DS_Store, ._NAME)
+    aside; [] for a folder without a readable marker (an incomplete run: which files are whose is unknown)."""
+    try:
+        marker = read_marker(folder)
+    except RunFolderError:
+        return []
+    own = lambda name: Path(name).name in OS_METADATA or Path(name).name.startswith("._")
+    return [name for name in unrecorded_files(folder, marker) if not own(name)]
 
 
 def _pid_alive(pid: int) -> bool:
@@ -99,6 +115,13 @@ class StagedRunFolder:
                 f"output.dir {t} holds files that are not a torchrefl run (e.g. {sample}); "
                 "choose another output.dir (a run never deletes files it did not write)"
             )
+        mine = users_files(t) if (t / MARKER).is_file() else []
+        if mine:
+            raise OutputError(
+                f"output.dir {t} holds an earlier run and {len(mine)} file(s) it did not write (e.g. {mine[:3]}); "
+                "--overwrite replaces the whole folder and a run never deletes files it did not write: move them "
+                "out of the folder first, or choose another output.dir"
+            )
         if not overwrite:
             raise OutputError(
                 f"output.dir {t} holds an earlier run; give --overwrite to replace it "
@@ -133,6 +156,14 @@ class StagedRunFolder:
                 self.target.rmdir()
             os.replace(self.path, self.target)
         fsync_dir(self.target.parent)
+
+    def wrote_nothing(self) -> bool:
+        """Whether the staging folder holds nothing but the run's config.yaml and log.txt (no work written)."""
+        return set(run_files(self.path)) <= {CONFIG}
+
+    def discard(self) -> None:
+        """Remove the staging folder of a run that failed before any work (nothing in it worth keeping)."""
+        shutil.rmtree(self.path, ignore_errors=True)
 
     def abandon(self) -> Path:
         """Keep the failed run's files (its log first) as NAME.failed beside the target; returns that path."""

@@ -2,8 +2,9 @@
 
 run_complete.json holds the marker format, the torchrefl version, the SHA-256 of config.yaml and, for every
 file of the run (log.txt aside: it is appended to until the process ends), its size and SHA-256. A folder
-is a whole run when the marker is there, lists every file the folder holds, and the files have the sizes
-(and, for those load_run reads, the hashes) it records; anything else is an incomplete or mixed folder.
+is a whole run when the marker is there and every file it records is there with the size (and, for those
+load_run reads, the hash) it records. Files the marker does not record are not the run's (a user's saved
+figure, a .DS_Store): they are left alone and listed (unrecorded_files), never read as the run's.
 """
 
 from __future__ import annotations
@@ -63,6 +64,17 @@ def write_marker(folder) -> RunMarker:
     return marker
 
 
+def unrecorded_files(folder, marker: RunMarker) -> list[str]:
+    """Paths (as run_files) of the files in `folder` that `marker` does not record: not written by the run."""
+    return sorted(set(run_files(Path(folder))) - set(marker.files))
+
+
+def read_marker(folder) -> RunMarker:
+    """The marker of `folder` as written (RunFolderError when it is damaged or of another format); no file is
+    checked against it (verify_run_folder does)."""
+    return _parse_marker(Path(folder) / MARKER)
+
+
 def _parse_marker(path: Path) -> RunMarker:
     try:
         doc = json.loads(path.read_text())
@@ -85,8 +97,8 @@ def _parse_marker(path: Path) -> RunMarker:
 
 def verify_run_folder(folder, hashed: tuple[str, ...] = ()) -> RunMarker:
     """The marker of a whole run in `folder`; RunFolderError naming what is wrong when the folder has no valid
-    marker, lacks a recorded file, holds a file the run did not write, or a file's size (or, for `hashed`
-    and config.yaml, its SHA-256) differs from the record."""
+    marker, lacks a recorded file, or a file's size (or, for `hashed` and config.yaml, its SHA-256) differs
+    from the record. Files the marker does not record are not checked (unrecorded_files lists them)."""
     folder = Path(folder)
     path = folder / MARKER
     if not path.is_file():
@@ -95,17 +107,10 @@ def verify_run_folder(folder, hashed: tuple[str, ...] = ()) -> RunMarker:
             "finished), mixes files of two runs, or was written before run folders had markers; rerun it"
         )
     marker = _parse_marker(path)
-    present = set(run_files(folder))
-    missing = sorted(set(marker.files) - present)
-    extra = sorted(present - set(marker.files))
+    missing = sorted(set(marker.files) - set(run_files(folder)))
     if missing:
         raise RunFolderError(
             f"{folder}: incomplete run: {len(missing)} recorded file(s) missing, e.g. {missing[:3]} ({MARKER})"
-        )
-    if extra:
-        raise RunFolderError(
-            f"{folder}: mixed folder: {len(extra)} file(s) the completed run did not write, "
-            f"e.g. {extra[:3]} ({MARKER} records {len(marker.files)} files)"
         )
     for name, rec in marker.files.items():
         size = (folder / name).stat().st_size

@@ -7,9 +7,10 @@
     img = run.render(light_position=(0, 200, 400), camera=(0, 0, 300))   # relight the estimate
 
 `load_run` reads the outputs contract (docs/outputs.md) (params.npz, metrics.json, config.yaml) and
-checks it: a folder without a valid completeness marker (torchrefl.report.run_marker: an incomplete or
-mixed run), a missing file or key, a wrong shape or a non-finite parameter is a RunFolderError naming
-the file and what was expected.
+checks it: a folder without a valid completeness marker (torchrefl.report.run_marker: an incomplete run),
+a recorded file changed or missing, a missing key, a wrong shape or a non-finite parameter is a
+RunFolderError naming the file and what was expected. Files the marker does not record (a user's own, kept
+beside the run's) are ignored and listed in `unrecorded` and in the summary.
 Maps are on the texel grid (H, W); texels outside `mask` (no estimate) are 0 in the arrays and
 blank in the figure.
 
@@ -32,13 +33,14 @@ import yaml
 from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.observations import Observations
 from torchrefl.errors import CaptureError, RunFolderError
-from torchrefl.report.run_marker import verify_run_folder
+from torchrefl.report.run_marker import unrecorded_files, verify_run_folder
 from torchrefl.transport.local import render_reference
 
 PARAMS = "params.npz"
 METRICS = "metrics.json"
 CONFIG = "config.yaml"
 REQUIRED_KEYS = ("pd", "ps", "sigma", "mask", "brdf", "positions", "normals", "kappa")
+SHOWN_UNRECORDED = 5  # the summary names at most this many files the run did not write
 METRICS_KEYS = {"model": str, "brdf": str, "texels": int, "lights": int, "timing_s": dict, "rerender": dict}
 
 
@@ -51,7 +53,8 @@ class RunResult:
     coverage (H, W): how each texel was determined (torchrefl.report.maps); n_diffuse, n_specular (H, W):
     observations per texel in T_diff and T_spec; kappa (3,): the camera gain; brdf: the model name;
     diffuse, minnaert_k: the diffuse part (lambert, or minnaert with its exponent; 1 = Lambert);
-    metrics: metrics.json; config: the resolved config.yaml as a dict.
+    metrics: metrics.json; config: the resolved config.yaml as a dict; unrecorded: the folder's files that the
+    run did not write (relative paths; ignored).
     """
 
     folder: Path
@@ -71,16 +74,24 @@ class RunResult:
     config: dict
     diffuse: str = "lambert"
     minnaert_k: float = 1.0
+    unrecorded: tuple[str, ...] = ()
 
     @property
     def grid_shape(self) -> tuple[int, int]:
         return tuple(self.mask.shape)
 
     def summary(self) -> str:
-        """The summary table the command line prints at the end of the run."""
+        """The summary table the command line prints at the end of the run, and the files in the folder that the
+        run did not write (when there are any)."""
         from torchrefl.report.summary import summary_table
 
-        return summary_table(self.metrics)
+        table = summary_table(self.metrics)
+        if not self.unrecorded:
+            return table
+        shown = ", ".join(self.unrecorded[:SHOWN_UNRECORDED]) + (
+            ", ..." if len(self.unrecorded) > SHOWN_UNRECORDED else ""
+        )
+        return f"{table}\n  {len(self.unrecorded)} file(s) in the folder not written by the run (ignored): {shown}"
 
     def render(
         self,
@@ -276,15 +287,15 @@ def _read_metrics(path: Path, brdf: str) -> dict:
 
 def load_run(folder) -> RunResult:
     """Read a run's output folder (python -m torchrefl.train ... output.dir=FOLDER); RunFolderError naming the
-    file and what was expected when the run is incomplete or mixed (no valid completeness marker) or a file
-    is damaged."""
+    file and what was expected when the run is incomplete (no valid completeness marker, a recorded file missing)
+    or a file is damaged or changed; files the run did not write are ignored (RunResult.unrecorded)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise RunFolderError(f"{folder}: run folder missing (expected the output.dir of a torchrefl.train run)")
     params_path = folder / PARAMS
     if not params_path.is_file():
         raise RunFolderError(f"{params_path}: missing (a run that finished writes it; was the run interrupted?)")
-    verify_run_folder(folder, hashed=(PARAMS, METRICS))
+    marker = verify_run_folder(folder, hashed=(PARAMS, METRICS))
     p = _read_params(params_path)
     brdf = brdf_mod.check_brdf_name(str(p["brdf"]), f"{params_path}: brdf")
     diffuse, minnaert_k = _diffuse_part(p, params_path)
@@ -309,4 +320,5 @@ def load_run(folder) -> RunResult:
         config=config,
         diffuse=diffuse,
         minnaert_k=minnaert_k,
+        unrecorded=tuple(unrecorded_files(folder, marker)),
     )

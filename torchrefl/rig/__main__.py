@@ -6,6 +6,8 @@ move    move the light to a grid node (--grid I J) or a head-frame position (--m
 capture run a capture plan into a folder (resumable: run it again after any interruption)
 --dry-run (every subcommand) talks to a simulated GRBL 1.1 device on a pseudo-terminal; capture
 then renders the synthetic object of a fitting config (--scene) with a simulated camera.
+Streams: each command's result (probe's report, where the light is, the capture's summary) on stdout;
+progress lines, warnings and errors on stderr (--quiet: warnings and errors only).
 """
 
 from __future__ import annotations
@@ -55,6 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="use a simulated GRBL 1.1 device on a pseudo-terminal (and a simulated camera)",
     )
     common.add_argument(
+        "--quiet", action="store_true", help="no progress lines on stderr (results, warnings and errors stay)"
+    )
+    common.add_argument(
         "--time-scale",
         type=float,
         default=0.01,
@@ -95,7 +100,21 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _client(settings: RigSettings) -> GrblClient:
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr)
+
+
+def _warnings_only(msg: str) -> None:
+    if msg.lstrip().startswith("WARNING"):
+        _stderr(msg)
+
+
+def _progress(args):
+    """Where progress lines go: stderr; with --quiet only the warnings among them (board_check's notes)."""
+    return _warnings_only if args.quiet else _stderr
+
+
+def _client(settings: RigSettings, progress) -> GrblClient:
     t = settings.timeouts
     link = SerialLink(settings.port, settings.baudrate)
     return GrblClient(
@@ -106,7 +125,7 @@ def _client(settings: RigSettings) -> GrblClient:
         poll_s=t.poll_s,
         banner_s=t.banner_s,
         status_retries=t.status_retries,
-        log=lambda m: print(f"  {m}"),
+        log=lambda m: progress(f"  {m}"),
     )
 
 
@@ -120,7 +139,7 @@ def _probe(client: GrblClient, settings: RigSettings, state: str) -> int:
         print(f"  {check.line()}")
     if state == "Alarm":
         print("  locked in Alarm: run `python -m torchrefl.rig home` (or unlock with $X)")
-    check_connected_board(client, settings, board=board)
+    check_connected_board(client, settings, note=_stderr, board=board)
     return 0
 
 
@@ -137,10 +156,11 @@ def _targets(args, model: RigModel):
 
 def run(args, settings: RigSettings) -> int:
     scan = None
+    progress = _progress(args)
     if args.cmd == "capture" and args.dry_run:
         from torchrefl.rig.dry_run import match_grid, synthetic_scene
 
-        print("dry run: building the synthetic scene")
+        progress("dry run: building the synthetic scene")
         scan = synthetic_scene(args.scene, args.scene_set)
         settings = match_grid(settings, scan)
     model = RigModel(settings)
@@ -151,10 +171,10 @@ def run(args, settings: RigSettings) -> int:
             fake = stack.enter_context(fake_device_for(settings, args.time_scale))
             settings.port = fake.path
             settings.timeouts.banner_s = min(settings.timeouts.banner_s, 0.3)
-            print(f"dry run: simulated GRBL 1.1 on {fake.path}")
-        client = _client(settings)
+            progress(f"dry run: simulated GRBL 1.1 on {fake.path}")
+        client = _client(settings, progress)
         if args.cmd == "capture":
-            return _capture(args, settings, model, client, scan)
+            return _capture(args, settings, model, client, scan, progress)
         axes = None
         if args.cmd == "move":  # checked against the soft limits before the port is opened
             pos = (
@@ -164,13 +184,15 @@ def run(args, settings: RigSettings) -> int:
         stack.enter_context(client.link.open())
         banner = client.connect()
         st = client.last_status
-        print(f"{settings.port}: {banner or '(no banner)'}; state {st.state}, MPos {list(st.mpos)}")
+        connected = f"{settings.port}: {banner or '(no banner)'}; state {st.state}, MPos {list(st.mpos)}"
         if args.cmd == "probe":
+            print(connected)
             return _probe(client, settings, st.state)
-        check_connected_board(client, settings)
+        progress(connected)
+        check_connected_board(client, settings, note=_stderr)
         if args.cmd == "home" or not args.no_home:
-            client.home(progress=print)
-            print(f"homed: MPos {list(client.last_status.mpos)}")
+            client.home(progress=progress)
+            (print if args.cmd == "home" else progress)(f"homed: MPos {list(client.last_status.mpos)}")
         if axes is not None:
             client.move_to(axes, settings.feed_mm_min)
             st = client.wait_idle()
@@ -178,7 +200,7 @@ def run(args, settings: RigSettings) -> int:
         return 0
 
 
-def _capture(args, settings, model, client, scan) -> int:
+def _capture(args, settings, model, client, scan, progress) -> int:
     targets = _targets(args, model)
     folder = CaptureFolder(args.out)
     if scan is not None:
@@ -193,7 +215,7 @@ def _capture(args, settings, model, client, scan) -> int:
                 "with {path}, or use --dry-run)"
             )
         camera = ExternalCommandCamera(settings.camera.command, settings.camera.timeout_s)
-    runner = CaptureRunner(client, model, camera, folder, settings, progress=print)
+    runner = CaptureRunner(client, model, camera, folder, settings, progress=progress)
     try:
         summary = runner.run(targets)
     finally:
