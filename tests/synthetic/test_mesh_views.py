@@ -22,16 +22,16 @@ SMALL = dict(
     focal_px=100.0,
     camera_elevations_deg=[0.0, 35.0],
     cameras_per_ring=2,
-    texture_size=32,
     supersample=1,
     exposures=[1.0, 0.8],
 )
+S_SMALL = 32  # the truth atlas's side (capture.texture_size)
 
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     folder = tmp_path_factory.mktemp("mv") / "ellipsoid"
-    return write_capture(folder, MeshViewsConfig(**SMALL), seed=3)
+    return write_capture(folder, MeshViewsConfig(**SMALL), texture_size=S_SMALL, seed=3)
 
 
 def test_the_folder_holds_exactly_the_documented_files_and_keys(small):
@@ -79,7 +79,7 @@ def test_the_folder_holds_exactly_the_documented_files_and_keys(small):
     with np.load(folder / "truth.npz") as npz:
         truth = {k: npz[k] for k in npz.files}
     assert set(truth) == {"pd", "ps", "sigma", "region", "brdf"}
-    S = SMALL["texture_size"]
+    S = S_SMALL
     assert truth["pd"].shape == (S, S, 3) and truth["ps"].shape == (S, S, 3)
     assert truth["sigma"].shape == (S, S) and truth["region"].shape == (S, S)
     assert np.isfinite(truth["pd"]).all()  # the UV ellipsoid's atlas fills the square: no gutter
@@ -88,7 +88,7 @@ def test_the_folder_holds_exactly_the_documented_files_and_keys(small):
 
 def test_texel_truth_is_the_material_at_the_texels_atlas_position(small):
     # independent of the writer's rasteriser: texel (row, col) centre uv -> the ellipsoid's parametrisation
-    S = SMALL["texture_size"]
+    S = S_SMALL
     row, col = np.meshgrid(np.arange(S), np.arange(S), indexing="ij")
     u, v = (col + 0.5) / S, 1 - (row + 0.5) / S
     theta, phi = np.pi * (1 - v), 2 * np.pi * u
@@ -100,8 +100,8 @@ def test_texel_truth_is_the_material_at_the_texels_atlas_position(small):
 
 
 def test_the_writer_is_deterministic_in_its_seed(small, tmp_path):
-    again = write_capture(tmp_path / "a", MeshViewsConfig(**SMALL), seed=3)
-    other = write_capture(tmp_path / "b", MeshViewsConfig(**SMALL), seed=4)
+    again = write_capture(tmp_path / "a", MeshViewsConfig(**SMALL), texture_size=S_SMALL, seed=3)
+    other = write_capture(tmp_path / "b", MeshViewsConfig(**SMALL), texture_size=S_SMALL, seed=4)
     for name in ("cameras.json", "lights.json", "images.json", "mesh.obj"):
         assert (again.folder / name).read_bytes() == (small.folder / name).read_bytes()
     files = [im.file for im in small.scene.images]
@@ -171,8 +171,8 @@ def test_a_pixel_of_a_lambertian_quad_matches_the_hand_computation(tmp_path):
 
 
 def test_a_mesh_without_uvs_is_written_as_ply_with_its_truth_on_the_loaders_atlas(tmp_path):
-    cfg = MeshViewsConfig(object="ellipsoid_no_uv", **{**SMALL, "texture_size": 64})
-    written = write_capture(tmp_path, cfg, seed=0)
+    cfg = MeshViewsConfig(object="ellipsoid_no_uv", **SMALL)
+    written = write_capture(tmp_path, cfg, texture_size=64, seed=0)
     assert written.mesh_file == "mesh.ply" and not (tmp_path / "mesh.obj").exists()
     assert getattr(trimesh.load(tmp_path / "mesh.ply", process=False).visual, "uv", None) is None
     geom = load_atlas_geometry(tmp_path / "mesh.ply", 64)  # what the loader does with a mesh without UVs
@@ -186,8 +186,8 @@ def test_a_mesh_without_uvs_is_written_as_ply_with_its_truth_on_the_loaders_atla
 
 def test_the_bowls_inside_and_outside_lie_on_their_documented_atlas_rows(tmp_path):
     cfg = MeshViewsConfig(object="bowl", **{**SMALL, "indirect_samples": 1})
-    truth = write_capture(tmp_path, cfg, seed=0).truth
-    S = SMALL["texture_size"]
+    truth = write_capture(tmp_path, cfg, texture_size=S_SMALL, seed=0).truth
+    S = S_SMALL
     rows = np.arange(S)[:, None] * np.ones(S, dtype=int)[None]
     region = truth["region"]
     inside = (region >= 0) & (region <= 4)

@@ -19,6 +19,8 @@ The truth maps are written through one function of the texel centres' surface po
 material at each point) on the atlas of the written mesh file as the loader makes it (truth_on_atlas: read back,
 parametrised by xatlas at texture_size when it has no UVs, rasterised), so the loader's capture.texture_size must
 equal the writer's texture_size.
+
+The scene's settings are the config's `views` section (torchrefl.config.MeshViewsConfig).
 """
 
 from __future__ import annotations
@@ -26,19 +28,18 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import trimesh
 import yaml
 
 from torchrefl.capture.images import write_png
-from torchrefl.config import opt
+from torchrefl.config import MeshViewsConfig
 from torchrefl.errors import ConfigError
 from torchrefl.geometry.atlas import rasterise_atlas
 from torchrefl.geometry.atlas_parametrise import parametrise
 from torchrefl.geometry.mesh_file import read_mesh
-from torchrefl.synthetic.uv_objects import VIEWS_OBJECTS, ViewsObject, make_views_object
+from torchrefl.synthetic.uv_objects import ViewsObject, make_views_object
 from torchrefl.synthetic.views_layout import (
     ViewCamera,
     ViewImage,
@@ -55,35 +56,6 @@ _PRESETS = {
     "ellipsoid_no_uv": ([-15.0, 30.0], [[30.0, 20.0], [150.0, -10.0], [270.0, 40.0]]),
     "bowl": ([35.0, 65.0], [[0.0, 60.0], [120.0, 75.0], [240.0, 50.0]]),
 }
-
-
-@dataclass
-class MeshViewsConfig:
-    """A synthetic mesh_views scene (synthetic.mesh_views)."""
-
-    object: str = opt("ellipsoid", "the object: ellipsoid, ellipsoid_no_uv (written without UVs), bowl", VIEWS_OBJECTS)
-    texture_size: int = opt(
-        128, "side of the truth atlas, texels (a multiple of 16 keeps material borders on texel edges)", low=16
-    )
-    width: int = opt(320, "image width, px", low=8)
-    height: int = opt(240, "image height, px", low=8)
-    focal_px: float = opt(520.0, "focal length, px", low=1.0)
-    camera_distance_mm: float = opt(300.0, "distance of the cameras from the object's centre, mm", low=1.0)
-    camera_elevations_deg: Optional[list] = opt(None, "one camera ring per elevation, deg; null = the object's")
-    cameras_per_ring: int = opt(5, "cameras per ring, evenly spaced in azimuth", low=1)
-    light_distance_mm: float = opt(350.0, "distance of the point lights from the object's centre, mm", low=1.0)
-    lights_deg: Optional[list] = opt(
-        None, "point lights as [azimuth, elevation] about the centre, deg; null = the object's"
-    )
-    lights_per_view: int = opt(2, "lights paired with each camera (the closest to it in direction)", low=1)
-    light_intensity: list = opt([60000.0] * 3, "RGB radiant intensity Y of every light (full range x mm^2 per kappa)")
-    exposures: list = opt([1.0], "exposure factors of the images, cycled over the images in order")
-    supersample: int = opt(2, "sub-pixel rays per pixel side", low=1)
-    noise_dn: float = opt(0.3, "Gaussian sensor noise, 8-bit digital numbers", low=0.0)
-    indirect_samples: int = opt(
-        16, "interreflection paths per sub-sample (concave objects only; 0 = direct only)", low=0
-    )
-    brdf: str = opt("torrance_sparrow", "BRDF of the rendering", ("torrance_sparrow", "ward", "ward_normalised"))
 
 
 @dataclass
@@ -194,15 +166,19 @@ def write_capture(
     folder,
     cfg: MeshViewsConfig,
     *,
+    texture_size: int,
     seed: int = 0,
     kappa=(np.pi,) * 3,
     saturation_level: float = 0.995,
     threads: int = 2,
     progress=None,
 ) -> WrittenCapture:
-    """Build cfg's scene (build_scene), render it and write it as a mesh_views folder (write_scene)."""
-    if cfg.texture_size % 16:
-        raise ConfigError(f"texture_size is {cfg.texture_size}, expected a multiple of 16")
+    """Build cfg's scene (build_scene), render it and write it as a mesh_views folder (write_scene) with its truth
+    on a texture_size^2 atlas (the loader's capture.texture_size)."""
+    if texture_size % 16:
+        raise ConfigError(
+            f"texture_size is {texture_size}, expected a multiple of 16 (material borders on texel edges)"
+        )
     renderer = dict(
         brdf=cfg.brdf,
         kappa=kappa,
@@ -213,9 +189,7 @@ def write_capture(
         threads=threads,
     )
     scene = build_scene(cfg, seed)
-    return write_scene(
-        folder, scene, ViewsRenderer(scene.object, **renderer), cfg.texture_size, saturation_level, progress
-    )
+    return write_scene(folder, scene, ViewsRenderer(scene.object, **renderer), texture_size, saturation_level, progress)
 
 
 def write_scene(
