@@ -7,10 +7,17 @@ For camera c with centre C and texel t at X with normal n, area a (side s = sqrt
 - visibility: Embree's first hit along the ray from C towards X must be the texel's own surface,
   | t_hit - |X - C| | < s + offset (offset: geometry.shadow_offset_mm);
 - footprint: the texel is a parallelogram on the surface, spanned by the 3-D steps of one texel column and one
-  texel row (the face's atlas Jacobian); its projected area in pixels is about a cos_v f^2 d / z^3. A texel
-  covering less than about a pixel is sampled at its centre; a larger one at m x m points spread over its
-  parallelogram (m = ceil(sqrt(projected area)), at most MAX_SAMPLES per side), and the pixel value is the mean
-  of the bilinear interpolations at those points (pixel centres at integer (u, v));
+  texel row (the face's atlas Jacobian). The pixel value is the mean of bilinear interpolations (pixel centres at
+  integer (u, v)) at m x m points spread over the part of the parallelogram whose pixels lie wholly inside the
+  texel's projection: a bilinear value reaches SUPPORT_PX = 1.5
+#: a texel narrower than this (px) along one of its steps is left out of the image: its centre's four bilinear
+#: pixels reach past its edges by more than half a pixel, so its value mixes its neighbours'
+NARROW_PX = 2.0 px (its farthest pixel, and that pixel's own
+  area), so the samples keep that far from the texel's projected edges, and the value carries no neighbour's
+  reflectance (a material border on a texel edge stays out of it). m is the inset part's projected length in
+  pixels (at most MAX_SAMPLES), 1 (the centre) where that part is under a pixel across; a texel whose projection
+  is narrower than NARROW_PX = 2 px along one of its steps is left out of the image (even its centre's value
+  mixes its neighbours': the image does not resolve it; a closer or more frontal view may);
 - in frame: every sample lies within [0, W - 1] x [0, H - 1], so that its bilinear support is in the image;
 - silhouettes and depth steps: rays from C through four points offset from X perpendicular to the view by
   (half the footprint + 1) pixels (the camera's x and y axes, both signs) must hit the texel's tangent plane
@@ -31,8 +38,12 @@ from torchrefl.core.rays import RayTracer
 
 #: at most this many footprint samples per texel side (a texel covering more pixels is averaged over 8 x 8)
 MAX_SAMPLES = 8
-#: a texel whose projected area is at most this many pixels is sampled at its centre only
-POINT_SAMPLE_PIXELS = 1.5
+#: how far (px) a bilinear sample's value reaches: one pixel to the farthest of its four pixels, plus half a pixel
+#: that pixel integrates over
+SUPPORT_PX = 1.5
+#: a texel narrower than this (px) along one of its steps is left out of the image: its centre's four bilinear
+#: pixels reach past its edges by more than half a pixel, so its value mixes its neighbours'
+NARROW_PX = 2.0
 
 
 @dataclass
@@ -56,6 +67,7 @@ OUTSIDE = "outside the image (or behind the camera)"
 AWAY = "facing away from the camera or seen at grazing view (n.v at or below reflectance.min_cos_view)"
 OCCLUDED = "occluded from the camera (the first hit is another surface)"
 EDGE = "at a silhouette or depth step in the image (mixed pixels)"
+SMALL = "narrower than 2 px in the image (its value mixes its neighbours'; capture.texture_size finer than the image)"
 
 
 def _offsets(m: int) -> np.ndarray:
@@ -114,12 +126,11 @@ def camera_view(
         occluded = np.zeros(T, dtype=bool)
         occluded[idx[~ok]] = True
         drop(OCCLUDED, occluded)
-    # projected area in pixels, and the footprint's sample count per side
+    # projected area in pixels (the depth-step offsets), and the part of the footprint whose pixels lie inside it
     zc = np.maximum(z, 1e-300)
     area_px = areas * np.maximum(cos_v, 0) * fx * fy * d / zc**3
-    m = np.clip(np.ceil(np.sqrt(area_px)), 1, MAX_SAMPLES).astype(np.int64)
-    m[area_px <= POINT_SAMPLE_PIXELS] = 1
-    m[~steps.any(axis=(1, 2))] = 1
+    inset, m, narrow = _inset(points, steps, cameras, c, zc)
+    drop(SMALL, narrow)
     idx = np.flatnonzero(left)
     if idx.size:
         drop(EDGE, _depth_steps(idx, T, points, normals, side, np.sqrt(area_px), z, C, R, fx, tracer, offset))
@@ -130,7 +141,8 @@ def camera_view(
         if k == 1:
             samples.append((idx, uv[idx, None, :]))
             continue
-        pts = points[idx, None, :] + np.einsum("tij,sj->tsi", steps[idx], _offsets(int(k)))
+        offs = _offsets(int(k))[None] * inset[idx, None, :]  # (K, k*k, 2) texel units, inside the footprint
+        pts = points[idx, None, :] + np.einsum("tij,tsj->tsi", steps[idx], offs)
         suv = cameras.project(torch.from_numpy(pts.reshape(-1, 3)), c).uv.numpy().reshape(len(idx), -1, 2)
         inside = _in_frame(suv, W, H).all(axis=1)
         outside[idx[~inside]] = True
@@ -138,6 +150,29 @@ def camera_view(
     reasons[OUTSIDE] |= outside & left
     left &= ~outside
     return CameraView(v.astype(np.float32), cos_v.astype(np.float32), left, samples, reasons)
+
+
+def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(inset (T, 2), m (T,), narrow (T,) bool): the fraction of each texel step (column, row) that footprint samples may span so
+    that every pixel their bilinear values use lies inside the texel's projection (SUPPORT_PX from each edge), and
+    the samples per side (1: the centre only, where that part is under a pixel or the texel has no steps), and the
+    texels narrower than NARROW_PX along a step (even the centre's value mixes their neighbours')."""
+    R = cameras.R[c].numpy()
+    K = cameras.K[c].numpy()
+    Xc = points @ R.T + cameras.t[c].numpy()
+    J = np.zeros((len(points), 2, 3))  # d(u, v) / d(X_cam), pinhole (distortion ignored for the footprint's size)
+    J[:, 0, 0] = K[0, 0] / z
+    J[:, 0, 2] = -K[0, 0] * Xc[:, 0] / z**2
+    J[:, 1, 1] = K[1, 1] / z
+    J[:, 1, 2] = -K[1, 1] * Xc[:, 1] / z**2
+    px = np.einsum("tij,jk,tkl->til", J, R, steps)  # (T, 2, 2): pixels per texel step, columns = steps
+    length = np.linalg.norm(px, axis=1)  # (T, 2) projected length of each step, px
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inset = np.clip(np.nan_to_num(1.0 - 2.0 * SUPPORT_PX / length), 0.0, 1.0)
+    m = np.clip(np.ceil((inset * length).max(axis=1)), 1, MAX_SAMPLES).astype(np.int64)
+    m[(inset * length).max(axis=1) <= 1.0] = 1
+    narrow = steps.any(axis=(1, 2)) & (length < 2.5).any(axis=1)
+    return inset, m, narrow
 
 
 def _depth_steps(idx, T, points, normals, side, footprint_px, z, C, R, fx, tracer, offset) -> np.ndarray:
