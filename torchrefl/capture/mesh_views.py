@@ -25,7 +25,7 @@ from torchrefl.capture.checks import image_content_checks, implied_albedo_check,
 from torchrefl.capture.images import read_image, read_images
 from torchrefl.capture.truth import TRUTH, load_truth
 from torchrefl.capture.views_folder import ViewsFolder, read_views_folder
-from torchrefl.capture.views_sampling import CameraView, camera_view, footprint_values
+from torchrefl.capture.views_sampling import OUTSIDE, REASON_KEYS, CameraView, camera_view, footprint_values
 from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.core.point_light import PointLight, point_light
@@ -163,19 +163,21 @@ def load_views_observations(
     shadowed = np.zeros((P, T), dtype=bool)
     saturated = np.zeros((P, T), dtype=bool)
     masked = np.zeros((P, T), dtype=bool)
-    unseen_by = {}
+    unseen_by: dict[str, np.ndarray] = {}  # reason -> (P, T) bool observations a camera view leaves out
+    projects = False  # some texel lies in front of some camera and inside its image
     bits = None
     x32, n32 = x.astype(np.float32), n.astype(np.float32)
     for cam in sorted({meta.cameras.index(im.camera) for im in images}):
         view: CameraView = camera_view(
             meta.cameras, cam, x, n, areas, steps, tracer, offset=offset, min_cos_view=cfg.reflectance.min_cos_view
         )
+        projects = projects or bool((~view.reasons[OUTSIDE]).any())
         mine, pixels, depth = _camera_images(meta, chosen, cam, cfg.threads)
         bits = depth if bits is None else bits
         for j, p in enumerate(mine):
             im = images[p]
             for reason, mask in view.reasons.items():
-                unseen_by[reason] = unseen_by.get(reason, 0) + int(mask.sum())
+                unseen_by.setdefault(reason, np.zeros((P, T), dtype=bool))[p] = mask
             values = footprint_values(pixels[j], view, T)
             sat = footprint_values((pixels[j] >= saturation).any(-1, keepdims=True).astype(np.float32), view, T)
             out = footprint_values(_mask(meta, im, pixels[j].shape), view, T)
@@ -194,7 +196,7 @@ def load_views_observations(
             )
     finite = np.isfinite(intensity).all(-1)
     removed = {
-        "not seen in the image (outside it, facing away, occluded, at a silhouette or depth step)": ~seen,
+        **{f"not seen: {reason}": mask for reason, mask in unseen_by.items()},
         "not lit (n.l at or below reflectance.min_cos_light)": ~lit,
         "in cast shadow": shadowed,
         f"saturated (>= {saturation:g})": saturated,
@@ -202,7 +204,7 @@ def load_views_observations(
         "not finite": ~finite,
     }
     valid = ~np.logical_or.reduce(list(removed.values()))
-    if not seen.any():
+    if not projects:
         raise CaptureError(
             f"{meta.folder}: nothing projects onto the object: no texel of the mesh {geom.mesh.source} lies in front "
             f"of a camera of {meta.cameras.source} inside its image and facing it; the mesh and the cameras are not "
@@ -245,7 +247,7 @@ def load_views_observations(
         "saturated_observations": int((saturated & lit).sum()),
         "shadowed_observations": int(shadowed.sum()),
         "masked_observations": int(masked.sum()),
-        **{f"not_seen: {reason}": count for reason, count in unseen_by.items()},
+        **{f"not_seen_{REASON_KEYS[reason]}_observations": int(mask.sum()) for reason, mask in unseen_by.items()},
     }
     return obs, stats, warnings
 

@@ -68,6 +68,8 @@ AWAY = "facing away from the camera or seen at grazing view (n.v at or below ref
 OCCLUDED = "occluded from the camera (the first hit is another surface)"
 EDGE = "at a silhouette or depth step in the image (mixed pixels)"
 SMALL = "narrower than 2 px in the image (its value mixes its neighbours'; capture.texture_size finer than the image)"
+#: each reason's short name (metrics.json: capture.not_seen_<name>_observations)
+REASON_KEYS = {OUTSIDE: "outside", AWAY: "facing_away", OCCLUDED: "occluded", SMALL: "narrow", EDGE: "silhouette"}
 
 
 def _offsets(m: int) -> np.ndarray:
