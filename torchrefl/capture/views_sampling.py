@@ -155,10 +155,10 @@ def camera_view(
 
 
 def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(inset (T, 2), m (T,), narrow (T,) bool): the fraction of each texel step (column, row) that footprint samples may span so
-    that every pixel their bilinear values use lies inside the texel's projection (SUPPORT_PX from each edge), and
-    the samples per side (1: the centre only, where that part is under a pixel or the texel has no steps), and the
-    texels narrower than NARROW_PX along a step (even the centre's value mixes their neighbours')."""
+    """(inset (T, 2), m (T,), narrow (T,) bool): the fraction of each texel step (column, row) that footprint
+    samples may span so that every pixel their bilinear values use lies inside the texel's projection (SUPPORT_PX
+    from each edge), the samples per side (1: the centre only, where that part is under a pixel or the texel has no
+    steps), and the texels narrower than NARROW_PX along a step (even the centre's value mixes their neighbours')."""
     R = cameras.R[c].numpy()
     K = cameras.K[c].numpy()
     Xc = points @ R.T + cameras.t[c].numpy()
