@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from torchrefl.capture.images import read_image, read_images, write_png
+from torchrefl.capture.images import image_info, read_image, read_images, write_png
 from torchrefl.errors import CaptureError
 
 SHARED = Path(__file__).resolve().parents[2] / ".." / "shared"
@@ -232,3 +232,17 @@ def test_diligent_ball_image_is_read_at_16_bits():
     # byte and channel order: the high byte equals Pillow's 8-bit reading of the same file
     pil = np.asarray(Image.open(BALL / "001.png").convert("RGB")).astype(np.int64)
     assert np.abs((v >> 8) - pil).max() <= 1
+
+
+def test_image_info_reads_size_and_depth_from_the_header(tmp_path):
+    write_png(tmp_path / "a.png", np.zeros((5, 7, 3), dtype=np.uint16), 16)
+    write_png(tmp_path / "b.png", np.zeros((4, 3), dtype=np.uint8), 8)
+    Image.new("RGB", (9, 2)).save(tmp_path / "c.jpg")
+    assert image_info(tmp_path / "a.png") == (7, 5, 16)
+    assert image_info(tmp_path / "b.png") == (3, 4, 8)
+    assert image_info(tmp_path / "c.jpg") == (9, 2, 8)
+    (tmp_path / "d.png").write_bytes(b"not an image")
+    with pytest.raises(CaptureError, match=r"d\.png: not a readable image"):
+        image_info(tmp_path / "d.png")
+    with pytest.raises(CaptureError, match=r"e\.png: image file missing"):
+        image_info(tmp_path / "e.png")

@@ -224,3 +224,24 @@ def write_png(path, image, bits: int) -> None:
         writer(str(path), img, mode)
     except Exception as exc:
         raise CaptureError(f"{path}: cannot write PNG ({exc})") from None
+
+
+def image_info(path) -> tuple[int, int, int]:
+    """(width, height, bit depth) of an image file from its header, without decoding the pixels. CaptureError
+    naming the file when it is missing or not a readable image."""
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        what = "a folder" if path.is_dir() else "missing"
+        raise CaptureError(f"{path}: image file {what}")
+    if _png_header(path) is not None:
+        with open(path, "rb") as fh:
+            head = fh.read(25)
+        width, height, bits = struct.unpack(">IIB", head[16:25])
+        return width, height, bits
+    try:
+        with Image.open(path) as im:
+            return im.width, im.height, 16 if im.mode in _PIL_16BIT_MODES else 8
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+        raise CaptureError(f"{path}: not a readable image (Pillow: {exc})") from None
