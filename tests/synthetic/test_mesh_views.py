@@ -39,10 +39,9 @@ def test_the_folder_holds_exactly_the_documented_files_and_keys(small):
     cams = json.loads((folder / "cameras.json").read_text())
     lights = json.loads((folder / "lights.json").read_text())
     images = json.loads((folder / "images.json").read_text())
-    assert set(cams) == {"cameras"} and set(lights) == {"lights"}
-    cam_keys = {"name", "width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "R", "t"}
-    assert len(cams["cameras"]) == 4
-    for c in cams["cameras"]:
+    cam_keys = {"width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "R", "t"}
+    assert len(cams) == 4 and len(lights) == 3  # name -> camera, name -> light (docs/capture-formats.md)
+    for c in cams.values():
         assert set(c) == cam_keys
         R = np.array(c["R"])
         assert R.shape == (3, 3) and len(c["t"]) == 3
@@ -53,13 +52,13 @@ def test_the_folder_holds_exactly_the_documented_files_and_keys(small):
         assert x[2] > 0
         assert abs(c["fx"] * x[0] / x[2] + c["cx"] - (c["width"] - 1) / 2) < 1e-6
         assert abs(c["fy"] * x[1] / x[2] + c["cy"] - (c["height"] - 1) / 2) < 1e-6
-    for light in lights["lights"]:
-        assert set(light) == {"name", "type", "position", "intensity"} and light["type"] == "point"
+    for light in lights.values():
+        assert set(light) == {"position", "intensity"}
         assert len(light["position"]) == 3 and len(light["intensity"]) == 3
     assert set(images) == {"encoding", "saturation_level", "kappa", "images"}
-    assert images["encoding"] == "linear16" and len(images["kappa"]) == 3
-    names = {c["name"]: c for c in cams["cameras"]}
-    light_names = {light["name"] for light in lights["lights"]}
+    assert images["encoding"] == "linear" and len(images["kappa"]) == 3
+    names = cams
+    light_names = set(lights)
     per_view, per_light = {}, {}
     for im in images["images"]:
         assert set(im) == {"file", "camera", "light", "exposure"}
@@ -136,7 +135,7 @@ def test_a_pixel_of_a_lambertian_quad_matches_the_hand_computation(tmp_path):
     scene = MeshViewsScene(obj, [cam], [ViewLight("L00", L, Y)], [ViewImage("images/q.png", "cam00", "L00", exposure)])
     renderer = ViewsRenderer(obj, kappa=kappa, supersample=2, noise_dn=0.0)
     write_scene(tmp_path, scene, renderer, 16)
-    c = json.loads((tmp_path / "cameras.json").read_text())["cameras"][0]
+    c = json.loads((tmp_path / "cameras.json").read_text())["cam00"]
     R, t = np.array(c["R"]), np.array(c["t"])
     img, _ = read_image(tmp_path / "images" / "q.png")
 

@@ -2,8 +2,8 @@
 
 Folder (the contract: docs/capture-formats.md, `mesh_views`):
     mesh.obj | mesh.ply | mesh.glb   the object, in scene.yaml's `units` (mm when it names none)
-    scene.yaml                       optional: units
-    cameras.json, lights.json, images.json, images/*   (capture.views_folder reads them)
+    scene.yaml                       optional: units (mm, cm, m, in) of the mesh, cameras and lights
+    images.json, cameras.json (or a COLMAP model), lights.json, images/*   (capture.view_folder reads them)
     truth.npz                        optional (synthetic scenes): pd, ps, sigma on the atlas
 
 The texels are the mesh's atlas at capture.texture_size (geometry.atlas_surface; made by xatlas when the mesh has
@@ -15,6 +15,7 @@ sampling, silhouettes and depth steps left out), its light's direction, falloff 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,22 +23,37 @@ import torch
 
 from torchrefl.capture.base import Capture, CaptureLoader, Log
 from torchrefl.capture.checks import image_content_checks, implied_albedo_check, light_indices, observations_left
-from torchrefl.capture.images import read_image, read_images
 from torchrefl.capture.truth import TRUTH, load_truth
-from torchrefl.capture.views_folder import ViewsFolder, read_views_folder
+from torchrefl.capture.view_folder import ViewFolder, read_view_folder
 from torchrefl.capture.views_sampling import OUTSIDE, REASON_KEYS, CameraView, camera_view, footprint_values
-from torchrefl.config import Config
+from torchrefl.config import Config, read_yaml_mapping
 from torchrefl.core.observations import Observations
 from torchrefl.core.point_light import PointLight, point_light
 from torchrefl.core.rays import RayTracer
-from torchrefl.errors import CaptureError, GeometryError
+from torchrefl.errors import CaptureError
 from torchrefl.geometry.atlas import uv_to_texel_xy
 from torchrefl.geometry.atlas_neighbours import face_jacobians
 from torchrefl.geometry.atlas_surface import AtlasGeometry, atlas_geometry
-from torchrefl.geometry.mesh_file import MESH_SUFFIXES, read_mesh
+from torchrefl.geometry.mesh_file import MESH_SUFFIXES, UNIT_SCALE_MM, read_mesh
 
 #: rays cast from a point light to tell whether it sits inside the object (every one meets a back face)
 INSIDE_RAYS = 26
+SCENE_YAML = "scene.yaml"
+
+
+def read_units(folder: Path) -> str:
+    """scene.yaml's `units` (mm without the file or the key); CaptureError naming the file and key otherwise."""
+    path = folder / SCENE_YAML
+    if not path.is_file():
+        return "mm"
+    doc = read_yaml_mapping(path, CaptureError, "scene file")
+    unknown = sorted(set(doc) - {"units"})
+    if unknown:
+        raise CaptureError(f"{path}: unknown key(s) {', '.join(map(repr, unknown))} (scene.yaml holds 'units')")
+    units = doc.get("units", "mm")
+    if units not in UNIT_SCALE_MM:
+        raise CaptureError(f"{path}: key 'units' is {units!r}, expected one of {', '.join(UNIT_SCALE_MM)}")
+    return units
 
 
 def mesh_path(folder: Path) -> Path:
@@ -67,80 +83,58 @@ def _directions(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), y, r * np.sin(phi)], -1)
 
 
-def check_lights_outside(meta: ViewsFolder, tracer: RayTracer, used: set) -> None:
-    """CaptureError naming a point light that sits inside the object: every ray from it meets a back face."""
+def check_lights_outside(lights, tracer: RayTracer, used) -> None:
+    """CaptureError naming a point light (of capture.lights_json.Lights, indices `used`) that sits inside the
+    object: every ray from it meets a back face."""
     v = tracer.vertices.astype(np.float64)[tracer.faces.astype(np.int64)]
     face_n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     dirs = _directions(INSIDE_RAYS)
-    for light in meta.lights:
-        if light.kind != "point" or light.name not in used:
+    for k in sorted(set(used)):
+        if not lights.point[k]:
             continue
-        hits = tracer.closest_hit(np.broadcast_to(light.vector, dirs.shape), dirs)
+        hits = tracer.closest_hit(np.broadcast_to(lights.position[k], dirs.shape), dirs)
         if hits.hit.all() and (np.einsum("ni,ni->n", face_n[hits.triangle], dirs) > 0).all():
             raise CaptureError(
-                f"{meta.folder / 'lights.json'}: light '{light.name}' at {light.vector.tolist()} is inside the "
+                f"{lights.source}: light '{lights.names[k]}' at {lights.position[k].tolist()} mm is inside the "
                 "object (every ray from it meets the mesh from inside): the light positions and the mesh are not "
                 "in one frame, or not in the same units"
             )
 
 
-def _light_geometry(light, x, n, tracer, offset, min_cos, trace) -> PointLight:
-    """PointLight of one light at the texels (a directional light: its direction, distance 1, no falloff)."""
-    if light.kind == "point":
-        return point_light(
-            x, n, np.broadcast_to(light.vector, x.shape), tracer, offset=offset, min_cos=min_cos, trace=trace
-        )
+def _light_geometry(lights, k: int, x, n, tracer, offset, min_cos, trace) -> PointLight:
+    """PointLight of light k at the texels (a directional light: its direction, distance 1, no falloff)."""
+    if lights.point[k]:
+        L = np.broadcast_to(lights.position[k].astype(x.dtype), x.shape)
+        return point_light(x, n, L, tracer, offset=offset, min_cos=min_cos, trace=trace)
+    towards = lights.direction[k].astype(x.dtype)
     reach = 10.0 * float(np.ptp(tracer.vertices, axis=0).max()) + 1.0
-    pl = point_light(x, n, x + reach * light.vector[None], tracer, offset=offset, min_cos=min_cos, trace=trace)
-    return PointLight(
-        np.broadcast_to(light.vector, x.shape).astype(x.dtype), np.ones(len(x), x.dtype), pl.cosine, pl.lit, pl.shadowed
-    )
+    pl = point_light(x, n, x + reach * towards[None], tracer, offset=offset, min_cos=min_cos, trace=trace)
+    return PointLight(np.broadcast_to(towards, x.shape), np.ones(len(x), x.dtype), pl.cosine, pl.lit, pl.shadowed)
 
 
-def _decode(images: np.ndarray, encoding: str) -> np.ndarray:
-    """Linear fractions of full range: the sRGB curve undone for encoding 'srgb'."""
-    if encoding != "srgb":
-        return images
-    return np.where(images <= 0.04045, images / 12.92, ((images + 0.055) / 1.055) ** 2.4).astype(np.float32)
+def _camera_images(meta: ViewFolder, chosen: list, cam: int) -> tuple[list, list]:
+    """The positions among `chosen` of camera `cam`'s images and those images (H, W, 3), decoded (ViewFolder)."""
+    mine = [k for k, i in enumerate(chosen) if meta.camera_index[i] == cam]
+    return mine, [meta.read_image(chosen[k]) for k in mine]
 
 
-def _camera_images(meta: ViewsFolder, chosen: list, cam: int, threads: int) -> tuple[list, np.ndarray, int]:
-    """The chosen images of camera `cam`: their indices among `chosen`, the decoded images (n, H, W, 3) and the bit
-    depth; CaptureError when an image's size is not its camera's."""
-    name = meta.cameras.names[cam]
-    mine = [k for k, i in enumerate(chosen) if meta.images[i].camera == name]
-    paths = [meta.folder / meta.images[chosen[k]].file for k in mine]
-    images, bits = read_images(paths, threads=threads)
-    W, H = int(meta.cameras.width[cam]), int(meta.cameras.height[cam])
-    if images.shape[1:3] != (H, W):
-        raise CaptureError(
-            f"{paths[0]}: image is {images.shape[2]}x{images.shape[1]}, but its camera '{name}' in "
-            f"{meta.cameras.source} is {W}x{H} (width x height)"
-        )
-    return mine, _decode(images, meta.encoding), bits
-
-
-def _mask(meta: ViewsFolder, image, shape) -> np.ndarray:
-    """(H, W, 1) float32: 1 where the image's mask file excludes the pixel (mask value 0), else 0."""
-    if image.mask is None:
+def _masked_out(meta: ViewFolder, i: int, shape) -> np.ndarray:
+    """(H, W, 1) float32: 1 where image i's mask leaves the pixel out, else 0."""
+    mask = meta.read_mask(i)
+    if mask is None:
         return np.zeros(shape[:2] + (1,), dtype=np.float32)
-    m, _ = read_image(meta.folder / image.mask)
-    if m.shape[:2] != shape[:2]:
-        raise CaptureError(
-            f"{meta.folder / image.mask}: mask is {m.shape[1]}x{m.shape[0]}, expected {shape[1]}x{shape[0]} like "
-            f"its image {image.file}"
-        )
-    return (m[..., :1] <= 0).astype(np.float32)
+    return (~mask)[..., None].astype(np.float32)
 
 
 def load_views_observations(
-    meta: ViewsFolder, geom: AtlasGeometry, tracer: RayTracer, cfg: Config, log: Log
+    meta: ViewFolder, geom: AtlasGeometry, tracer: RayTracer, cfg: Config, log: Log
 ) -> tuple[Observations, dict, list[str]]:
     """The Observations of the chosen images (capture.light_subset indexes images.json's images), the statistics
-    and the warnings."""
-    where = str(meta.folder / "images.json")
-    chosen = light_indices(cfg.capture.light_subset, len(meta.images), where)
-    images = [meta.images[i] for i in chosen]
+    and the warnings. meta's cameras and lights are in mm, like the mesh."""
+    where = meta.views.source
+    chosen = light_indices(cfg.capture.light_subset, len(meta.views.images), where)
+    images = [meta.views.images[i] for i in chosen]
+    light_of = [int(meta.light_index[i]) for i in chosen]
     s = geom.surface
     x = s.positions.double().numpy()
     n = s.normals.double().numpy()
@@ -148,10 +142,11 @@ def load_views_observations(
     steps = texel_steps(geom)
     T, P = s.num_texels, len(images)
     offset = cfg.geometry.shadow_offset_mm
-    saturation = meta.saturation_level if meta.saturation_level is not None else cfg.capture.saturation_level
-    kappa = np.asarray(meta.kappa if meta.kappa is not None else cfg.capture.kappa, dtype=np.float64)
-    check_lights_outside(meta, tracer, {im.light for im in images})
-    lights = {light.name: light for light in meta.lights}
+    v = meta.views
+    saturation = v.saturation_level if v.saturation_level is not None else cfg.capture.saturation_level
+    kappa = np.asarray(v.kappa if v.kappa is not None else cfg.capture.kappa, dtype=np.float64)
+    lights = meta.lights
+    check_lights_outside(lights, tracer, light_of)
     # the dense (P, T) tensors are what the rest of the code takes: float32 (a sparse form is a later issue)
     intensity = np.zeros((P, T, 3), dtype=np.float32)
     view_dir = np.zeros((P, T, 3), dtype=np.float32)
@@ -165,28 +160,28 @@ def load_views_observations(
     masked = np.zeros((P, T), dtype=bool)
     unseen_by: dict[str, np.ndarray] = {}  # reason -> (P, T) bool observations a camera view leaves out
     projects = False  # some texel lies in front of some camera and inside its image
-    bits = None
     x32, n32 = x.astype(np.float32), n.astype(np.float32)
-    for cam in sorted({meta.cameras.index(im.camera) for im in images}):
+    for cam in sorted({int(meta.camera_index[i]) for i in chosen}):
         view: CameraView = camera_view(
             meta.cameras, cam, x, n, areas, steps, tracer, offset=offset, min_cos_view=cfg.reflectance.min_cos_view
         )
         projects = projects or bool((~view.reasons[OUTSIDE]).any())
-        mine, pixels, depth = _camera_images(meta, chosen, cam, cfg.threads)
-        bits = depth if bits is None else bits
+        mine, pixels = _camera_images(meta, chosen, cam)
         for j, p in enumerate(mine):
             im = images[p]
             for reason, mask in view.reasons.items():
                 unseen_by.setdefault(reason, np.zeros((P, T), dtype=bool))[p] = mask
             values = footprint_values(pixels[j], view, T)
             sat = footprint_values((pixels[j] >= saturation).any(-1, keepdims=True).astype(np.float32), view, T)
-            out = footprint_values(_mask(meta, im, pixels[j].shape), view, T)
+            out = footprint_values(_masked_out(meta, chosen[p], pixels[j].shape), view, T)
             seen[p] = view.seen
             intensity[p] = np.where(view.seen[:, None], values / np.float32(im.exposure), 0.0)
             saturated[p] = view.seen & (sat[:, 0] > 0)
             masked[p] = view.seen & (out[:, 0] > 0)
             view_dir[p] = view.view_dir
-            pl = _light_geometry(lights[im.light], x32, n32, tracer, offset, cfg.reflectance.min_cos_light, view.seen)
+            pl = _light_geometry(
+                lights, light_of[p], x32, n32, tracer, offset, cfg.reflectance.min_cos_light, view.seen
+            )
             light_dir[p], dist[p], cos_l[p], lit[p], shadowed[p] = (
                 pl.direction,
                 pl.distance,
@@ -211,14 +206,14 @@ def load_views_observations(
             "in the same frame (or not in the same units: scene.yaml's units)"
         )
     observations_left(valid, removed, where)
-    paths = [meta.folder / im.file for im in images]
+    paths = [meta.paths[i] for i in chosen]
     filled = np.where(seen[..., None], intensity, intensity[np.arange(P), seen.argmax(1)][:, None])
     warnings = image_content_checks(filled, paths)
-    Y = np.stack([lights[im.light].intensity for im in images])
-    point = [lights[im.light].kind == "point" for im in images]
+    Y = lights.intensity[light_of]
+    point = lights.point[light_of]
     falloff = np.where(np.asarray(point)[:, None], 1.0 / np.maximum(dist, 1e-9) ** 2, 1.0).astype(np.float32)
     implied_albedo_check(
-        intensity, valid, cos_l, Y[:, None, :] * falloff[..., None], kappa, f"{meta.folder / 'lights.json'} (intensity)"
+        intensity, valid, cos_l, Y[:, None, :] * falloff[..., None], kappa, f"{lights.source} (intensity)"
     )
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(cfg.torch_dtype)  # noqa: E731
     obs = Observations(
@@ -231,13 +226,13 @@ def load_views_observations(
         light_intensity=t(Y),
         view_dir=t(view_dir),
         kappa=t(kappa),
-        light_positions=t(np.stack([lights[im.light].vector for im in images])) if all(point) else None,
+        light_positions=t(lights.position[light_of]) if point.all() else None,
         light_names=[Path(im.file).name for im in images],
         source=where,
     )
     by_image = seen.any(0)
     stats = {
-        "bit_depth": bits,
+        "bit_depth": meta.bits,
         "images": P,
         "cameras": len({im.camera for im in images}),
         "texels": T,
@@ -276,15 +271,15 @@ class MeshViewsLoader(CaptureLoader):
 
     kind = "mesh_views"
 
-    def load_geometry(self, folder: Path, cfg: Config) -> tuple[ViewsFolder, AtlasGeometry]:
-        """The folder's metadata and the mesh's atlas at capture.texture_size."""
-        meta = read_views_folder(folder)
-        path = mesh_path(Path(folder))
-        try:
-            mesh = read_mesh(path, meta.units)
-        except GeometryError as exc:
-            raise GeometryError(f"{exc} (units '{meta.units}' from {Path(folder) / 'scene.yaml'})") from None
-        geom = atlas_geometry(mesh, cfg.capture.texture_size, dtype=cfg.torch_dtype)
+    def load_geometry(self, folder: Path, cfg: Config) -> tuple[ViewFolder, AtlasGeometry]:
+        """The folder's metadata (cameras and lights scaled to mm with the mesh) and the mesh's atlas at
+        capture.texture_size."""
+        folder = Path(folder)
+        units = read_units(folder)
+        meta = read_view_folder(folder)
+        scale = UNIT_SCALE_MM[units]
+        meta = replace(meta, cameras=meta.cameras.scaled(scale), lights=meta.lights.scaled(scale))
+        geom = atlas_geometry(read_mesh(mesh_path(folder), units), cfg.capture.texture_size, dtype=cfg.torch_dtype)
         return meta, geom
 
     def load(self, folder: Path, cfg: Config, log: Log) -> Capture:
@@ -294,10 +289,11 @@ class MeshViewsLoader(CaptureLoader):
         how = "made by xatlas (the mesh has no UVs)" if geom.parametrised else "the mesh's own"
         log(
             f"surface: {s.num_texels} texels on a {s.grid_shape[0]}x{s.grid_shape[1]} atlas ({how}), "
-            f"{len(geom.mesh.faces)} triangles; {len(meta.images)} images from {len(meta.cameras)} cameras"
+            f"{len(geom.mesh.faces)} triangles; {len(meta.views.images)} images from {len(meta.cameras)} cameras"
         )
         tracer = RayTracer(geom.mesh.vertices, geom.mesh.faces, threads=cfg.threads)
         obs, stats, warnings = load_views_observations(meta, geom, tracer, cfg, log)
+        warnings = list(meta.warnings) + warnings
         if stats["texels_seen_by_no_image"]:
             log(f"capture: {stats['texels_seen_by_no_image']} of {s.num_texels} texels are seen by no image")
         stats["mesh"] = Path(geom.mesh.source).name

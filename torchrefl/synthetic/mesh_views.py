@@ -3,9 +3,9 @@ capture folder in the mesh_views format (docs/capture-formats.md):
 
     mesh.obj            v, vt (the atlas), vn (exact normals), f v/vt/vn; or mesh.ply without UVs; millimetres
     scene.yaml          units: mm
-    cameras.json        {"cameras": [{name, width, height, fx, fy, cx, cy, k1, k2, p1, p2, k3, R, t}, ...]}
-    lights.json         {"lights": [{name, type: point, position, intensity}, ...]}
-    images.json         {encoding: linear16, saturation_level, kappa, images: [{file, camera, light, exposure}]}
+    cameras.json        {name: {width, height, fx, fy, cx, cy, k1, k2, p1, p2, k3, R, t}, ...}
+    lights.json         {name: {position, intensity}, ...}
+    images.json         {encoding: linear, saturation_level, kappa, images: [{file, camera, light, exposure}]}
     images/<camera>_<light>.png   16-bit linear RGB: round(65535 (kappa exposure L_o + noise)), clipped
     truth.npz           pd (S, S, 3), ps (S, S, 3), sigma (S, S), region (S, S) on the atlas (NaN / -1 in the
                         gutter), brdf
@@ -206,8 +206,8 @@ def write_scene(
     (folder / "images").mkdir(parents=True, exist_ok=True)
     mesh_file = write_mesh(folder, scene.object)
     (folder / "scene.yaml").write_text(yaml.safe_dump({"units": "mm"}))
-    _write_json(folder / "cameras.json", {"cameras": [c.to_json() for c in scene.cameras]})
-    _write_json(folder / "lights.json", {"lights": [light.to_json() for light in scene.lights]})
+    _write_json(folder / "cameras.json", {c.name: c.to_json() for c in scene.cameras})
+    _write_json(folder / "lights.json", {light.name: light.to_json() for light in scene.lights})
     lights = {light.name: light for light in scene.lights}
     done = 0
     for k, cam in enumerate(scene.cameras):
@@ -226,7 +226,7 @@ def write_scene(
     _write_json(
         folder / "images.json",
         {
-            "encoding": "linear16",
+            "encoding": "linear",
             "saturation_level": float(saturation_level),
             "kappa": [float(k) for k in renderer.kappa],
             "images": [im.to_json() for im in scene.images],

@@ -54,9 +54,8 @@ class ViewCamera:
         return np.broadcast_to(self.centre, d.shape).copy(), d, pixel
 
     def to_json(self) -> dict:
-        """The camera's cameras.json entry (no distortion)."""
+        """The camera's entry in cameras.json (keyed by its name there; no distortion)."""
         return {
-            "name": self.name,
             "width": int(self.width),
             "height": int(self.height),
             "fx": float(self.fx),
@@ -82,9 +81,8 @@ class ViewLight:
     intensity: np.ndarray
 
     def to_json(self) -> dict:
+        """The light's entry in lights.json (keyed by its name there)."""
         return {
-            "name": self.name,
-            "type": "point",
             "position": [float(x) for x in self.position],
             "intensity": [float(x) for x in self.intensity],
         }
