@@ -208,8 +208,15 @@ def load_views_observations(
         )
     observations_left(valid, removed, where)
     paths = [meta.paths[i] for i in chosen]
-    filled = np.where(seen[..., None], intensity, intensity[np.arange(P), seen.argmax(1)][:, None])
-    warnings = image_content_checks(filled, paths)
+    shows = np.flatnonzero(seen.any(1))  # images in which some texel is seen (the content checks' images)
+    filled = np.where(seen[..., None], intensity, intensity[np.arange(P), seen.argmax(1)][:, None])[shows]
+    warnings = image_content_checks(filled, [paths[i] for i in shows])
+    if len(shows) < P:
+        blind = [str(paths[i]) for i in sorted(set(range(P)) - set(shows.tolist()))]
+        warnings.append(
+            f"{len(blind)} image(s) show no texel of the object usably (outside the image, occluded, too small or "
+            f"at silhouettes), e.g. {', '.join(blind[:3])}: is its camera pointed at the object?"
+        )
     Y = lights.intensity[light_of]
     point = lights.point[light_of]
     falloff = np.where(np.asarray(point)[:, None], 1.0 / np.maximum(dist, 1e-9) ** 2, 1.0).astype(np.float32)
