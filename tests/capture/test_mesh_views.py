@@ -228,10 +228,11 @@ def test_the_bundled_config_runs_end_to_end_on_a_tiny_scene(tmp_path):
         "views.height=48",
         "views.focal_px=110",
         "views.cameras_per_ring=2",
+        "views.camera_elevations_deg=[0.0, 35.0]",
         "views.lights_per_view=2",
         "views.supersample=1",
         "fit.holdout=[1]",
-        "fit.iterations=3",
+        "fit.iterations=1",
     ]
     cmd = [sys.executable, "-m", "torchrefl.train", str(ROOT / "configs" / "mesh_views.yaml"), *overrides]
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
