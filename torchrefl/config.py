@@ -106,13 +106,49 @@ class SyntheticConfig:
 
 
 @dataclass
+class MeshViewsConfig:
+    """A synthetic mesh_views scene (capture.kind: synthetic_mesh_views; torchrefl.synthetic.mesh_views)."""
+
+    object: str = opt(
+        "ellipsoid",
+        "the object: ellipsoid (convex, with UVs), ellipsoid_no_uv (written without UVs), bowl (a deep concavity)",
+        choices=("ellipsoid", "ellipsoid_no_uv", "bowl"),
+    )
+    width: int = opt(320, "image width, px", low=8)
+    height: int = opt(240, "image height, px", low=8)
+    focal_px: float = opt(520.0, "focal length, px", low=1.0)
+    camera_distance_mm: float = opt(300.0, "distance of the cameras from the object's centre, mm", low=1.0)
+    camera_elevations_deg: Optional[list] = opt(None, "one camera ring per elevation, deg; null = the object's")
+    cameras_per_ring: int = opt(5, "cameras per ring, evenly spaced in azimuth", low=1)
+    light_distance_mm: float = opt(350.0, "distance of the point lights from the object's centre, mm", low=1.0)
+    lights_deg: Optional[list] = opt(
+        None, "point lights as [azimuth, elevation] about the centre, deg; null = the object's"
+    )
+    lights_per_view: int = opt(2, "lights paired with each camera (the closest to it in direction)", low=1)
+    light_intensity: list = opt([60000.0] * 3, "RGB radiant intensity Y of every light (full range x mm^2 per kappa)")
+    exposures: list = opt([1.0], "exposure factors of the images, cycled over the images in order")
+    supersample: int = opt(2, "sub-pixel rays per pixel side", low=1)
+    noise_dn: float = opt(0.3, "Gaussian sensor noise, 8-bit digital numbers", low=0.0)
+    indirect_samples: int = opt(
+        16, "interreflection paths per sub-sample (concave objects only; 0 = direct only)", low=0
+    )
+    brdf: str = opt("torrance_sparrow", "BRDF of the rendering", ("torrance_sparrow", "ward", "ward_normalised"))
+
+
+@dataclass
 class CaptureConfig:
     """Where the photographs and geometry come from."""
 
     kind: str = opt(
         "synthetic_cylindrical",
         "capture kind",
-        choices=("synthetic_cylindrical", "cylindrical_scan", "photometric_stereo"),
+        choices=(
+            "synthetic_cylindrical",
+            "cylindrical_scan",
+            "photometric_stereo",
+            "mesh_views",
+            "synthetic_mesh_views",
+        ),
     )
     path: str = opt(
         "",
@@ -123,7 +159,10 @@ class CaptureConfig:
         0.995, "fraction of full range at or above which a channel is saturated", low=0.0, high=1.0
     )
     kappa: list = opt([PI, PI, PI], "camera calibration gain per channel (i = kappa * L_o); pi reduces to eq. 2.9")
-    light_subset: Optional[list] = opt(None, "indices of the lights to load (null = all)")
+    light_subset: Optional[list] = opt(None, "indices of the lights to load (null = all; mesh_views: of the images)")
+    texture_size: int = opt(
+        256, "mesh_views: side of the texel atlas, texels (the parameter maps are texture_size x texture_size)", low=16
+    )
 
 
 @dataclass
@@ -345,6 +384,10 @@ class Config:
     threads: int = opt(2, "CPU threads for Embree and torch", low=1)
     capture: CaptureConfig = field(default_factory=CaptureConfig, metadata={"doc": "capture"})
     synthetic: SyntheticConfig = field(default_factory=SyntheticConfig, metadata={"doc": "synthetic scene"})
+    views: MeshViewsConfig = field(
+        default_factory=MeshViewsConfig,
+        metadata={"doc": "synthetic mesh_views scene (capture.kind synthetic_mesh_views)"},
+    )
     geometry: GeometryConfig = field(default_factory=GeometryConfig, metadata={"doc": "geometry"})
     selection: SelectionConfig = field(default_factory=SelectionConfig, metadata={"doc": "light selection"})
     reflectance: ReflectanceConfig = field(default_factory=ReflectanceConfig, metadata={"doc": "reflectance model"})

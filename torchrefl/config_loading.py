@@ -200,7 +200,7 @@ def _validate(cfg, where_of) -> None:
             f"{where_of('capture.light_subset')}: key 'capture.light_subset' is an empty list: it selects "
             "no light; list light indices, or null for all lights"
         )
-    if cfg.capture.kind != "synthetic_cylindrical" and not cfg.capture.path:
+    if not cfg.capture.kind.startswith("synthetic_") and not cfg.capture.path:
         raise ConfigError(
             f"{where_of('capture.kind')}: key 'capture.path' is required for capture.kind '{cfg.capture.kind}'"
         )

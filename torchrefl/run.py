@@ -29,6 +29,9 @@ from torchrefl.report.run_result import RunResult, load_run
 from torchrefl.report.summary import summary_table
 from torchrefl.version import __version__
 
+#: capture kinds rendered by torchrefl into the run folder (no loader of their own: they write a folder a loader reads)
+SYNTHETIC_KINDS = ("synthetic_cylindrical", "synthetic_mesh_views")
+
 
 class RunLog:
     """Writes timestamped lines to log.txt and (unless quiet, or echo=False) to stderr."""
@@ -65,6 +68,10 @@ def _capture(cfg: Config, out: Path, stages: Stages, log) -> tuple[Capture, obje
         from torchrefl.synthetic.capture import synthetic_capture
 
         return synthetic_capture(cfg, out, stages, log)
+    if cfg.capture.kind == "synthetic_mesh_views":
+        from torchrefl.synthetic.views_capture import synthetic_views_capture
+
+        return synthetic_views_capture(cfg, out, stages, log)
     with stages.stage("capture"):
         return loader_for(cfg.capture.kind).load(resolve_path(cfg, cfg.capture.path), cfg, log), None
 
@@ -96,7 +103,7 @@ def run(cfg: Config, quiet: bool = False, overwrite: bool = False) -> dict:
     quiet: no log lines and no progress bars on stderr (log.txt is still written). Log lines go to stderr; the
     summary table only to log.txt (the caller shows it: the command line prints it on stdout)."""
     target = output_folder(cfg.output.dir)
-    if cfg.capture.kind != "synthetic_cylindrical":
+    if cfg.capture.kind not in SYNTHETIC_KINDS:
         loader_for(cfg.capture.kind)  # an unknown kind is refused before the staging folder is made
     staged = StagedRunFolder(target, overwrite)
     log = RunLog(staged.path / "log.txt", quiet=quiet)

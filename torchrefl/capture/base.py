@@ -21,6 +21,7 @@ from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.core.surface import Surface
 from torchrefl.errors import ConfigError
+from torchrefl.geometry.mesh_file import MeshData
 
 Log = Callable[[str], None]
 
@@ -36,6 +37,8 @@ class Capture:
     folder: Path | None = None
     warnings: list[str] = field(default_factory=list)  # what may be wrong with the capture (metrics: capture.warnings)
     untrusted: torch.Tensor | None = None  # (T,) bool: texels not fitted for their geometry (edges, creases, mixed)
+    mesh: MeshData | None = None  # mesh_views: the mesh whose atlas the maps lie on; None for the other kinds
+    mesh_parametrised: bool = False  # the atlas was made by torchrefl (xatlas): the run folder gets the mesh
 
 
 class CaptureLoader(ABC):

@@ -13,6 +13,7 @@ from torchrefl.core.atomic_files import atomic_file, atomic_write_text
 from torchrefl.core.progress import Stages
 from torchrefl.fit.initialise import COVER_UNTRUSTED
 from torchrefl.fit.result import FitResult
+from torchrefl.geometry.mesh_file import write_obj
 from torchrefl.planning.light_selection import SelectionResult
 from torchrefl.report.coverage import specular_sources
 from torchrefl.report.figure import write_figure
@@ -20,9 +21,27 @@ from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference, strict_json
 from torchrefl.version import __version__
 
+MESH = "mesh.obj"  # the mesh the maps lie on, in the run folder when torchrefl made its atlas
 
-def write_params(path: Path, cfg: Config, cap: Capture, res: FitResult) -> None:
-    """params.npz: the estimate and the texel geometry on the texel grid."""
+
+def mesh_of_maps(out: Path, cap: Capture) -> str | None:
+    """params.npz's `mesh`: the mesh whose atlas the maps lie on (mesh_views), None for the other kinds. A mesh
+    whose atlas torchrefl made (xatlas) is written into the run folder as mesh.obj; a mesh inside the run folder
+    (a synthetic capture) is named relative to it, any other by its absolute path."""
+    if cap.mesh is None:
+        return None
+    if cap.mesh_parametrised:
+        write_obj(out / MESH, cap.mesh)
+        return MESH
+    source = Path(cap.mesh.source).resolve()
+    try:
+        return source.relative_to(out.resolve()).as_posix()
+    except ValueError:
+        return str(source)
+
+
+def write_params(path: Path, cfg: Config, cap: Capture, res: FitResult, mesh: str | None = None) -> None:
+    """params.npz: the estimate and the texel geometry on the texel grid (with `mesh`, the mesh it lies on)."""
     surface, obs = cap.surface, cap.obs
     grid = lambda x, fill=0.0: surface.to_grid(x, fill=fill)
     with atomic_file(path) as fh:
@@ -42,6 +61,7 @@ def write_params(path: Path, cfg: Config, cap: Capture, res: FitResult) -> None:
             units=np.array(surface.units),
             diffuse=np.array(res.diffuse.model),
             minnaert_k=np.array(res.diffuse.k),
+            **({"mesh": np.array(mesh)} if mesh is not None else {}),
         )
 
 
@@ -109,7 +129,7 @@ def write_outputs(
     surface, obs = cap.surface, cap.obs
     grid = lambda x, fill=0.0: surface.to_grid(x, fill=fill)
     with stages.stage("outputs"):
-        write_params(out / "params.npz", cfg, cap, res)
+        write_params(out / "params.npz", cfg, cap, res, mesh_of_maps(out, cap))
         metrics = metrics_of(cfg, cap, res, selection, device)
         maps = out / "maps"
         mask = surface.to_grid(res.estimated.numpy(), fill=False)

@@ -168,16 +168,58 @@ class FoldMaterials:
         region = np.where(plate == 0, np.where(x < self.cuts[0], 0, 1), np.where(x < self.cuts[1], 2, 3))
         band = (plate == 0) & (a >= self.band[0]) & (a < self.band[1]) & (x >= self.band_x[0]) & (x < self.band_x[1])
         region = np.where(band, 4, region)
-        pd = np.array([p[0] for p in _GLOSSY_PAPERS])[region]
-        ps = np.array([p[1] for p in _GLOSSY_PAPERS])[region]
-        sigma = np.array([p[2] for p in _GLOSSY_PAPERS])[region]
         ph = self.phase
-        pd = pd * (1 + 0.15 * np.sin(2 * np.pi * 1.5 * x + ph[0]) * np.cos(np.pi * a))[:, None]
-        ps = ps * (1 + 0.15 * np.sin(2 * np.pi * x + ph[1]) * np.cos(np.pi * 1.2 * a + ph[2]))
-        sigma = sigma * (1 + 0.15 * np.cos(2 * np.pi * x + ph[2]) * np.sin(np.pi * a + ph[0]))
-        return {
-            "pd": pd.astype(np.float64),
-            "ps": np.repeat(ps[:, None], 3, axis=1).astype(np.float64),
-            "sigma": sigma.astype(np.float64),
-            "region": region.astype(np.int64),
-        }
+        return _varied_papers(
+            region,
+            1 + 0.15 * np.sin(2 * np.pi * 1.5 * x + ph[0]) * np.cos(np.pi * a),
+            1 + 0.15 * np.sin(2 * np.pi * x + ph[1]) * np.cos(np.pi * 1.2 * a + ph[2]),
+            1 + 0.15 * np.cos(2 * np.pi * x + ph[2]) * np.sin(np.pi * a + ph[0]),
+        )
+
+
+def _varied_papers(region: np.ndarray, pd_factor, ps_factor, sigma_factor) -> dict:
+    """The material dict of _GLOSSY_PAPERS[region] (N,) with Pd, Ps and sigma scaled by the factors (N,)."""
+    pd = np.array([p[0] for p in _GLOSSY_PAPERS])[region] * pd_factor[:, None]
+    ps = np.array([p[1] for p in _GLOSSY_PAPERS])[region] * ps_factor
+    sigma = np.array([p[2] for p in _GLOSSY_PAPERS])[region] * sigma_factor
+    return {
+        "pd": pd.astype(np.float64),
+        "ps": np.repeat(ps[:, None], 3, axis=1).astype(np.float64),
+        "sigma": sigma.astype(np.float64),
+        "region": region.astype(np.int64),
+    }
+
+
+class AtlasMaterials:
+    """Non-uniform glossy papers (_GLOSSY_PAPERS) as a function of atlas coordinates (u, v) in [0, 1]^2.
+
+    Four column sectors (borders at random multiples of 1/16 in u), a band of a fifth paper over rows
+    v_band (multiples of 1/16 within `v_range`) and part of the columns, and a smooth variation (+-15 % Pd,
+    Ps and sigma) periodic in u (a closed chart's seam, u = 0 and u = 1, joins smoothly). Region borders on the
+    1/16 grid lie on texel edges of any atlas of 16 x 2^k texels, so every texel has one true value.
+    Deterministic in `seed`; regions 0-4 index _GLOSSY_PAPERS.
+    """
+
+    def __init__(self, seed: int = 0, v_range: tuple = (0.0, 1.0)):
+        rng = np.random.default_rng([seed, 0xA7])
+        self.cuts = np.sort(rng.choice(np.arange(1, 16), size=3, replace=False)) / 16.0
+        lo, hi = int(np.ceil(v_range[0] * 16)), int(np.floor(v_range[1] * 16))
+        start = int(rng.integers(lo + 1, max(lo + 2, hi - 3)))
+        self.band = (start / 16.0, min(start + 2, hi - 1) / 16.0)
+        first = int(rng.integers(0, 6))
+        self.band_u = (first / 16.0, (first + int(rng.integers(6, 10))) / 16.0)
+        self.phase = rng.uniform(0, 2 * np.pi, size=3)
+
+    def __call__(self, u: np.ndarray, v: np.ndarray) -> dict:
+        """u, v: (N,) atlas coordinates. Returns pd, ps (N, 3), sigma, region (N,)."""
+        u, v = np.mod(np.asarray(u, dtype=np.float64), 1.0), np.asarray(v, dtype=np.float64)
+        region = np.searchsorted(self.cuts, u, side="right")
+        band = (v >= self.band[0]) & (v < self.band[1]) & (u >= self.band_u[0]) & (u < self.band_u[1])
+        region = np.where(band, 4, region)
+        ph, a, b = self.phase, 2 * np.pi * u, np.pi * v
+        return _varied_papers(
+            region,
+            1 + 0.15 * np.sin(2 * a + ph[0]) * np.cos(b),
+            1 + 0.15 * np.sin(a + ph[1]) * np.cos(1.5 * b + ph[2]),
+            1 + 0.15 * np.cos(a + ph[2]) * np.sin(2 * b + ph[0]),
+        )
