@@ -136,7 +136,8 @@ def write_outputs(
         estimate = (grid(res.pd.double().numpy()), grid(res.ps.double().numpy()), grid(res.sigma.double().numpy()))
         coverage = grid(res.coverage.numpy())
         metrics["maps"] = write_parameter_maps(maps, mask, *estimate, coverage, cfg.reflectance.sigma_max)
-        title = f"{out.name}: model {res.level}, brdf {cfg.reflectance.brdf}"
+        # the run folder's name: `out` is its staging folder
+        title = f"{Path(cfg.output.dir).name}: model {res.level}, brdf {cfg.reflectance.brdf}"
         write_figure(maps / "figure.png", *estimate, mask, coverage, cfg.reflectance.sigma_max, title)
         k = min(cfg.output.map_lights, obs.num_lights)
         for p in np.linspace(0, obs.num_lights - 1, k).round().astype(int) if k else []:
