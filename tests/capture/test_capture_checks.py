@@ -7,9 +7,9 @@ import shutil
 import numpy as np
 import pytest
 import yaml
+
 from capture.test_cylindrical_scan import small_cfg
 from capture.test_photometric_stereo import make_folder
-
 from torchrefl.capture.cylindrical_scan import CylindricalScanLoader
 from torchrefl.capture.images import read_image, write_png
 from torchrefl.capture.photometric_stereo import PhotometricStereoLoader

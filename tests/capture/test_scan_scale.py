@@ -8,8 +8,8 @@ import shutil
 import numpy as np
 import pytest
 import yaml
-from capture.test_capture_checks import config
 
+from capture.test_capture_checks import config
 from torchrefl.capture.cylindrical_scan import CylindricalScanLoader, load_scan_geometry
 from torchrefl.capture.scan_scale import head_distances
 from torchrefl.config import LightGridConfig, SyntheticConfig
