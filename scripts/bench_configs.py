@@ -5,8 +5,8 @@ the wall time, the run's own stage timings (metrics.json `timing_s`) and the mac
 runs use, load average before the run, torch and Python versions), and writes a markdown table,
 docs/results/timings.md by default. Run it alone on the machine: other jobs on the same cores change every number.
 
-    python scripts/bench_configs.py                       # default, quick, diligent_ball (a few minutes)
-    python scripts/bench_configs.py --all                 # also concave and fold (about ten minutes each)
+    python scripts/bench_configs.py                       # default, quick, diligent_ball, mesh_views (minutes)
+    python scripts/bench_configs.py --all                 # also concave, fold, mesh_views_concave (long)
     python scripts/bench_configs.py --configs quick --set synthetic.rows=32 --out /tmp/timings.md   # a smoke test
 
 diligent_ball needs the DiLiGenT ball folder (not shipped with torchrefl): --ball PATH, by default
@@ -33,10 +33,10 @@ import torchrefl
 from torchrefl.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
-FIRST = ["default", "quick", "diligent_ball"]
+FIRST = ["default", "quick", "diligent_ball", "mesh_views"]
 #: how the tables show the ball's folder (the README's placeholder, not this machine's path)
 BALL_SHOWN = "capture.path=/path/to/DiLiGenT/pmsData/ballPNG"
-LONG = ["concave", "fold"]
+LONG = ["concave", "fold", "mesh_views_concave"]
 SHARED_BALL = ROOT / ".." / "shared" / "data" / "diligent_ball"
 
 
