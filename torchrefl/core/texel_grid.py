@@ -54,10 +54,16 @@ class TexelGrid:
     def pairs(self, offsets=((0, 1), (1, 0))) -> np.ndarray:
         """(E, 2) int64 pairs (t, t') of texels with t' at one of the offsets from t, offset by offset, each in
         texel order (default: right and down neighbours, every adjacent pair once)."""
-        t = np.arange(len(self.index))
-        out = []
-        for dy, dx in offsets:
-            other = self.neighbour(t, dy, dx)
-            ok = other >= 0
-            out.append(np.stack([t[ok], other[ok]], 1))
-        return np.concatenate(out) if out else np.zeros((0, 2), dtype=np.int64)
+        return offset_pairs(self, len(self.index), offsets)
+
+
+def offset_pairs(neighbours, num_texels: int, offsets) -> np.ndarray:
+    """(E, 2) int64 pairs (t, neighbours.neighbour(t, dy, dx)) for each (dy, dx) of offsets in turn, texels in order,
+    where the neighbour exists: the pairs of any neighbour structure with a `neighbour` method."""
+    t = np.arange(num_texels)
+    out = []
+    for dy, dx in offsets:
+        other = neighbours.neighbour(t, dy, dx)
+        ok = other >= 0
+        out.append(np.stack([t[ok], other[ok]], 1))
+    return np.concatenate(out) if out else np.zeros((0, 2), dtype=np.int64)

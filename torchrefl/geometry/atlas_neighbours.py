@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from torchrefl.core.texel_grid import grid_flat
+from torchrefl.core.texel_grid import grid_flat, offset_pairs
 
 # Unit grid steps (dy, dx): right, down, left, up; the column of AtlasNeighbours.step.
 DIRECTIONS = ((0, 1), (1, 0), (0, -1), (-1, 0))
@@ -228,10 +228,4 @@ class AtlasNeighbours:
         neighbour(t, dy, dx)) for each offset in turn, texels in order, where the neighbour exists."""
         if tuple(map(tuple, offsets)) == ((0, 1), (1, 0)):
             return self.edges
-        t = np.arange(self.num_texels)
-        out = []
-        for dy, dx in offsets:
-            other = self.neighbour(t, dy, dx)
-            ok = other >= 0
-            out.append(np.stack([t[ok], other[ok]], 1))
-        return np.concatenate(out) if out else np.zeros((0, 2), dtype=np.int64)
+        return offset_pairs(self, self.num_texels, offsets)
