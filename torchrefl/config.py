@@ -190,11 +190,40 @@ class GeometryConfig:
 
 
 @dataclass
+class WorldLightsConfig:
+    """Candidate light positions in world coordinates for mesh_views plans (planning.world_candidates)."""
+
+    layout: str = opt(
+        "dome",
+        "candidates: dome (rings of elevation x azimuth about the centre), gantry (selection.grid's nodes on the "
+        "gantry plane) or file (the positions in `file`)",
+        choices=("dome", "gantry", "file"),
+    )
+    file: str = opt("", "layout file: JSON/YAML list of [x, y, z] or {name: [x, y, z] | {position: ...}} positions, mm")
+    centre_mm: Optional[list] = opt(None, "centre [x, y, z] of the dome, mm; null = the mesh's bounding-box centre")
+    radius_mm: float = opt(350.0, "dome radius about the centre, mm", low=1.0)
+    elevations_deg: list = opt([-30.0, 0.0, 30.0, 60.0], "dome ring elevations (towards +y), deg")
+    azimuths: int = opt(12, "dome candidates per ring, evenly spaced in azimuth (from +z towards +x)", low=1)
+    gantry_origin_mm: Optional[list] = opt(
+        None, "world [x, y, z] of the gantry's lateral 0, vertical 0, mm; null = radius_mm along +z from the centre"
+    )
+    gantry_lateral: list = opt([1.0, 0.0, 0.0], "world unit vector of the gantry's lateral axis (unitless)")
+    gantry_vertical: list = opt([0.0, 1.0, 0.0], "world unit vector of the gantry's vertical axis (unitless)")
+
+
+@dataclass
 class SelectionConfig:
     """Automatic light-position selection (dissertation Ch.2)."""
 
     enabled: bool = opt(True, "select lights among the candidates (synthetic captures render only those)")
-    grid: LightGridConfig = field(default_factory=LightGridConfig, metadata={"doc": "candidate light grid"})
+    grid: LightGridConfig = field(
+        default_factory=LightGridConfig,
+        metadata={"doc": "candidate light grid (mesh_views: the gantry layout's nodes, lateral x vertical)"},
+    )
+    world: WorldLightsConfig = field(
+        default_factory=WorldLightsConfig,
+        metadata={"doc": "mesh_views: candidate light positions in world coordinates"},
+    )
     stop_ratio: float = opt(
         0.8, "th1: stop when specular coverage reaches this fraction of the all-candidates coverage", low=0.0, high=1.0
     )

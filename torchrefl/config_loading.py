@@ -212,7 +212,7 @@ def _validate(cfg, where_of) -> None:
 
 
 #: keys holding paths: relative in a file = relative to the file; on the command line = to the current folder
-PATH_KEYS = ("capture.path",)
+PATH_KEYS = ("capture.path", "selection.world.file")
 
 
 def override_where(text: str) -> str:

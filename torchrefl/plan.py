@@ -1,10 +1,17 @@
 """python -m torchrefl.plan CONFIG [dotted.key=value ...] [--out FILE.json | FOLDER] [--overwrite] [--quiet]
 
-Light selection without a fit: the config's object is scanned (its synthetic stand-in: range image only, no
-texture is rendered), the lights of `selection` are chosen on the light grid `selection.grid` exactly as a
-synthetic run with selection.enabled chooses them, and the capture plan the rig runs
-(`python -m torchrefl.rig capture --plan FILE`) is written with its coverage figure. CONFIG is a YAML file or
-the name of a bundled config. Exit status: 0 done, 2 a named error, 130 interrupted.
+Light selection without a fit, and the capture plan the rig runs (`python -m torchrefl.rig capture --plan FILE`)
+written with its coverage figure. CONFIG is a YAML file or the name of a bundled config.
+
+- synthetic_cylindrical: the config's object is scanned (its synthetic stand-in: range image only, no texture is
+  rendered) and the lights of `selection` are chosen on the light grid `selection.grid` exactly as a synthetic run
+  with selection.enabled chooses them;
+- mesh_views (capture.path: a folder with the mesh and cameras.json, no photographs needed) and
+  synthetic_mesh_views (the `views` scene's mesh and cameras, nothing rendered): the lights are chosen among the
+  world candidates of `selection.world` over all the cameras' views (planning.views_selection), and the plan
+  lists per image a camera and a light.
+
+Exit status: 0 done, 2 a named error, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -15,23 +22,30 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from torchrefl.config import Config, load_config
+from torchrefl.config import Config, load_config, resolve_path
 from torchrefl.core.progress import Stages
 from torchrefl.errors import ConfigError, OutputError, command_status
 from torchrefl.planning.capture_plan import FIGURE_FILE, PLAN_FILE, PlanFiles, choose_lights, selection_line, write_plan
 from torchrefl.planning.light_selection import SelectionResult
+from torchrefl.planning.views_inputs import read_plan_inputs
+from torchrefl.planning.views_selection import ViewsSelection, select_for_views
+from torchrefl.planning.world_candidates import world_candidates
 from torchrefl.synthetic.capture import stand_in_geometry
+from torchrefl.synthetic.mesh_views import build_scene, write_geometry
 
 #: where the plan goes without --out: this folder, beside the current one
 DEFAULT_OUT = "plan"
+#: the capture kinds a plan can be made for
+PLANNED_KINDS = ("synthetic_cylindrical", "mesh_views", "synthetic_mesh_views")
 
 
 @dataclass(frozen=True)
 class CapturePlan:
-    """A light selection and the files it was written to."""
+    """A light selection and the files it was written to; views: the mesh_views selection (None for a scan)."""
 
     selection: SelectionResult
     files: PlanFiles
+    views: ViewsSelection | None = None
 
 
 def plan_files(out: str | Path) -> PlanFiles:
@@ -45,12 +59,13 @@ def plan_files(out: str | Path) -> PlanFiles:
 
 
 def plan_capture(cfg: Config, out: str | Path = DEFAULT_OUT, overwrite: bool = False, log=print) -> CapturePlan:
-    """Choose the lights of `cfg` for its synthetic stand-in and write the plan; an existing plan file is an
-    OutputError unless `overwrite`."""
-    if cfg.capture.kind != "synthetic_cylindrical":
+    """Choose the lights of `cfg` for its synthetic stand-in or its mesh_views folder and write the plan; an
+    existing plan file is an OutputError unless `overwrite`."""
+    if cfg.capture.kind not in PLANNED_KINDS:
         raise ConfigError(
-            f"capture.kind: '{cfg.capture.kind}' has no geometry stand-in to plan on; the plan command needs "
-            "capture.kind synthetic_cylindrical (describe the object with the synthetic section)"
+            f"capture.kind: '{cfg.capture.kind}' has no geometry to plan on; the plan command needs capture.kind "
+            "synthetic_cylindrical (the synthetic section's object), mesh_views (a folder with the mesh and "
+            "cameras.json) or synthetic_mesh_views (the views section's scene)"
         )
     files = plan_files(out)
     if files.plan.exists() and not overwrite:
@@ -58,12 +73,35 @@ def plan_capture(cfg: Config, out: str | Path = DEFAULT_OUT, overwrite: bool = F
     if files.plan.parent.exists() and not files.plan.parent.is_dir():
         raise OutputError(f"{files.plan.parent}: is a file; expected a folder for the plan")
     stages = Stages(log)
+    if cfg.capture.kind != "synthetic_cylindrical":
+        return _plan_views(cfg, files, stages, log)
     with tempfile.TemporaryDirectory(prefix="torchrefl-plan-") as tmp:
         scan, geometry, _ = stand_in_geometry(cfg, Path(tmp), stages, log)
         with stages.stage("light selection"):
             selection = choose_lights(cfg, geometry, scan.candidate_positions())
             files = write_plan(selection, files.plan, files.figure)
     return CapturePlan(selection, files)
+
+
+def _plan_views(cfg: Config, files: PlanFiles, stages: Stages, log) -> CapturePlan:
+    """plan_capture for mesh_views: the folder's (or the synthetic scene's) mesh and cameras, no photograph."""
+    with tempfile.TemporaryDirectory(prefix="torchrefl-plan-") as tmp:
+        with stages.stage("geometry"):
+            if cfg.capture.kind == "synthetic_mesh_views":
+                folder = Path(tmp)
+                write_geometry(folder, build_scene(cfg.views, cfg.seed))
+            else:
+                folder = resolve_path(cfg, cfg.capture.path)
+            inputs = read_plan_inputs(folder, cfg.capture.texture_size, cfg.torch_dtype)
+            s = inputs.geometry.surface
+            log(f"surface: {s.num_texels} texels on the atlas; {len(inputs.cameras)} cameras")
+        candidates = world_candidates(
+            cfg.selection.world, cfg.selection.grid, inputs.geometry.mesh.vertices, cfg.config_dir
+        )
+        with stages.stage("light selection"):
+            views = select_for_views(inputs.cameras, inputs.geometry, candidates, cfg, cfg.threads)
+            files = write_plan(views.selection, files.plan, files.figure, views.to_json())
+    return CapturePlan(views.selection, files, views)
 
 
 def main(argv=None) -> int:
@@ -88,7 +126,8 @@ def main(argv=None) -> int:
         result = plan_capture(load_config(args.config, args.overrides), args.out, args.overwrite, log)
         files = result.files
         print(selection_line(result.selection))
-        print(f"plan: {files.plan} ({len(result.selection.chosen)} lights); coverage figure: {files.figure}")
+        images = f", {len(result.views.images)} images" if result.views is not None else ""
+        print(f"plan: {files.plan} ({len(result.selection.chosen)} lights{images}); coverage figure: {files.figure}")
         print(f"capture it: python -m torchrefl.rig capture --plan {files.plan} --out CAPTURE_FOLDER")
         return 0
 

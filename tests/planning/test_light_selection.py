@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from torchrefl.errors import ConfigError
-from torchrefl.planning.light_selection import coverage_figure, greedy_select, measurability, plot_coverage
+from torchrefl.planning.light_selection import (
+    Measurability,
+    coverage_figure,
+    greedy_select,
+    measurability,
+    plot_coverage,
+)
 
 
 def test_measurability_thresholds():
@@ -39,12 +45,12 @@ def toy():
         ],
         dtype=bool,
     )
-    return D, S, np.ones(6, dtype=bool)
+    return Measurability(D, S, np.ones(6, dtype=bool))
 
 
 def test_greedy_picks_max_gain_and_stops_at_full_coverage():
-    D, S, seen = toy()
-    r = greedy_select(D, S, seen, stop_ratio=1.0, max_lights=10)
+    m = toy()
+    r = greedy_select(m, stop_ratio=1.0, max_lights=10)
     assert r.chosen[0] == 2 and r.roles[0] == "diffuse"  # covers all 6 texels diffusely
     assert r.chosen[1] == 4 and r.roles[1] == "specular"  # 5 texels need specular, light 4 gives 5
     assert r.all_diffuse == 1.0
@@ -55,31 +61,31 @@ def test_greedy_picks_max_gain_and_stops_at_full_coverage():
 
 
 def test_stop_ratio_stops_early():
-    D, S, seen = toy()
-    full = greedy_select(D, S, seen, stop_ratio=1.0)
-    early = greedy_select(D, S, seen, stop_ratio=0.01)
+    m = toy()
+    full = greedy_select(m, stop_ratio=1.0)
+    early = greedy_select(m, stop_ratio=0.01)
     assert len(early.chosen) <= len(full.chosen)
     assert early.specular_curve[-1] >= 0.01 * early.all_specular
 
 
 def test_num_lights_forces_the_count():
-    D, S, seen = toy()
-    r = greedy_select(D, S, seen, num_lights=5)
+    m = toy()
+    r = greedy_select(m, num_lights=5)
     assert sorted(r.chosen) == [0, 1, 2, 3, 4]
     with pytest.raises(ConfigError, match="selection.num_lights"):
-        greedy_select(D, S, seen, num_lights=9)
+        greedy_select(m, num_lights=9)
 
 
 def test_unseen_texels_do_not_count():
-    D, S, seen = toy()
-    seen[5] = False
-    r = greedy_select(D, S, seen, stop_ratio=1.0)
+    m = toy()
+    m.seen[5] = False
+    r = greedy_select(m, stop_ratio=1.0)
     assert r.seen_texels == 5 and r.all_diffuse == 1.0
 
 
 def test_plot_and_table(tmp_path):
-    D, S, seen = toy()
-    r = greedy_select(D, S, seen, stop_ratio=1.0)
+    m = toy()
+    r = greedy_select(m, stop_ratio=1.0)
     plot_coverage(r, tmp_path / "c.png")
     assert (tmp_path / "c.png").stat().st_size > 1000
     t = r.table()
@@ -89,8 +95,8 @@ def test_plot_and_table(tmp_path):
 def test_the_coverage_figure_marks_each_pick_and_keeps_its_legend_inside(tmp_path):
     import matplotlib
 
-    D, S, seen = toy()
-    r = greedy_select(D, S, seen, stop_ratio=1.0)
+    m = toy()
+    r = greedy_select(m, stop_ratio=1.0)
     backend = matplotlib.get_backend()
     matplotlib.use("svg")  # a backend other than the Agg a file writer might pick
     try:

@@ -1,5 +1,6 @@
 """A light selection as a capture plan: the lights chosen for a config, written as the plan file the rig runs
-(`selection.json`, read by torchrefl.rig.plan.load_plan through its `positions_mm`) and the coverage figure.
+(`selection.json`, read by torchrefl.rig.plan.load_plan: a scan's head-frame `positions_mm`, or a mesh_views
+plan's `lights` and `images`, planning.views_selection) and the coverage figure.
 
 A synthetic run with selection.enabled (torchrefl.synthetic.capture) and the plan command (torchrefl.plan) both
 choose and write through here, so the two give the same lights for the same config.
@@ -35,13 +36,14 @@ def choose_lights(cfg: Config, geometry, candidates: np.ndarray) -> SelectionRes
     return select_for_scan(geometry, candidates, cfg.selection, cfg.reflectance, cfg.geometry.shadow_offset_mm)
 
 
-def write_plan(selection: SelectionResult, plan: Path, figure: Path) -> PlanFiles:
-    """Write the selection as a plan file (whole or not at all) and its coverage figure; the folders are made."""
+def write_plan(selection: SelectionResult, plan: Path, figure: Path, doc: dict | None = None) -> PlanFiles:
+    """Write the selection as a plan file (whole or not at all) and its coverage figure; the folders are made.
+    doc: the plan file's document (default: selection.to_json(); a mesh_views plan's ViewsSelection.to_json())."""
     plan, figure = Path(plan), Path(figure)
     plan.parent.mkdir(parents=True, exist_ok=True)
     figure.parent.mkdir(parents=True, exist_ok=True)
     with atomic_file(plan) as fh:
-        fh.write(json.dumps(selection.to_json(), indent=2).encode("utf-8"))
+        fh.write(json.dumps(selection.to_json() if doc is None else doc, indent=2).encode("utf-8"))
     plot_coverage(selection, figure)
     return PlanFiles(plan, figure)
 

@@ -10,13 +10,15 @@ with theta the half-angle of eq. 2.15. With lights near the camera the half-angl
 dissertation's literal definition (the conference papers' view-to-mirror angle gave the seed its
 near-100 % diffuse coverage).
 A texel is covered diffusely once it has one diffuse-only observation and specularly once it
-has two strong-specular observations (eq. 3.5 needs two). Greedy selection: each round adds
-the candidate that covers the most still-uncovered texels diffusely (while diffuse coverage
-is below what all candidates reach) and the one that adds the most strong-specular
-observations to texels that still need them (the seed's max D_p / max S_q). Selection stops
-when diffuse coverage equals the all-candidates value and specular coverage reaches th1
-(stop_ratio, 80 %) of the all-candidates value, or at max_lights; num_lights forces a count.
-Coverage is over the texels the camera sees.
+has two strong-specular observations (eq. 3.5 needs two). A candidate's Measurability counts, per
+texel, the observations of each class it gives: 0 or 1 on the scan (one camera), up to the number
+of cameras on mesh_views (planning.views_selection: one observation per camera that sees the texel).
+Greedy selection: each round adds the candidate that covers the most still-uncovered texels
+diffusely (while diffuse coverage is below what all candidates reach) and the one that adds the
+most strong-specular observations to texels that still need them (at most the two each needs; the
+seed's max D_p / max S_q). Selection stops when diffuse coverage equals the all-candidates value
+and specular coverage reaches th1 (stop_ratio, 80 %) of the all-candidates value, or at
+max_lights; num_lights forces a count. Coverage is over the texels some camera sees.
 """
 
 from __future__ import annotations
@@ -84,20 +86,30 @@ def measurability(
     return diffuse, specular
 
 
+@dataclass(frozen=True)
+class Measurability:
+    """What each of P candidate lights gives T texels: diffuse, specular (P, T) the number of diffuse-only
+    (eq. 2.20) and strong-specular (eq. 2.21) observations (bool masks count 0 / 1); seen (T,) bool, the texels
+    some camera sees (coverage is a fraction of these)."""
+
+    diffuse: np.ndarray
+    specular: np.ndarray
+    seen: np.ndarray
+
+
 def greedy_select(
-    diffuse: np.ndarray,
-    specular: np.ndarray,
-    seen: np.ndarray,
+    measured: Measurability,
     stop_ratio: float = 0.8,
     max_lights: int = 20,
     num_lights: int | None = None,
 ) -> SelectionResult:
-    """Greedy max-D / max-S selection over candidate masks (P, T) restricted to seen texels (T,)."""
-    P = diffuse.shape[0]
+    """Greedy max-D / max-S selection over the candidates' observation counts, restricted to the seen texels."""
+    seen = np.asarray(measured.seen, dtype=bool)
+    P = measured.diffuse.shape[0]
     if num_lights is not None and not (1 <= num_lights <= P):
         raise ConfigError(f"selection.num_lights = {num_lights} must be between 1 and the {P} candidates")
-    Dm = diffuse[:, seen].astype(np.float32)
-    Sm = specular[:, seen].astype(np.float32)
+    Dm = np.asarray(measured.diffuse)[:, seen].astype(np.float32)
+    Sm = np.asarray(measured.specular)[:, seen].astype(np.float32)
     n = max(int(seen.sum()), 1)
     all_d = float((Dm.sum(0) >= 1).sum()) / n
     all_s = float((Sm.sum(0) >= 2).sum()) / n
@@ -121,8 +133,9 @@ def greedy_select(
         scurve.append(sc)
 
     def pick(role: str) -> bool:
-        need = (d_count < 1) if role == "diffuse" else (s_count < 2)
-        gain = (Dm if role == "diffuse" else Sm) @ need.astype(np.float32)
+        # observations that count: up to what each texel still needs (1 diffuse-only, 2 strong-specular)
+        need = np.maximum(1.0 - d_count, 0.0) if role == "diffuse" else np.maximum(2.0 - s_count, 0.0)
+        gain = np.minimum(Dm if role == "diffuse" else Sm, need[None]).sum(1)
         gain = np.where(available, gain, -1.0)
         p = int(np.argmax(gain))
         if gain[p] <= 0:
@@ -217,7 +230,10 @@ def select_for_scan(
     measurable = og["seen"][None] & (og["cos_l"] > 0) & ~og["shadowed"]
     dmask, smask = measurability(th, measurable, reflectance_cfg.theta_diffuse_deg, reflectance_cfg.theta_specular_deg)
     sel = greedy_select(
-        dmask, smask, og["seen"], selection_cfg.stop_ratio, selection_cfg.max_lights, selection_cfg.num_lights
+        Measurability(dmask, smask, og["seen"]),
+        selection_cfg.stop_ratio,
+        selection_cfg.max_lights,
+        selection_cfg.num_lights,
     )
     sel.positions = np.asarray(candidates)
     return sel

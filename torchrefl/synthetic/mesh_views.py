@@ -162,6 +162,17 @@ def _write_json(path: Path, doc: dict) -> None:
     path.write_text(json.dumps(doc, indent=2) + "\n")
 
 
+def write_geometry(folder, scene: MeshViewsScene) -> str:
+    """Write what a folder holds before any photograph: the mesh (write_mesh), scene.yaml and cameras.json;
+    returns the mesh file's name (a light plan needs no more: torchrefl.plan)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    mesh_file = write_mesh(folder, scene.object)
+    (folder / "scene.yaml").write_text(yaml.safe_dump({"units": "mm"}))
+    _write_json(folder / "cameras.json", {c.name: c.to_json() for c in scene.cameras})
+    return mesh_file
+
+
 def write_capture(
     folder,
     cfg: MeshViewsConfig,
@@ -204,9 +215,7 @@ def write_scene(
     scene's), its truth on a texture_size^2 atlas; progress: called with (done, total) images."""
     folder = Path(folder)
     (folder / "images").mkdir(parents=True, exist_ok=True)
-    mesh_file = write_mesh(folder, scene.object)
-    (folder / "scene.yaml").write_text(yaml.safe_dump({"units": "mm"}))
-    _write_json(folder / "cameras.json", {c.name: c.to_json() for c in scene.cameras})
+    mesh_file = write_geometry(folder, scene)
     _write_json(folder / "lights.json", {light.name: light.to_json() for light in scene.lights})
     lights = {light.name: light for light in scene.lights}
     done = 0
