@@ -1,11 +1,14 @@
 """A dry run: the fake GRBL device on a pseudo-terminal and a simulated camera rendering the
-synthetic object of a fitting config (torchrefl.synthetic.scan.SyntheticScan), so that a
-capture writes real texture images and a folder `python -m torchrefl.train` can fit."""
+synthetic object of a fitting config (torchrefl.synthetic.scan.SyntheticScan, or for a config of
+capture.kind synthetic_mesh_views its `views` scene: ViewsDryScene), so that a capture writes real
+images and a folder `python -m torchrefl.train` can fit."""
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+
+import numpy as np
 
 from torchrefl.errors import RigError
 from torchrefl.rig.camera import SimulatedCamera
@@ -13,17 +16,80 @@ from torchrefl.rig.fake_grbl import FakeGrbl
 from torchrefl.rig.settings import RigSettings
 
 
+class ViewsDryScene:
+    """The `views` scene of a synthetic_mesh_views config for a dry run: its mesh and cameras written into the
+    capture folder (with scene.yaml and the truth on the capture.texture_size atlas), one image rendered per
+    (light world position, camera) by the scene's renderer at exposure 1. grid: the config's selection.grid (the
+    gantry layout's nodes); light_intensity: the scene's."""
+
+    #: the file whose presence says the folder's geometry is already written
+    marker = "cameras.json"
+
+    def __init__(self, cfg):
+        from torchrefl.synthetic.mesh_views import build_scene
+        from torchrefl.synthetic.views_render import ViewsRenderer
+
+        v = cfg.views
+        self.cfg = cfg
+        self.scene = build_scene(v, cfg.seed)
+        self.grid = cfg.selection.grid
+        self.light_intensity = np.asarray(v.light_intensity, dtype=np.float64)
+        self.renderer = ViewsRenderer(
+            self.scene.object,
+            brdf=v.brdf,
+            kappa=cfg.capture.kappa,
+            supersample=v.supersample,
+            indirect_samples=v.indirect_samples,
+            noise_dn=v.noise_dn,
+            seed=cfg.seed,
+            threads=cfg.threads,
+        )
+        self.rendered = 0
+
+    def write_geometry(self, folder) -> Path:
+        from torchrefl.synthetic.mesh_views import truth_on_atlas, write_geometry
+
+        folder = Path(folder)
+        mesh_file = write_geometry(folder, self.scene)
+        truth = truth_on_atlas(self.scene.object, folder / mesh_file, self.cfg.capture.texture_size)
+        np.savez(folder / "truth.npz", **truth, brdf=self.renderer.brdf)
+        return folder
+
+    def render_texture(self, position_mm, camera: str) -> np.ndarray:
+        """(H, W, 3) uint16 image of `camera` under a point light at world position_mm (3,)."""
+        from torchrefl.synthetic.views_layout import ViewLight
+
+        names = [c.name for c in self.scene.cameras]
+        if camera not in names:
+            raise RigError(f"dry run: the plan names camera {camera!r}, the scene has {', '.join(names)}")
+        k = names.index(camera)
+        cam = self.scene.cameras[k]
+        light = ViewLight("rig", np.asarray(position_mm, dtype=np.float64), self.light_intensity)
+        view = self.renderer.radiance(cam, [light], camera_index=k)
+        values = view.values[0].reshape(cam.height, cam.width, 3)
+        image = self.renderer.sensor(values, view.covered.reshape(cam.height, cam.width), 1.0, self.rendered)
+        self.rendered += 1
+        return image
+
+
 def synthetic_scene(config=None, overrides=()):
-    """SyntheticScan of a fitting config (its `synthetic`, `selection.grid`, `seed`, `capture.kappa`)."""
+    """SyntheticScan of a fitting config (its `synthetic`, `selection.grid`, `seed`, `capture.kappa`), or its
+    ViewsDryScene when its capture.kind is synthetic_mesh_views."""
     from torchrefl.config import load_config
     from torchrefl.synthetic.scan import SyntheticScan
 
     cfg = load_config(config, list(overrides))
+    if cfg.capture.kind == "synthetic_mesh_views":
+        return ViewsDryScene(cfg)
     return SyntheticScan(cfg.synthetic, cfg.selection.grid, seed=cfg.seed, kappa=cfg.capture.kappa, threads=cfg.threads)
 
 
 def match_grid(settings: RigSettings, scan) -> RigSettings:
-    """Rig settings whose light grid and radial distance are the synthetic scene's."""
+    """Rig settings whose light grid and radial distance are the synthetic scene's (and for a mesh_views scene
+    its lights' intensity)."""
+    if isinstance(scan, ViewsDryScene):
+        light = dataclasses.replace(settings.light, intensity=[float(v) for v in scan.light_intensity])
+        settings = dataclasses.replace(settings, light=light)
     g = scan.grid
     grid = dataclasses.replace(
         settings.grid,
@@ -53,9 +119,10 @@ def fake_device_for(settings: RigSettings, time_scale: float = 0.01) -> FakeGrbl
 
 
 def prepare_folder(scan, out) -> Path:
-    """Write the scene's scan.yaml, range.npy, truth.npz into out (unless scan.yaml is already there)."""
+    """Write the scene's geometry into out (scan.yaml, range.npy, truth.npz; a ViewsDryScene's mesh, scene.yaml,
+    cameras.json, truth.npz) unless it is already there."""
     out = Path(out)
-    if not (out / "scan.yaml").is_file():
+    if not (out / getattr(scan, "marker", "scan.yaml")).is_file():
         scan.write_geometry(out)
     return out
 

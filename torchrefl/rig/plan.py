@@ -1,5 +1,9 @@
 """Capture plans: the light positions to visit, read from a light-selection result, a plan file or
-an explicit list, and ordered to keep the gantry's travel short (nearest neighbour, 2-opt, or-opt)."""
+an explicit list, and ordered to keep the gantry's travel short (nearest neighbour, 2-opt, or-opt).
+
+A mesh_views plan (`kind: mesh_views`, torchrefl.planning.views_selection) lists images, each a camera and a
+light; its lights lie on the gantry plane (`gantry`: origin and axes in the world) at gantry_mm [lateral,
+vertical], so each image is a Target at that head-frame position naming its camera, light and the plane."""
 
 from __future__ import annotations
 
@@ -10,19 +14,35 @@ import numpy as np
 import yaml
 
 from torchrefl.errors import ConfigError, RigError
+from torchrefl.planning.world_candidates import GantryFrame
 from torchrefl.rig.model import RigModel
 
 
 @dataclass
 class Target:
-    """One light position to capture: requested_mm (3,) head frame; grid (i, j) or None."""
+    """One image to capture: the light at requested_mm (3,) head frame; grid (i, j) or None. A mesh_views image
+    also names its camera and light and the gantry plane in the world (frame); None for a scan."""
 
     requested_mm: np.ndarray
     grid: tuple | None = None
+    camera: str | None = None
+    light: str | None = None
+    frame: GantryFrame | None = None
 
     @property
     def key(self) -> tuple:
-        return tuple(round(float(v), 3) for v in self.requested_mm)
+        """What identifies the image in a capture folder: the position (and the camera of a mesh_views image)."""
+        return target_key(self.requested_mm, self.camera)
+
+    def world_mm(self, head_mm) -> np.ndarray:
+        """(3,) world position of a head-frame position on this image's gantry plane."""
+        return self.frame.world(np.asarray(head_mm, dtype=np.float64)[:2])
+
+
+def target_key(requested_mm, camera: str | None = None) -> tuple:
+    """Target.key of a position (and camera): also how a manifest entry is matched to its target."""
+    key = tuple(round(float(v), 3) for v in requested_mm)
+    return key if camera is None else key + (camera,)
 
 
 def targets_from_positions(model: RigModel, positions) -> list[Target]:
@@ -50,10 +70,51 @@ def targets_from_grid(model: RigModel, indices) -> list[Target]:
     return out
 
 
+def _vector(doc: dict, key: str, n: int, where: str) -> np.ndarray:
+    value = doc.get(key) if isinstance(doc, dict) else None
+    arr = np.asarray(value, dtype=np.float64) if isinstance(value, list) else None
+    if arr is None or arr.shape != (n,) or not np.isfinite(arr).all():
+        raise RigError(f"{where}.{key} is {value!r}, expected {n} finite numbers")
+    return arr
+
+
+def targets_from_views_plan(model: RigModel, doc: dict) -> list[Target]:
+    """Targets of a mesh_views plan (module doc), in its image order; RigError naming the key at fault, or when
+    its lights are not on a gantry plane (a dome or a list: no gantry reaches them)."""
+    if doc.get("gantry") is None:
+        raise RigError(
+            f"a mesh_views plan of layout {doc.get('layout')!r}: its lights are not on a gantry plane; plan with "
+            "selection.world.layout: gantry for the rig's gantry to reach them"
+        )
+    g = doc["gantry"]
+    frame = GantryFrame(
+        _vector(g, "origin_mm", 3, "gantry"), _vector(g, "lateral", 3, "gantry"), _vector(g, "vertical", 3, "gantry")
+    )
+    lights = doc.get("lights")
+    images = doc.get("images")
+    if not isinstance(lights, list) or not isinstance(images, list) or not images:
+        raise RigError("a mesh_views plan needs a list 'lights' and a non-empty list 'images'")
+    at = {}
+    for k, light in enumerate(lights):
+        if not isinstance(light, dict) or not isinstance(light.get("name"), str):
+            raise RigError(f"lights[{k}] is {light!r}, expected a mapping with a 'name'")
+        at[light["name"]] = _vector(light, "gantry_mm", 2, f"lights[{k}]")
+    out = []
+    for k, image in enumerate(images):
+        ok = isinstance(image, dict) and isinstance(image.get("camera"), str) and image.get("camera")
+        if not ok or image.get("light") not in at:
+            raise RigError(
+                f"images[{k}] is {image!r}, expected {{camera: NAME, light: NAME}} naming a light of 'lights'"
+            )
+        p = np.array([*at[image["light"]], model.s.radial_mm])
+        out.append(Target(p, model.grid_index(p), image["camera"], image["light"], frame))
+    return out
+
+
 def load_plan(path, model: RigModel) -> list[Target]:
     """Read a plan: YAML or JSON with `positions_mm: [[lat, vert, rad], ...]` (a light-selection
     result such as outputs/.../selection/selection.json has this key), or `grid: [[i, j], ...]`,
-    or a bare list of positions."""
+    or a bare list of positions, or a mesh_views plan (`kind: mesh_views`: targets_from_views_plan)."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: plan file not found")
@@ -65,13 +126,17 @@ def load_plan(path, model: RigModel) -> list[Target]:
         if isinstance(doc, list):
             return targets_from_positions(model, doc)
         if isinstance(doc, dict):
+            if doc.get("kind") == "mesh_views":
+                return targets_from_views_plan(model, doc)
             if doc.get("positions_mm") is not None:
                 return targets_from_positions(model, doc["positions_mm"])
             if doc.get("grid") is not None:
                 return targets_from_grid(model, doc["grid"])
     except RigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-    raise ConfigError(f"{path}: expected a list of positions or a mapping with 'positions_mm' or 'grid'")
+    raise ConfigError(
+        f"{path}: expected a list of positions, a mapping with 'positions_mm' or 'grid', or a mesh_views plan"
+    )
 
 
 def unique_targets(targets: list[Target]) -> list[Target]:

@@ -2,6 +2,10 @@
 the image, append its manifest line. Resumable and loss-free (see folder.py): a restart skips the
 positions already recorded and never shoots one twice; Ctrl-C, exceptions and a vanished port
 leave the folder consistent, and the light is switched off on the way out when the port works.
+
+A mesh_views plan's images (rig.plan.targets_from_views_plan) trigger the camera each names, with the light at
+its world position; their manifest lines add camera, light and light_mm (the world position reached), and the
+folder's images.json and lights.json are rewritten from the manifest after each image (rig.views_index).
 """
 
 from __future__ import annotations
@@ -18,8 +22,9 @@ from torchrefl.rig.folder import CaptureFolder
 from torchrefl.rig.grbl import ControllerReset, GrblAlarm, GrblClient
 from torchrefl.rig.link import PortLost
 from torchrefl.rig.model import RigModel
-from torchrefl.rig.plan import Target, order_points, path_length, unique_targets
+from torchrefl.rig.plan import Target, order_points, path_length, target_key, unique_targets
 from torchrefl.rig.settings import RigSettings
+from torchrefl.rig.views_index import write_views_index
 
 
 def _utc_now() -> str:
@@ -102,7 +107,10 @@ class CaptureRunner:
         try:
             if self.s.light.settle_s > 0:
                 time.sleep(self.s.light.settle_s)
-            self.camera.capture(temp, reached)
+            if t.camera is None:
+                self.camera.capture(temp, reached)
+            else:
+                self.camera.capture(temp, t.world_mm(reached), camera=t.camera)
         except BaseException:
             self.folder.discard(temp)
             self._light_off_quietly()
@@ -117,8 +125,25 @@ class CaptureRunner:
             "grid": list(t.grid) if t.grid is not None else None,
             "time": _utc_now(),
         }
+        if t.camera is not None:
+            entry.update(camera=t.camera, light=t.light, light_mm=[float(v) for v in t.world_mm(reached)])
         self.folder.commit(temp, entry)
+        if t.camera is not None:
+            write_views_index(self.folder.root, self.folder.entries, self.s.light.intensity, self.s.camera.encoding)
         return entry
+
+    def _views_note(self, targets: list[Target]) -> None:
+        """Check the camera trigger against a mesh_views plan's cameras and say what the folder still needs."""
+        self.camera.check_cameras([t.camera for t in targets])
+        missing = [n for n in ("cameras.json", "mesh.obj | mesh.ply | mesh.glb") if not self._has(n)]
+        if missing:
+            self.progress(
+                f"note: {self.folder.root} has no {' and no '.join(missing)}; add the cameras and the mesh the plan "
+                "was made with before fitting (images.json and lights.json are written from the manifest)"
+            )
+
+    def _has(self, names: str) -> bool:
+        return any((self.folder.root / n.strip()).is_file() for n in names.split("|"))
 
     # ---------------------------------------------------------------- recovery
 
@@ -152,13 +177,17 @@ class CaptureRunner:
         targets = unique_targets(list(targets))
         self.summary = {"total": len(targets), "captured": 0, "skipped": 0, "reconnects": 0, "rehomes": 0}
         self.summary["recovered"] = self.folder.recover()
-        if self.folder.link_scan_yaml() is False:
+        views = any(t.camera is not None for t in targets)
+        if views:
+            self._views_note(targets)
+            write_views_index(self.folder.root, self.folder.entries, self.s.light.intensity, self.s.camera.encoding)
+        elif self.folder.link_scan_yaml() is False:
             self.progress(
                 f"note: {self.folder.root}/scan.yaml not found; the scanner's scan.yaml and range.npy "
                 f"must be added (with lights: manifest.jsonl) before fitting"
             )
         done = {
-            tuple(round(float(v), 3) for v in e["requested_mm"])
+            target_key(e["requested_mm"], e.get("camera"))
             for e in self.folder.entries
             if e.get("requested_mm") is not None
         }
@@ -193,6 +222,7 @@ class CaptureRunner:
                 self.summary["captured"] += 1
                 n = self.summary["skipped"] + self.summary["captured"]
                 grid = f" grid {tuple(t.grid)}" if t.grid is not None else ""
+                grid += f" camera {t.camera} light {t.light}" if t.camera is not None else ""
                 self.progress(
                     f"[{n}/{len(targets)}] {entry['image']}{grid} requested "
                     f"{np.round(t.requested_mm, 3).tolist()} reached {np.round(entry['position_mm'], 3).tolist()} "

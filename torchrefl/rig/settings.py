@@ -58,6 +58,10 @@ class LightSettings:
     )
     spindle_power: float = opt(1000.0, "S word sent with M3 when output is spindle (PWM duty = S / $30)")
     settle_s: float = opt(0.2, "wait after switching the light on before triggering, s")
+    intensity: list = opt(
+        [60000.0, 60000.0, 60000.0],
+        "RGB radiant intensity Y of the light, written to a mesh_views capture's lights.json (full range x mm^2)",
+    )
 
 
 @dataclass
@@ -99,6 +103,12 @@ class CameraSettings:
         "(e.g. a scanner's texture export); empty = no external camera",
     )
     timeout_s: float = opt(120.0, "longest time the camera command may run, s")
+    encoding: str = opt(
+        "linear",
+        "mesh_views captures: the images' encoding written to images.json: linear (16-bit linear PNG) or srgb "
+        "(8-bit sRGB)",
+        choices=("linear", "srgb"),
+    )
 
 
 @dataclass
@@ -148,6 +158,9 @@ def _check(cfg: RigSettings, where: str) -> None:
     for key in ("feed_mm_min", "radial_mm", "position_tolerance_mm"):
         if getattr(cfg, key) <= 0:
             raise ConfigError(f"{where}: key '{key}' must be positive, got {getattr(cfg, key)}")
+    y = cfg.light.intensity
+    if not (isinstance(y, list) and len(y) == 3 and all(isinstance(v, (int, float)) and v > 0 for v in y)):
+        raise ConfigError(f"{where}: key 'light.intensity' is {y!r}, expected 3 numbers > 0 (RGB, full range x mm^2)")
     if cfg.grid.columns < 1 or cfg.grid.rows < 1 or cfg.grid.spacing_mm <= 0:
         raise ConfigError(f"{where}: grid.columns and grid.rows must be >= 1 and grid.spacing_mm > 0")
     for key in ("reply_s", "banner_s", "move_s", "poll_s"):
