@@ -9,7 +9,7 @@ import pytest
 from torchrefl.config import load_config
 from torchrefl.core.progress import Stages
 from torchrefl.errors import OutputError
-from torchrefl.plan import main, plan_files
+from torchrefl.plan import _plan_views, main, plan_files
 from torchrefl.rig.dry_run import match_grid, synthetic_scene
 from torchrefl.rig.model import RigModel
 from torchrefl.rig.plan import load_plan
@@ -87,3 +87,41 @@ def test_out_names_a_json_file_or_a_folder(tmp_path):
     assert plan_files(tmp_path / "d").plan == tmp_path / "d" / "selection.json"
     with pytest.raises(OutputError, match="plan.png"):
         plan_files(tmp_path / "plan.png")
+
+
+#: configs/mesh_views.yaml's scene, small (4 cameras, a 16 x 16 atlas), with a 5 x 3 gantry of candidates
+VIEWS_SMALL = [
+    "views.width=160",
+    "views.height=120",
+    "views.focal_px=260",
+    "views.cameras_per_ring=2",
+    "views.camera_elevations_deg=[0,40]",
+    "capture.texture_size=16",
+    "selection.world.layout=gantry",
+    "selection.grid.columns=5",
+    "selection.grid.rows=3",
+    "selection.grid.spacing_mm=100",
+    "selection.max_lights=4",
+]
+
+
+def test_a_mesh_views_plan_pairs_lights_with_cameras_and_the_rig_reads_it(tmp_path, capsys):
+    from torchrefl.synthetic.mesh_views import build_scene, write_geometry
+
+    assert main(["mesh_views", *VIEWS_SMALL, "--out", str(tmp_path / "synthetic.json"), "--quiet"]) == 0
+    assert "4 lights" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "synthetic.json").read_text())
+    assert doc["kind"] == "mesh_views" and doc["lights_selected"] == len(doc["lights"]) == 4
+    assert {im["light"] for im in doc["images"]} == {light["name"] for light in doc["lights"]}
+    # each light on the gantry plane, 350 mm in front of the object's centre (the default origin)
+    for light in doc["lights"]:
+        assert light["position_mm"][2] == pytest.approx(350.0)
+        assert light["position_mm"][:2] == pytest.approx(light["gantry_mm"])
+    targets = load_plan(tmp_path / "synthetic.json", RigModel(RigSettings()))
+    assert [(t.camera, t.light) for t in targets] == [(im["camera"], im["light"]) for im in doc["images"]]
+    # the same scene as a capture folder (mesh and cameras.json, no photograph) gives the same plan
+    cfg = load_config("mesh_views", VIEWS_SMALL)
+    write_geometry(tmp_path / "folder", build_scene(cfg.views, cfg.seed))
+    cfg = load_config("mesh_views", [*VIEWS_SMALL, "capture.kind=mesh_views", f"capture.path={tmp_path / 'folder'}"])
+    views = _plan_views(cfg, plan_files(tmp_path / "folder.json"), Stages(lambda m: None), lambda m: None).views
+    assert views.to_json() == doc

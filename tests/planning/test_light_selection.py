@@ -112,3 +112,13 @@ def test_the_coverage_figure_marks_each_pick_and_keeps_its_legend_inside(tmp_pat
     for ax in fig.axes:  # one marker per pick, in the style of its role
         marked = {line.get_marker(): len(line.get_xdata()) for line in ax.lines if line.get_marker() in ("o", "^")}
         assert marked == {"o": r.roles.count("diffuse"), "^": r.roles.count("specular")}
+
+
+def test_counts_over_cameras_gain_only_what_a_texel_still_needs():
+    # candidate 0: three specular observations of texel 0 (three cameras); candidate 1: one of each texel
+    S = np.array([[3, 0, 0], [1, 1, 1]])
+    m = Measurability(np.zeros_like(S), S, np.ones(3, dtype=bool))
+    r = greedy_select(m, stop_ratio=1.0, max_lights=1)
+    # a texel needs two: candidate 0 adds 2 observations that count, candidate 1 adds 3
+    assert r.chosen == [1] and r.roles == ["specular"]
+    assert math.isclose(r.all_specular, 1 / 3)  # only texel 0 reaches two (4 in all)
