@@ -80,11 +80,15 @@ def build_parser() -> argparse.ArgumentParser:
     mv.add_argument("--no-home", action="store_true", help="do not home first (the controller must be unlocked)")
     cap = sub.add_parser("capture", parents=[common], help="run a capture plan into a folder")
     what = cap.add_mutually_exclusive_group(required=True)
-    what.add_argument("--plan", help="plan file: YAML/JSON with positions_mm or grid (selection.json works)")
+    what.add_argument(
+        "--plan", help="plan file: YAML/JSON with positions_mm or grid, or a mesh_views plan (selection.json works)"
+    )
     what.add_argument("--positions", nargs="+", metavar="LAT,VERT[,RAD]", help="head-frame positions, mm")
     what.add_argument("--grid-positions", nargs="+", metavar="I,J", help="grid nodes (column,row)")
     what.add_argument("--all-grid", action="store_true", help="every node of the light grid")
-    cap.add_argument("--out", required=True, help="capture folder (cylindrical_scan layout)")
+    cap.add_argument(
+        "--out", required=True, help="capture folder (cylindrical_scan layout; mesh_views for a mesh_views plan)"
+    )
     cap.add_argument(
         "--scene",
         default=None,
