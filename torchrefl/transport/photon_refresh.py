@@ -1,4 +1,11 @@
-"""One refresh of Method III's photon cache: trace photons with the current parameters, reduce them to the cache."""
+"""One refresh of Method III's photon cache: trace photons with the current parameters, reduce them to the cache.
+
+Images that share a light (mesh_views: several views per light) share its photons: the photons of a light depend on
+the light and the parameters only, so each distinct light (its map positions and intensity, compared exactly) is
+traced once per refresh and its hits are counted for every image of that light, in which the cache's view-dependent
+terms are then reduced (shared_hits). A capture whose lights all differ (the cylindrical scan's co-rotating lights)
+traces exactly as before.
+"""
 
 from __future__ import annotations
 
@@ -14,7 +21,7 @@ from torchrefl.core.progress import bar
 from torchrefl.transport.photon_cache import LightSources, PhotonCache, build_cache
 from torchrefl.transport.photon_density import smoothing_matrix
 from torchrefl.transport.photon_material import TexelMaterial
-from torchrefl.transport.photon_trace import PhotonTracer
+from torchrefl.transport.photon_trace import PhotonHits, PhotonTracer
 from torchrefl.transport.specular_gather import SpecularGather
 
 
@@ -74,7 +81,9 @@ class PhotonRefresh:
         P, K = self.sources.positions.shape[:2]
         per_map = max(1, math.ceil(self.photons_per_light / K))
         mat = TexelMaterial.from_tensors(pd, ps, sigma)
-        with bar(P * K * per_map, f"photons (refresh {refresh})", progress, unit="ph") as pb:
+        first, light_of = distinct_lights(self.sources)
+        U = len(first)
+        with bar(U * K * per_map, f"photons (refresh {refresh})", progress, unit="ph") as pb:
             last = [0]
 
             def tick(done, total):
@@ -83,8 +92,8 @@ class PhotonRefresh:
 
             start = time.perf_counter()
             hits = self.tracer.trace(
-                self.sources.positions.reshape(-1, 3),
-                np.repeat(self.sources.intensity, K, 0),
+                self.sources.positions[first].reshape(-1, 3),
+                np.repeat(self.sources.intensity[first], K, 0),
                 per_map,
                 mat,
                 seed=self.seed,
@@ -92,6 +101,8 @@ class PhotonRefresh:
                 progress=tick,
             )
             traced = time.perf_counter()
+        if U < P:
+            hits = shared_hits(hits, light_of, K)
         cache = build_cache(
             hits,
             self.sources,
@@ -127,6 +138,7 @@ class PhotonRefresh:
             cache.exact_irradiance = H_rad.to(cache.irradiance.dtype)
             if self.specular_gather is not None:
                 cache = self._add_gather(cache, radiance, weights, sigma, refresh)
+        cache.stats["traced_lights"] = U
         cache.stats["trace_s"] = round(traced - start, 3)
         cache.stats["reduce_s"] = round(time.perf_counter() - traced, 3)
         return cache.to(self.dtype, self.device)
@@ -148,3 +160,39 @@ class PhotonRefresh:
             gather_rays=int(samples.rays), gather_entries=int(obs.size), gather_s=round(time.perf_counter() - start, 3)
         )
         return cache
+
+
+def distinct_lights(sources: LightSources) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct lights among the images of `sources`: first (U,) the first image of each distinct light (its
+    K map positions and intensity equal bit for bit), light_of (P,) each image's distinct light, 0..U-1."""
+    P = sources.positions.shape[0]
+    key = np.concatenate([sources.positions.reshape(P, -1), sources.intensity.reshape(P, -1)], axis=1)
+    _, first, light_of = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # distinct lights in order of their first image
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order], rank[np.asarray(light_of).reshape(-1)]
+
+
+def shared_hits(hits: PhotonHits, light_of: np.ndarray, K: int) -> PhotonHits:
+    """The hits of the distinct lights' traces (sources u * K + k) as the hits of every image (sources p * K + k):
+    each image gets a copy of its light's hits; emitted (P * K,)."""
+    light = hits.source // K
+    parts = [np.flatnonzero(light == u) for u in light_of]
+    take = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+    image = np.repeat(np.arange(len(light_of)), [len(i) for i in parts])
+    sub = lambda a: None if a is None else a[take]  # noqa: E731
+    per_source = hits.emitted.reshape(-1, K)
+    return PhotonHits(
+        image * K + hits.source[take] % K,
+        hits.texel[take],
+        hits.direction[take],
+        hits.power[take],
+        per_source[light_of].reshape(-1),
+        hits.rays,
+        sub(hits.emitter),
+        sub(hits.diffuse_per_pd),
+        back_hits=hits.back_hits,
+        specular_path=sub(hits.specular_path),
+        density_weight=sub(hits.density_weight),
+    )

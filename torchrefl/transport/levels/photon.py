@@ -247,7 +247,8 @@ class PhotonLevel(TransportLevel):
         self.scores.append(score)
         stats = self.cache.stats
         inp.log(
-            f"photon refresh {k}: {stats['photons_emitted']} photons, {stats['stored_hits']} stored hits, "
+            f"photon refresh {k}: {stats['photons_emitted']} photons over the images "
+            f"(traced for {stats.get('traced_lights', '?')} distinct lights), {stats['stored_hits']} stored hits, "
             f"{stats['specular_entries']} specular entries"
             + (
                 f" (+ {stats['gather_entries']} gathered from {stats['gather_rays']} rays)"
