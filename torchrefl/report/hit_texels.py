@@ -87,7 +87,7 @@ def atlas_texel_mesh(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray, g
 
 @dataclass
 class TexelSamples:
-    """The estimate at N texel coordinates (torch, float64).
+    """The estimate at N texel coordinates (torch).
 
     pd (N, 3), ps (N, C), sigma (N,), normals (N, 3) unit; estimated (N,) bool: some texel with an estimate
     contributes (the other rows are 0)."""
@@ -99,31 +99,47 @@ class TexelSamples:
     estimated: torch.Tensor
 
 
-def sample_texels(
-    coords: np.ndarray, pd, ps, sigma, normals, mask, *, wrap: bool = False, interpolation: str = "bilinear"
-) -> TexelSamples:
-    """The estimate (pd (H, W, 3), ps (H, W, C), sigma (H, W), normals (H, W, 3), mask (H, W) bool) at coords
-    (N, 2) (row, col), bilinear over the estimated texels among the four nearest, or the nearest texel."""
-    if interpolation not in INTERPOLATIONS:
-        raise ValueError(f"interpolation is {interpolation!r}, expected one of {', '.join(INTERPOLATIONS)}")
-    H, W = mask.shape
+@dataclass
+class TexelImage:
+    """The estimate as one image for sampling: image (1, channels, H, W') with pd, ps, sigma, normals and the mask
+    weight, each times the mask (W' = W + 1 with column 0 repeated after column W - 1 when the grid wraps);
+    ps_channels C; wrap; W the grid's width."""
+
+    image: torch.Tensor
+    ps_channels: int
+    wrap: bool
+    width: int
+
+
+def texel_image(pd, ps, sigma, normals, mask, *, wrap: bool = False, dtype=torch.float32) -> TexelImage:
+    """The TexelImage of an estimate: pd (H, W, 3), ps (H, W, C), sigma (H, W), normals (H, W, 3), mask (H, W)."""
     m = np.asarray(mask, dtype=np.float64)[..., None]
-    C = ps.shape[-1]
-    stack = np.concatenate([pd * m, ps * m, sigma[..., None] * m, normals * m, m], axis=-1).astype(np.float64)
-    cols = np.asarray(coords[:, 1], dtype=np.float64)
+    stack = np.concatenate([pd * m, ps * m, sigma[..., None] * m, normals * m, m], axis=-1)
     if wrap:  # column W is column 0 again
         stack = np.concatenate([stack, stack[:, :1]], axis=1)
-        cols = np.mod(cols, W)
-    grid = torch.from_numpy(np.stack([cols, coords[:, 0]], -1))
-    Wg = stack.shape[1]
-    norm = torch.stack([2.0 * grid[:, 0] / max(Wg - 1, 1) - 1.0, 2.0 * grid[:, 1] / max(H - 1, 1) - 1.0], -1)
-    image = torch.from_numpy(stack).permute(2, 0, 1)[None]
+    image = torch.from_numpy(np.ascontiguousarray(stack.transpose(2, 0, 1))).to(dtype)[None]
+    return TexelImage(image, int(ps.shape[-1]), bool(wrap), int(mask.shape[1]))
+
+
+def sample_texels(texels: TexelImage, coords: np.ndarray, interpolation: str = "bilinear") -> TexelSamples:
+    """The estimate at coords (N, 2) (row, col) on the grid (in texels' dtype): bilinear over the estimated texels
+    among the four nearest, or the nearest texel (interpolation "nearest")."""
+    if interpolation not in INTERPOLATIONS:
+        raise ValueError(f"interpolation is {interpolation!r}, expected one of {', '.join(INTERPOLATIONS)}")
+    _, _, H, Wg = texels.image.shape
+    cols = np.asarray(coords[:, 1], dtype=np.float64)
+    if texels.wrap:
+        cols = np.mod(cols, texels.width)
+    x = 2.0 * cols / max(Wg - 1, 1) - 1.0
+    y = 2.0 * np.asarray(coords[:, 0], dtype=np.float64) / max(H - 1, 1) - 1.0
+    grid = torch.from_numpy(np.stack([x, y], -1)).to(texels.image.dtype)[None, None]
     out = torch.nn.functional.grid_sample(
-        image, norm[None, None], mode=interpolation, padding_mode="zeros", align_corners=True
+        texels.image, grid, mode=interpolation, padding_mode="zeros", align_corners=True
     )[0, :, 0].T  # (N, channels)
+    C = texels.ps_channels
     weight = out[:, -1]
     estimated = weight > MIN_WEIGHT
-    values = torch.where(estimated[:, None], out[:, :-1] / weight.clamp_min(MIN_WEIGHT)[:, None], 0.0)
+    values = out[:, :-1] / weight.clamp_min(MIN_WEIGHT)[:, None] * estimated[:, None]
     n = values[:, 4 + C : 7 + C]
     n = n / n.norm(dim=1, keepdim=True).clamp_min(1e-12)
     return TexelSamples(values[:, :3], values[:, 3 : 3 + C], values[:, 3 + C], n, estimated)

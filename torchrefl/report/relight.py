@@ -31,7 +31,15 @@ from torchrefl.core.progress import bar
 from torchrefl.core.rays import RayTracer
 from torchrefl.errors import CaptureError, RunFolderError
 from torchrefl.geometry.mesh_file import read_mesh
-from torchrefl.report.hit_texels import TexelMesh, atlas_texel_mesh, geometry_mask, grid_texel_mesh, sample_texels
+from torchrefl.report.hit_texels import (
+    TexelImage,
+    TexelMesh,
+    atlas_texel_mesh,
+    geometry_mask,
+    grid_texel_mesh,
+    sample_texels,
+    texel_image,
+)
 from torchrefl.report.relight_camera import OrthographicCamera, camera_rays, image_size
 from torchrefl.transport.local import render_reference
 
@@ -39,6 +47,8 @@ from torchrefl.transport.local import render_reference
 BLOCK_RAYS = 1 << 16
 #: default shadow-ray origin offset (geometry.shadow_offset_mm's default) when the run's config has none
 SHADOW_OFFSET = 0.05
+#: the shading's dtype (the fit's default; float64 changes a frame by < 1e-4 DN and takes twice as long)
+SHADE_DTYPE = torch.float32
 #: a default light makes a white Lambertian texel facing it at the object's centre read this fraction of full range
 DEFAULT_LEVEL = 0.8
 
@@ -88,12 +98,14 @@ class RelitImage:
 @dataclass
 class RelightScene:
     """What a run is relit on: its texel mesh and Embree scene (None for photometric stereo: no depth), the
-    estimate's centre and radius (the bounding sphere of its texels, for presets and default lights)."""
+    estimate's centre and radius (the bounding sphere of its texels, for presets and default lights) and the
+    estimate as a TexelImage (in SHADE_DTYPE) for sampling."""
 
     mesh: TexelMesh | None
     tracer: RayTracer | None
     centre: np.ndarray
     radius: float
+    texels: TexelImage | None = None
 
 
 def run_mesh(run) -> TexelMesh | None:
@@ -127,8 +139,11 @@ def relight_scene(run, threads: int = 2) -> RelightScene:
     lo, hi = x.min(0), x.max(0)
     centre = (lo + hi) / 2.0
     radius = float(np.linalg.norm(x - centre, axis=1).max())
-    tracer = RayTracer(mesh.vertices, mesh.faces, threads=threads) if mesh is not None else None
-    return RelightScene(mesh, tracer, centre, radius)
+    if mesh is None:
+        return RelightScene(None, None, centre, radius)
+    tracer = RayTracer(mesh.vertices, mesh.faces, threads=threads)
+    texels = texel_image(run.pd, run.ps, run.sigma, run.normals, run.mask, wrap=mesh.wrap, dtype=SHADE_DTYPE)
+    return RelightScene(mesh, tracer, centre, radius, texels)
 
 
 def photographs_camera(run) -> OrthographicCamera:
@@ -243,13 +258,8 @@ def _trace_block(run, scene: RelightScene, light: Light, o, d, offset, shadows, 
     if not idx.size:
         return values, hit, done
     x = o[idx] + hits.distance[idx, None] * d[idx]
-    coords = scene.mesh.texel_coords(hits.triangle[idx], hits.barycentric[idx])
-    s = sample_texels(
-        coords, run.pd, run.ps, run.sigma, run.normals, run.mask, wrap=scene.mesh.wrap, interpolation=interpolation
-    )
+    s = sample_texels(scene.texels, scene.mesh.texel_coords(hits.triangle[idx], hits.barycentric[idx]), interpolation)
     done[idx] = s.estimated.numpy()
-    v = -torch.from_numpy(d[idx])
-    n = s.normals
     if light.position is not None:
         to = light.position[None] - x
         dist = np.linalg.norm(to, axis=1)
@@ -257,20 +267,20 @@ def _trace_block(run, scene: RelightScene, light: Light, o, d, offset, shadows, 
         falloff = 1.0 / np.maximum(dist, 1e-300) ** 2
         targets = np.broadcast_to(light.position, x.shape)
     else:
-        l = np.broadcast_to(light.direction, x.shape).copy()
+        l = np.broadcast_to(light.direction, x.shape)
         falloff = np.ones(len(x))
         targets = x + (4.0 * scene.radius + 1.0) * l  # beyond the object
-    lt = torch.from_numpy(l)
-    front = s.estimated & (brdf_mod.dot(n, v) > 0) & (brdf_mod.dot(n, lt) > 0)
-    keep = front.numpy()
+    dt = scene.texels.image.dtype
+    v, l = torch.from_numpy(-d[idx]).to(dt), torch.from_numpy(np.ascontiguousarray(l)).to(dt)
+    keep = (s.estimated & (brdf_mod.dot(s.normals, v) > 0) & (brdf_mod.dot(s.normals, l) > 0)).numpy()
     if shadows and keep.any():
         k = np.flatnonzero(keep)
-        faces = scene.mesh.face_normals(hits.triangle[idx[k]])
-        keep[k] = scene.tracer.visible(x[k], faces, targets[k], offset=offset)
-    k = torch.from_numpy(np.flatnonzero(keep))
-    if len(k):
-        out = shade(run, n[k], lt[k], torch.from_numpy(falloff)[k], v[k], light.intensity, s.pd[k], s.ps[k], s.sigma[k])
-        values[idx[k.numpy()]] = out.numpy()
+        keep[k] = scene.tracer.visible(x[k], scene.mesh.face_normals(hits.triangle[idx[k]]), targets[k], offset=offset)
+    if keep.any():
+        k = torch.from_numpy(keep)
+        f = torch.from_numpy(falloff).to(dt)[k]
+        out = shade(run, s.normals[k], l[k], f, v[k], light.intensity, s.pd[k], s.ps[k], s.sigma[k])
+        values[idx[keep]] = out.numpy()
     return values, hit, done
 
 

@@ -165,20 +165,24 @@ def turned(camera, index: int, centre, angle_deg: float):
     R0, t0 = camera.R[index].numpy(), camera.t[index].numpy()
     # X_cam = R0 (Ry^T (X - c) + c) + t0
     R = R0 @ Ry.T
-    t = t0 + R0 @ c - R @ c
+    return one_camera(camera, index, R, t0 + R0 @ c - R @ c)
+
+
+def one_camera(cameras: Cameras, index: int, R=None, t=None) -> Cameras:
+    """Camera `index` of cameras as a one-camera Cameras, with the pose R (3, 3), t (3,) when given."""
     one = lambda x: x[index : index + 1].numpy()
     return Cameras.from_arrays(
-        [camera.names[index]],
-        one(camera.width),
-        one(camera.height),
-        one(camera.fx),
-        one(camera.fy),
-        one(camera.cx),
-        one(camera.cy),
-        one(camera.distortion),
-        R[None],
-        t[None],
-        source=camera.source,
+        [cameras.names[index]],
+        one(cameras.width),
+        one(cameras.height),
+        one(cameras.fx),
+        one(cameras.fy),
+        one(cameras.cx),
+        one(cameras.cy),
+        one(cameras.distortion),
+        one(cameras.R) if R is None else np.asarray(R)[None],
+        one(cameras.t) if t is None else np.asarray(t)[None],
+        source=cameras.source,
     )
 
 
