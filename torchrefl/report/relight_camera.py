@@ -39,14 +39,15 @@ class OrthographicCamera:
     cy: float
 
     def __post_init__(self) -> None:
-        # the pinhole checks (orthonormal R, size > 0) with the pixel size standing in for the focal length
-        as_pinhole(self)
+        if not (np.isfinite(self.pixel_size) and self.pixel_size > 0):
+            raise CaptureError(f"orthographic camera: pixel_size = {self.pixel_size!r}, expected > 0 (units per pixel)")
+        as_pinhole(self)  # the pinhole checks: an orthonormal R with det +1, a size > 0
 
 
 def as_pinhole(cam: OrthographicCamera) -> Cameras:
     """A one-camera Cameras with cam's pose, size and (1 / pixel_size) as its focal length: the shared checks
     (capture.cameras.Cameras.validate) name a non-orthonormal R or a non-positive size."""
-    f = 1.0 / cam.pixel_size if cam.pixel_size else 0.0
+    f = 1.0 / cam.pixel_size
     return Cameras.from_arrays(
         ["orthographic"],
         [cam.width],
