@@ -138,6 +138,44 @@ def atlas_cylinder(texture_size: int = 32):
     return atlas_geometry(open_cylinder(10.0, 20.0), texture_size)
 
 
+def write_grid_run(folder, positions, normals, *, mask=None, pd=0.5, ps=0.2, sigma=0.2, units="mm", **extra):
+    """A complete run folder (params.npz, metrics.json, config.yaml, the completeness marker) whose texel grid has
+    the given positions, normals (H, W, 3) and uniform or per-texel pd, ps (RGB), sigma; mask: texels with an
+    estimate (default: all with a unit normal); extra: more params.npz keys (e.g. mesh). Returns the params."""
+    from torchrefl.report.run_marker import write_marker
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    H, W = positions.shape[:2]
+    grid = lambda v, c: np.broadcast_to(np.asarray(v, dtype=np.float64), (H, W, c) if c else (H, W)).copy()
+    mask = (np.linalg.norm(normals, axis=-1) > 0.5) if mask is None else mask
+    params = dict(
+        pd=grid(pd, 3),
+        ps=grid(ps, 3),
+        sigma=grid(sigma, 0),
+        mask=mask,
+        brdf=np.array("torrance_sparrow"),
+        positions=positions,
+        normals=normals,
+        kappa=np.full(3, math.pi),
+        units=np.array(units),
+        **extra,
+    )
+    np.savez_compressed(folder / "params.npz", **params)
+    metrics = {
+        "model": "local",
+        "brdf": "torrance_sparrow",
+        "texels": int(mask.sum()),
+        "lights": 1,
+        "timing_s": {"total": 1.0},
+        "rerender": {},
+    }
+    (folder / "metrics.json").write_text(json.dumps(metrics))
+    (folder / "config.yaml").write_text("geometry:\n  shadow_offset_mm: 0.05\n")
+    write_marker(folder)
+    return params
+
+
 @pytest.fixture
 def write_json(tmp_path):
     """write_json(name, doc) -> the path of tmp_path / name holding doc as JSON (a str is written as it is)."""

@@ -23,6 +23,7 @@ LAYERS = [
     "rig",
     "run",
     "plan",
+    "render",
     "train",
     "cli",
     "__init__",

@@ -16,6 +16,7 @@ from torchrefl.version import __version__
 COMMANDS = {
     "train": ("torchrefl.train", "fit a config (a YAML file or a bundled name such as default) into a run folder"),
     "plan": ("torchrefl.plan", "choose the light positions for a config's object and write the rig's capture plan"),
+    "render": ("torchrefl.render", "relight a finished run: its image from a camera under a light, or a turntable"),
     "rig": ("torchrefl.rig.__main__", "drive the GRBL light gantry: probe, home, move, capture (or --dry-run)"),
 }
 

@@ -4,7 +4,11 @@
     run = load_run("outputs/default")
     print(run.summary())                 # the table the CLI prints at the end
     run.figure()                         # Pd, Ps, sigma and coverage maps (matplotlib)
-    img = run.render(light_position=(0, 200, 400), camera=(0, 0, 300))   # relight the estimate
+    img = run.render(light_position=(0, 200, 400), camera=(0, 0, 300))   # relight the texel grid
+    from torchrefl.report.relight import Light
+    from torchrefl.report.relight_camera import orbit_camera
+    cam = orbit_camera(run.scene.centre, run.scene.radius, 30, 20, 300)   # a pinhole camera (capture.cameras)
+    frame = run.render(camera=cam, light=Light(intensity=2e5, position=(0, 200, 400))).image   # with cast shadows
 
 `load_run` reads the outputs contract (docs/outputs.md) (params.npz, metrics.json, config.yaml) and
 checks it: a folder without a valid completeness marker (torchrefl.report.run_marker: an incomplete run),
@@ -14,16 +18,19 @@ beside the run's) are ignored and listed in `unrecorded` and in the summary.
 Maps are on the texel grid (H, W); texels outside `mask` (no estimate) are 0 in the arrays and
 blank in the figure.
 
-`render` shades the estimated texels under one new light with the fitted BRDF, through the fitter's own
-observation model (torchrefl.transport.local.render_reference: i = kappa * Y * falloff * g(n, l, v)):
-local transport only (no cast shadows, no interreflection), a preview of the estimate under lighting
-that was never captured.
+`render(camera=CAMERA, light=LIGHT)` is the image of the fitted object from a pinhole (capture.cameras.Cameras) or
+orthographic camera under a point or directional light, with cast shadows (torchrefl.report.relight). Without
+`light`, `render(light_position=..., camera=(x, y, z))` shades the estimated texels on the texel grid under one new
+light with the fitted BRDF, through the fitter's own observation model (torchrefl.transport.local.render_reference:
+i = kappa * Y * falloff * g(n, l, v)): local transport only (no cast shadows, no interreflection), a preview of the
+estimate on its grid.
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -31,10 +38,9 @@ import torch
 import yaml
 
 from torchrefl.core import brdf as brdf_mod
-from torchrefl.core.observations import Observations
 from torchrefl.errors import CaptureError, RunFolderError
+from torchrefl.report.relight import relight, relight_scene, shade
 from torchrefl.report.run_marker import unrecorded_files, verify_run_folder
-from torchrefl.transport.local import render_reference
 
 PARAMS = "params.npz"
 METRICS = "metrics.json"
@@ -54,7 +60,8 @@ class RunResult:
     observations per texel in T_diff and T_spec; kappa (3,): the camera gain; brdf: the model name;
     diffuse, minnaert_k: the diffuse part (lambert, or minnaert with its exponent; 1 = Lambert);
     metrics: metrics.json; config: the resolved config.yaml as a dict; unrecorded: the folder's files that the
-    run did not write (relative paths; ignored).
+    run did not write (relative paths; ignored); mesh: params.npz's `mesh` (mesh_views: the mesh whose atlas the
+    maps are), None for the other kinds.
     """
 
     folder: Path
@@ -75,6 +82,12 @@ class RunResult:
     diffuse: str = "lambert"
     minnaert_k: float = 1.0
     unrecorded: tuple[str, ...] = ()
+    mesh: str | None = None
+
+    @cached_property
+    def scene(self):
+        """The run's RelightScene (torchrefl.report.relight): its mesh and Embree scene, built on first use."""
+        return relight_scene(self)
 
     @property
     def grid_shape(self) -> tuple[int, int]:
@@ -102,8 +115,15 @@ class RunResult:
         camera=None,
         view_dir=None,
         dtype=torch.float64,
-    ) -> np.ndarray:
-        """(H, W, 3) predicted sensor values (fractions of full range) of the estimated texels under one light.
+        light=None,
+        **options,
+    ):
+        """With `light` (torchrefl.report.relight.Light): the RelitImage of the object seen by `camera` (a
+        capture.cameras.Cameras, its camera `index=`, or a relight_camera.OrthographicCamera), with cast shadows;
+        options: relight.relight's (supersample, shadows, interpolation, progress, index).
+
+        Without `light`: (H, W, 3) predicted sensor values (fractions of full range) of the estimated texels under
+        one light, on the texel grid.
 
         The light: light_position (3,) a point light (falloff 1 / C^2) or light_direction (3,) a directional
         light towards the light; intensity: its radiant intensity Y > 0, a scalar or RGB (3,), in the capture's
@@ -111,6 +131,15 @@ class RunResult:
         view_dir (3,) or (H, W, 3) the direction towards the camera (orthographic; photometric stereo: (0, 0, 1)).
         Texels outside `mask` or facing away from the light or the camera are 0.
         """
+        if light is not None:
+            if light_position is not None or light_direction is not None or view_dir is not None:
+                raise CaptureError(
+                    "RunResult.render: with light=Light(...), give the camera as camera=...; light_position, "
+                    "light_direction and view_dir belong to the grid render (without light=)"
+                )
+            return relight(self, camera, light, scene=self.scene, **options)
+        if options:
+            raise CaptureError(f"RunResult.render: option(s) {', '.join(options)} need light=Light(...)")
         if (light_position is None) == (light_direction is None):
             raise CaptureError(
                 "RunResult.render: give exactly one of light_position=(x, y, z) (a point light) "
@@ -146,21 +175,8 @@ class RunResult:
                 raise CaptureError(
                     f"RunResult.render: view_dir has shape {vd.shape}, expected (3,) or {self.grid_shape + (3,)}"
                 )
-        # one light as Observations, through the fitter's own observation model (transport.local)
-        T = len(x)
-        obs = Observations(
-            intensity=torch.zeros(1, T, 3, dtype=dtype),
-            valid=torch.ones(1, T, dtype=torch.bool),
-            saturated=torch.zeros(1, T, dtype=torch.bool),
-            shadowed=torch.zeros(1, T, dtype=torch.bool),
-            light_dir=l[None],
-            falloff=falloff[None],
-            light_intensity=Y[None],
-            view_dir=v,
-            kappa=t(self.kappa),
-            source=str(self.folder),
-        )
-        values = render_reference(self.brdf, n, obs, t(self.pd)[m], t(self.ps)[m], t(self.sigma)[m], self.minnaert_k)[0]
+        # one light through the fitter's own observation model (transport.local)
+        values = shade(self, n, l, falloff, v, Y, t(self.pd)[m], t(self.ps)[m], t(self.sigma)[m])
         values = values * (brdf_mod.dot(n, v) > 0).to(dtype)[:, None]
         out = np.zeros(self.grid_shape + (3,))
         out[self.mask] = values.numpy()
@@ -295,6 +311,7 @@ def load_run(folder) -> RunResult:
         coverage=optional("coverage"),
         n_diffuse=optional("n_diffuse"),
         n_specular=optional("n_specular"),
+        mesh=str(p["mesh"]) if "mesh" in p else None,
         metrics=metrics,
         config=config,
         diffuse=diffuse,

@@ -1,0 +1,314 @@
+"""Relighting a fitted object: its image from any camera under any point or directional light, with cast shadows.
+
+Per pixel (supersample^2 stratified rays; report.relight_camera): Embree's closest hit on the run's mesh
+(report.hit_texels: the scan grid's triangulation, or the mesh_views mesh) -> the texel coordinates of the hit
+-> the estimate there (bilinear over estimated texels, or the nearest texel) -> a shadow ray from the hit to the
+light (core.rays.RayTracer.visible, origin offset geometry.shadow_offset_mm along the face normal) -> the fitter's
+own observation model, transport.local.render_reference (i = kappa Y falloff g(n, l, v), core.brdf), with the
+run's BRDF, diffuse part and kappa. The pixel is the mean over its samples (a miss, a back-facing sample or one
+without an estimate counts 0). Values are sensor fractions of full range at exposure 1, like the capture's.
+
+Transport is local (direct light and cast shadows): the interreflection of the radiosity and photon levels is not
+added (a relit frame of a concave object is darker than a photograph in its concavities by that amount).
+
+Photometric stereo has no depth: it is relit on its own grid through the camera of its photographs
+(`photographs_camera`, orthographic), without cast shadows; another camera is refused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from torchrefl.capture.lights_json import Lights
+from torchrefl.capture.mesh_views import check_lights_outside, read_units
+from torchrefl.core import brdf as brdf_mod
+from torchrefl.core.observations import Observations
+from torchrefl.core.progress import bar
+from torchrefl.core.rays import RayTracer
+from torchrefl.errors import CaptureError, RunFolderError
+from torchrefl.geometry.mesh_file import read_mesh
+from torchrefl.report.hit_texels import (
+    TexelImage,
+    TexelMesh,
+    atlas_texel_mesh,
+    geometry_mask,
+    grid_texel_mesh,
+    sample_texels,
+    texel_image,
+)
+from torchrefl.report.relight_camera import OrthographicCamera, camera_rays, image_size
+from torchrefl.transport.local import render_reference
+
+#: rays per block (one progress-bar step)
+BLOCK_RAYS = 1 << 16
+#: default shadow-ray origin offset (geometry.shadow_offset_mm's default) when the run's config has none
+SHADOW_OFFSET = 0.05
+#: the shading's dtype (the fit's default; float64 changes a frame by < 1e-4 DN and takes twice as long)
+SHADE_DTYPE = torch.float32
+#: a default light makes a white Lambertian texel facing it at the object's centre read this fraction of full range
+DEFAULT_LEVEL = 0.8
+
+
+@dataclass(frozen=True)
+class Light:
+    """One light: a point light at `position` (3,) (world frame, the run's units) or a directional light towards
+    `direction` (3,) (unit); intensity (3,) RGB radiant intensity Y > 0 (point: full range x units^2,
+    directional: full range; the capture's light units, docs/capture-formats.md)."""
+
+    intensity: np.ndarray
+    position: np.ndarray | None = None
+    direction: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if (self.position is None) == (self.direction is None):
+            raise CaptureError("render light: give exactly one of position=(x, y, z) and direction=(x, y, z)")
+        for name in ("position", "direction"):
+            value = getattr(self, name)
+            if value is not None:
+                a = np.asarray(value, dtype=np.float64)
+                if a.shape != (3,) or not np.isfinite(a).all():
+                    raise CaptureError(f"render light: {name}={value!r}, expected 3 finite numbers")
+                if name == "direction":
+                    if not np.linalg.norm(a) > 0:
+                        raise CaptureError(f"render light: direction={value!r} is the zero vector")
+                    a = a / np.linalg.norm(a)
+                object.__setattr__(self, name, a)
+        y = np.asarray(self.intensity, dtype=np.float64)
+        y = np.full(3, float(y)) if y.ndim == 0 else y
+        if y.shape != (3,) or not (np.isfinite(y) & (y > 0)).all():
+            raise CaptureError(f"render light: intensity={self.intensity!r}, expected one or three finite values > 0")
+        object.__setattr__(self, "intensity", y)
+
+
+@dataclass
+class RelitImage:
+    """image (H, W, 3) float64: predicted sensor values (fractions of full range, exposure 1); covered (H, W) bool:
+    some ray of the pixel meets the object; estimated (H, W) bool: every ray of the pixel that meets the object
+    lands on estimated texels (the image is complete there)."""
+
+    image: np.ndarray
+    covered: np.ndarray
+    estimated: np.ndarray
+
+
+@dataclass
+class RelightScene:
+    """What a run is relit on: its texel mesh and Embree scene (None for photometric stereo: no depth), the
+    estimate's centre and radius (the bounding sphere of its texels, for presets and default lights) and the
+    estimate as a TexelImage (in SHADE_DTYPE) for sampling."""
+
+    mesh: TexelMesh | None
+    tracer: RayTracer | None
+    centre: np.ndarray
+    radius: float
+    texels: TexelImage | None = None
+
+
+def run_mesh(run) -> TexelMesh | None:
+    """The TexelMesh of a RunResult: the atlas mesh params.npz's `mesh` names (mesh_views), the scan grid's
+    triangulation (a cylindrical scan), None for photometric stereo (units px). RunFolderError naming params.npz's
+    `mesh` for a mesh file that is missing, unreadable or has no UVs."""
+    if run.units == "px":
+        return None
+    if run.mesh is None:
+        return grid_texel_mesh(run.positions, run.normals)
+    path = Path(run.mesh)
+    path = path if path.is_absolute() else run.folder / path
+    where = f"{run.folder / 'params.npz'}: key 'mesh' names {path}"
+    if not path.is_file():
+        raise RunFolderError(f"{where}, which is missing (expected the mesh whose atlas the maps are)")
+    # torchrefl writes its own mesh.obj in mm; a capture's mesh is in its scene.yaml's units
+    units = "mm" if path.parent == run.folder else read_units(path.parent)
+    try:
+        mesh = read_mesh(path, units)
+    except Exception as exc:  # GeometryError and trimesh's own: name the key
+        raise RunFolderError(f"{where}, which cannot be read ({exc})") from None
+    if mesh.uvs is None:
+        raise RunFolderError(f"{where}, which has no UVs (expected the mesh with the atlas the maps lie on)")
+    return atlas_texel_mesh(mesh.vertices, mesh.faces, mesh.uvs, run.grid_shape)
+
+
+def relight_scene(run, threads: int = 2) -> RelightScene:
+    """The RelightScene of a RunResult (run_mesh and its Embree scene)."""
+    mesh = run_mesh(run)
+    x = run.positions[geometry_mask(run.normals)].astype(np.float64)
+    lo, hi = x.min(0), x.max(0)
+    centre = (lo + hi) / 2.0
+    radius = float(np.linalg.norm(x - centre, axis=1).max())
+    if mesh is None:
+        return RelightScene(None, None, centre, radius)
+    tracer = RayTracer(mesh.vertices, mesh.faces, threads=threads)
+    texels = texel_image(run.pd, run.ps, run.sigma, run.normals, run.mask, wrap=mesh.wrap, dtype=SHADE_DTYPE)
+    return RelightScene(mesh, tracer, centre, radius, texels)
+
+
+def photographs_camera(run) -> OrthographicCamera:
+    """The orthographic camera of a photometric-stereo run's photographs: pixel (u, v) = texel (col, row) of its
+    grid (positions x = col - W/2, y = H/2 - row, z = 0), looking along -z."""
+    H, W = run.grid_shape
+    R = np.diag([1.0, -1.0, -1.0])
+    return OrthographicCamera(R, np.array([0.0, 0.0, float(max(H, W))]), W, H, 1.0, W / 2.0, H / 2.0)
+
+
+def default_intensity(run, scene: RelightScene, position=None) -> np.ndarray:
+    """(3,) an intensity under which a white Lambertian texel facing the light at the object's centre reads
+    DEFAULT_LEVEL of full range: DEFAULT_LEVEL pi d^2 / kappa for a point light at distance d, without d^2 for a
+    directional light (position None)."""
+    d2 = 1.0 if position is None else float(np.sum((np.asarray(position, np.float64) - scene.centre) ** 2))
+    return DEFAULT_LEVEL * np.pi * d2 / np.asarray(run.kappa, dtype=np.float64)
+
+
+def shade(run, n, l, falloff, v, intensity, pd, ps, sigma) -> torch.Tensor:
+    """(T, 3) i = kappa Y falloff g(n, l, v) of T points under one light, through the fitter's observation model
+    (transport.local.render_reference) with the run's BRDF, kappa and diffuse exponent; float64 tensors
+    n, l, v (T, 3), falloff (T,), intensity (3,), pd (T, 3), ps (T, C), sigma (T,)."""
+    T, dt = len(n), n.dtype
+    obs = Observations(
+        intensity=torch.zeros(1, T, 3, dtype=dt),
+        valid=torch.ones(1, T, dtype=torch.bool),
+        saturated=torch.zeros(1, T, dtype=torch.bool),
+        shadowed=torch.zeros(1, T, dtype=torch.bool),
+        light_dir=l[None],
+        falloff=falloff[None],
+        light_intensity=torch.as_tensor(intensity, dtype=dt)[None],
+        view_dir=v,
+        kappa=torch.as_tensor(np.asarray(run.kappa, dtype=np.float64), dtype=dt),
+        source=str(run.folder),
+    )
+    with torch.no_grad():
+        return render_reference(run.brdf, n, obs, pd, ps, sigma, run.minnaert_k)[0]
+
+
+def check_light_outside(scene: RelightScene, light: Light) -> None:
+    """CaptureError when a point light sits inside the object (capture.mesh_views.check_lights_outside: every ray
+    from it meets the mesh from inside)."""
+    if scene.tracer is None or light.position is None:
+        return
+    lights = Lights(
+        names=("render light",),
+        point=np.array([True]),
+        position=light.position[None],
+        direction=np.full((1, 3), np.nan),
+        intensity=light.intensity[None],
+        source="render light",
+    )
+    check_lights_outside(lights, scene.tracer, [0])
+
+
+def relight(
+    run,
+    camera,
+    light: Light,
+    *,
+    index: int = 0,
+    supersample: int = 1,
+    shadows: bool = True,
+    interpolation: str = "bilinear",
+    scene: RelightScene | None = None,
+    progress: bool = False,
+) -> RelitImage:
+    """The RelitImage of a RunResult seen by camera (Cameras: camera `index`; OrthographicCamera) under light
+    (module doc). scene: the run's RelightScene (built when None; pass it to render many frames)."""
+    if int(supersample) < 1:
+        raise CaptureError(f"render supersample={supersample!r}, expected an integer >= 1")
+    scene = relight_scene(run) if scene is None else scene
+    if scene.mesh is None:
+        return _relight_grid(run, camera, light)
+    check_light_outside(scene, light)
+    H, W = image_size(camera, index)
+    origins, dirs, pixel = camera_rays(camera, index, supersample)
+    total = np.zeros((H * W, 3))
+    hit_count = np.zeros(H * W)
+    done_count = np.zeros(H * W)
+    offset = _shadow_offset(run)
+    with bar(len(origins), "render", enabled=progress, unit="ray") as pbar:
+        for start in range(0, len(origins), BLOCK_RAYS):
+            sl = slice(start, min(start + BLOCK_RAYS, len(origins)))
+            values, hit, done = _trace_block(run, scene, light, origins[sl], dirs[sl], offset, shadows, interpolation)
+            px = pixel[sl]
+            for c in range(3):
+                total[:, c] += np.bincount(px, weights=values[:, c], minlength=H * W)
+            hit_count += np.bincount(px, weights=hit, minlength=H * W)
+            done_count += np.bincount(px, weights=done, minlength=H * W)
+            pbar.update(sl.stop - sl.start)
+    k2 = int(supersample) ** 2
+    covered = hit_count > 0
+    return RelitImage(
+        (total / k2).reshape(H, W, 3), covered.reshape(H, W), (covered & (done_count == hit_count)).reshape(H, W)
+    )
+
+
+def _shadow_offset(run) -> float:
+    section = run.config.get("geometry") if isinstance(run.config, dict) else None
+    value = section.get("shadow_offset_mm") if isinstance(section, dict) else None
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else SHADOW_OFFSET
+
+
+def _trace_block(run, scene: RelightScene, light: Light, o, d, offset, shadows, interpolation):
+    """(values (N, 3), hit (N,) float, estimated (N,) float) of one block of rays."""
+    values = np.zeros((len(o), 3))
+    hits = scene.tracer.closest_hit(o, d)
+    idx = np.flatnonzero(hits.hit)
+    hit = hits.hit.astype(np.float64)
+    done = np.zeros(len(o))
+    if not idx.size:
+        return values, hit, done
+    x = o[idx] + hits.distance[idx, None] * d[idx]
+    s = sample_texels(scene.texels, scene.mesh.texel_coords(hits.triangle[idx], hits.barycentric[idx]), interpolation)
+    done[idx] = s.estimated.numpy()
+    if light.position is not None:
+        to = light.position[None] - x
+        dist = np.linalg.norm(to, axis=1)
+        l = to / np.maximum(dist, 1e-300)[:, None]
+        falloff = 1.0 / np.maximum(dist, 1e-300) ** 2
+        targets = np.broadcast_to(light.position, x.shape)
+    else:
+        l = np.broadcast_to(light.direction, x.shape)
+        falloff = np.ones(len(x))
+        targets = x + (4.0 * scene.radius + 1.0) * l  # beyond the object
+    dt = scene.texels.image.dtype
+    v, l = torch.from_numpy(-d[idx]).to(dt), torch.from_numpy(np.ascontiguousarray(l)).to(dt)
+    keep = (s.estimated & (brdf_mod.dot(s.normals, v) > 0) & (brdf_mod.dot(s.normals, l) > 0)).numpy()
+    if shadows and keep.any():
+        k = np.flatnonzero(keep)
+        keep[k] = scene.tracer.visible(x[k], scene.mesh.face_normals(hits.triangle[idx[k]]), targets[k], offset=offset)
+    if keep.any():
+        k = torch.from_numpy(keep)
+        f = torch.from_numpy(falloff).to(dt)[k]
+        out = shade(run, s.normals[k], l[k], f, v[k], light.intensity, s.pd[k], s.ps[k], s.sigma[k])
+        values[idx[keep]] = out.numpy()
+    return values, hit, done
+
+
+def _relight_grid(run, camera, light: Light) -> RelitImage:
+    """Photometric stereo: the grid seen by its photographs' camera (no depth, no cast shadows)."""
+    own = photographs_camera(run)
+    fields = ("R", "t", "width", "height", "pixel_size", "cx", "cy")
+    same = isinstance(camera, OrthographicCamera) and all(
+        np.allclose(getattr(camera, f), getattr(own, f)) for f in fields
+    )
+    if not same:
+        raise CaptureError(
+            f"render camera: the run {run.folder} is photometric stereo (no depth): it can be relit only through the "
+            "orthographic camera of its photographs (torchrefl.report.relight.photographs_camera, --camera photographs)"
+        )
+    m = run.mask
+    t = lambda a: torch.from_numpy(np.asarray(a, dtype=np.float64))
+    x, n = t(run.positions)[torch.from_numpy(m)], t(run.normals)[torch.from_numpy(m)]
+    n = n / n.norm(dim=1, keepdim=True).clamp_min(1e-12)
+    v = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(x)
+    if light.position is not None:
+        to = t(light.position) - x
+        dist2 = (to * to).sum(-1)
+        l, falloff = to / dist2.sqrt().clamp_min(1e-300)[:, None], 1.0 / dist2.clamp_min(1e-300)
+    else:
+        l, falloff = t(light.direction).expand_as(x), torch.ones(len(x), dtype=torch.float64)
+    values = shade(run, n, l, falloff, v, light.intensity, t(run.pd)[m], t(run.ps)[m], t(run.sigma)[m])
+    values = values * ((brdf_mod.dot(n, v) > 0) & (brdf_mod.dot(n, l) > 0)).to(values.dtype)[:, None]
+    image = np.zeros(run.grid_shape + (3,))
+    image[m] = values.numpy()
+    return RelitImage(image, m.copy(), m.copy())
