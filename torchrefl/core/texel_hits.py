@@ -23,7 +23,9 @@ class TexelHits(Protocol):
 
     face_normals: (F, 3) float64 unit geometric normals of the traced mesh's faces, turned to the front (the side
     the texel normals face; zeros for a degenerate face). areas: (T,) float64 collection area of each texel, the
-    area of mesh whose photon hits it collects (photon densities divide by it). num_texels T, num_faces F."""
+    area of mesh whose photon hits it collects (photon densities divide by it). num_texels T, num_faces F.
+    Optional emission_size (scene units): where faces may be larger than texels (an atlas), photons land on the faces
+    split to about this edge length (transport/photon_trace.py); without it, on the faces as they are."""
 
     face_normals: np.ndarray
     areas: np.ndarray

@@ -123,6 +123,12 @@ class AtlasHits:
             if value.shape != (T, 3):
                 raise GeometryError(f"atlas hits of {mesh.source}: '{name}' has shape {value.shape}, expected {(T, 3)}")
 
+    @cached_property
+    def emission_size(self) -> float:
+        """Edge length (mesh units) photon emission splits the faces to: about a texel's side, sqrt of the median
+        texel area (a face may span many texels, and a_f at its centroid would not follow the light over it)."""
+        return float(np.sqrt(np.median(self.areas))) if len(self.areas) else 1.0
+
     @property
     def num_texels(self) -> int:
         return int(len(self.texel_index))

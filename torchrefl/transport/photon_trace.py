@@ -50,6 +50,7 @@ from torchrefl.core.rays import RayTracer
 from torchrefl.core.texel_hits import TexelHits
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import GeometryError
+from torchrefl.geometry.face_split import split_faces
 from torchrefl.transport.photon_material import ScatterTables, TexelMaterial
 from torchrefl.transport.range_mesh_hits import RangeMeshHits
 
@@ -156,9 +157,18 @@ class PhotonTracer:
         )
         self.face_normals = self.hits.face_normals
         self.areas = self.hits.areas
-        self._face_area, self._centroids = fa, verts[faces].mean(1) if faces.size else np.zeros((0, 3))
         corners = verts[faces] if faces.size else np.zeros((0, 3, 3))
-        self._corner3 = [np.ascontiguousarray(corners[:, c].T, dtype=np.float32) for c in range(3)]  # 3 x (3, F)
+        # photons land on emission triangles: the faces, or where faces are larger than texels (an atlas: hits'
+        # emission_size) the faces split to about that size, so that a_f at each one's centroid follows the light
+        self._parent = self._parent_bary = None
+        size = getattr(self.hits, "emission_size", None)
+        if size is not None and faces.size:
+            corners, self._parent, bary = split_faces(verts, faces, float(size))
+            self._parent_bary = [np.ascontiguousarray(bary[:, c].T, dtype=np.float32) for c in range(3)]  # 3 x (3, E)
+            fa = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+        self._face_area, self._centroids = fa, corners.mean(1) if faces.size else np.zeros((0, 3))
+        self._landing_normals = self.face_normals if self._parent is None else self.face_normals[self._parent]
+        self._corner3 = [np.ascontiguousarray(corners[:, c].T, dtype=np.float32) for c in range(3)]  # 3 x (3, E)
         # float32 copies for the hot path (Embree works in float32 anyway)
         f32 = lambda x: np.ascontiguousarray(np.asarray(x).T, dtype=np.float32)  # (3, N): component-major
         self._pos3, self._n3 = f32(self.positions), f32(self.normals)
@@ -167,24 +177,35 @@ class PhotonTracer:
         self._offset32 = np.float32(self.offset)
 
     def landing(self, source: np.ndarray) -> np.ndarray:
-        """(F,) a_f of the module docstring, per mesh face, for one source position (cached per position)."""
+        """(E,) a_f of the module docstring, per emission triangle (the mesh faces, or their split: __init__), for
+        one source position (cached per position)."""
         key = tuple(np.round(np.asarray(source, dtype=np.float64), 9))
         if key not in self._landing:
             L = np.broadcast_to(np.asarray(source, dtype=np.float64), self._centroids.shape)
             self._landing[key] = self._face_area * (
-                point_light(self._centroids, self.face_normals, L, self.tracer, offset=self.offset).irradiance()
+                point_light(self._centroids, self._landing_normals, L, self.tracer, offset=self.offset).irradiance()
             )
         return self._landing[key]
 
+    def emission_faces(self, element: np.ndarray) -> np.ndarray:
+        """(N,) mesh face of each emission triangle element (N,) (landing's index)."""
+        return element if self._parent is None else np.take(self._parent, element)
+
     def points_on(self, face: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Uniform points (3, N) float32 on mesh faces `face` (N,) and their texels (N,) (hits.texels)."""
+        """Uniform points (3, N) float32 on emission triangles `face` (N,) (the mesh faces unless split: landing)
+        and their texels (N,) (hits.texels)."""
         r1, r2 = rng.random((2, len(face)), dtype=np.float32)
         s1 = np.sqrt(r1)
         b = np.stack([1 - s1, s1 * (1 - r2), s1 * r2])  # (3, N) barycentric weights
         y = _take3(self._corner3[0], face) * b[0]
         y += _take3(self._corner3[1], face) * b[1]
         y += _take3(self._corner3[2], face) * b[2]
-        return y, self.hits.texels(face, b)[0]
+        if self._parent is None:
+            return y, self.hits.texels(face, b)[0]
+        pb = _take3(self._parent_bary[0], face) * b[0]  # the point's weights on its mesh face
+        pb += _take3(self._parent_bary[1], face) * b[1]
+        pb += _take3(self._parent_bary[2], face) * b[2]
+        return y, self.hits.texels(np.take(self._parent, face), pb)[0]
 
     # ------------------------------------------------------------------ pieces
 
@@ -357,6 +378,7 @@ class PhotonTracer:
         edges = np.floor(np.concatenate([[0.0], np.cumsum(a / total)]) * n + rng.random())
         face = np.repeat(np.arange(len(a), dtype=np.int64), np.diff(edges).astype(np.int64))
         y, texel = self.points_on(face, rng)
+        face = self.emission_faces(face)
         wi = np.asarray(source, dtype=np.float32)[:, None] - y
         wi /= np.sqrt(column_dot(wi, wi))
         power = np.repeat((intensity * (total / n_total)).astype(np.float32)[:, None], len(texel), 1)
