@@ -176,6 +176,23 @@ def write_grid_run(folder, positions, normals, *, mask=None, pd=0.5, ps=0.2, sig
     return params
 
 
+def atlas_room(side: int = 8, texture_size: int = 32, shift=(0.37, -0.21), gap: int = 1):
+    """The inside of the cube of tests/geometry/atlas_meshes.py (side x side texels of 1 mm per face; winding
+    reversed, so the normals face in) with its UVs moved by `shift` texels, so that texel centres sit off the chart
+    borders and the border cells are partly gutter (gap 0: partly the next chart's): a closed room whose every wall
+    meets four chart seams. Chart k is the cube's face k, mesh faces 2k and 2k + 1."""
+    sys.path.insert(0, str(Path(__file__).parent / "geometry"))
+    from dataclasses import replace
+
+    from atlas_meshes import cube_atlas
+
+    from torchrefl.geometry.atlas_surface import atlas_geometry
+
+    mesh = cube_atlas(side_texels=side, texture_size=texture_size, gap=gap)
+    uvs = mesh.uvs + np.asarray(shift, dtype=np.float64) / texture_size
+    return atlas_geometry(replace(mesh, faces=mesh.faces[:, ::-1].copy(), uvs=uvs[:, ::-1].copy()), texture_size)
+
+
 @pytest.fixture
 def write_json(tmp_path):
     """write_json(name, doc) -> the path of tmp_path / name holding doc as JSON (a str is written as it is)."""

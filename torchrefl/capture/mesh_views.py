@@ -34,7 +34,6 @@ from torchrefl.errors import CaptureError
 from torchrefl.geometry.atlas import uv_to_texel_xy
 from torchrefl.geometry.atlas_neighbours import face_jacobians
 from torchrefl.geometry.atlas_surface import AtlasGeometry, atlas_geometry
-from torchrefl.geometry.atlas_texel_mesh import texel_grid_mesh
 from torchrefl.geometry.mesh_file import MESH_SUFFIXES, UNIT_SCALE_MM, read_mesh
 
 #: rays cast from a point light to tell whether it sits inside the object (every one meets a back face)
@@ -306,11 +305,5 @@ class MeshViewsLoader(CaptureLoader):
             log(f"capture: {stats['texels_seen_by_no_image']} of {s.num_texels} texels are seen by no image")
         stats["mesh"] = Path(geom.mesh.source).name
         truth = load_views_truth(folder, geom, cfg.capture.texture_size)
-        # the interreflection levels trace the atlas's texel mesh (geometry.atlas_texel_mesh), the loader the mesh
-        verts, faces = texel_grid_mesh(
-            s.texel_index.numpy(), geom.texels.chart, s.positions.double().numpy(), s.grid_shape
-        )
-        fit_surface = replace(s, mesh_vertices=verts, mesh_faces=faces)
-        return Capture(
-            fit_surface, obs, stats, truth, folder, warnings, mesh=geom.mesh, mesh_parametrised=geom.parametrised
-        )
+        # the interreflection levels trace the mesh itself; its hits (geometry.atlas_hits) map a hit's uv to a texel
+        return Capture(s, obs, stats, truth, folder, warnings, mesh=geom.mesh, mesh_parametrised=geom.parametrised)

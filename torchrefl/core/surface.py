@@ -5,7 +5,9 @@ stored. Texels carry a 3-D position, a unit normal and an area; the triangle mes
 that rays are traced against travels with it (None when the capture has no depth,
 as in photometric stereo). `neighbours` says which texel is next to which on the surface (core/texel_neighbours.py):
 the capture kind hands it over (the scan's grid wrapping on a full turn, a mesh atlas's charts and seams); the
-default is the plain grid.
+default is the plain grid. `hits` says which texel a point of the mesh belongs to (core/texel_hits.py), for the
+interreflection levels' rays: a mesh's atlas hands its uv map over; None is the scan's range mesh (vertex k = grid
+point k; transport/range_mesh_hits.py).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 import torch
 
 from torchrefl.core.texel_grid import TexelGrid
+from torchrefl.core.texel_hits import TexelHits
 from torchrefl.core.texel_neighbours import TexelNeighbours
 from torchrefl.errors import GeometryError
 
@@ -37,6 +40,8 @@ class Surface:
     units: length unit of positions.
     neighbours: the texels' neighbours on the surface (core/texel_neighbours.py), given by the capture kind;
         None: the plain grid, TexelGrid(texel_index, grid_shape).
+    hits: which texel a point of the mesh belongs to (core/texel_hits.py), given by the capture kind; None: the
+        range mesh's layout (mesh vertex k is grid point k; transport/range_mesh_hits.RangeMeshHits).
     """
 
     grid_shape: tuple[int, int]
@@ -50,9 +55,18 @@ class Surface:
     source: str = "<memory>"
     extras: dict = field(default_factory=dict)
     neighbours: Optional[TexelNeighbours] = None
+    hits: Optional[TexelHits] = None
 
     def __post_init__(self) -> None:
         self.validate()
+        if self.hits is not None and (
+            self.hits.num_texels != self.num_texels or not self.has_mesh or self.hits.num_faces != len(self.mesh_faces)
+        ):
+            raise GeometryError(
+                f"surface from {self.source}: field 'hits' covers {self.hits.num_texels} texels and "
+                f"{self.hits.num_faces} faces, expected {self.num_texels} texels and the mesh's "
+                f"{len(self.mesh_faces) if self.has_mesh else 0} faces"
+            )
         if self.neighbours is None:
             self.neighbours = TexelGrid(self.texel_index.cpu().numpy(), self.grid_shape)
         elif self.neighbours.num_texels != self.num_texels or tuple(self.neighbours.grid_shape) != tuple(
@@ -130,4 +144,5 @@ class Surface:
             source=self.source,
             extras=self.extras,
             neighbours=self.neighbours,
+            hits=self.hits,
         )

@@ -9,6 +9,7 @@ import torch
 
 from torchrefl.core.surface import Surface
 from torchrefl.geometry.atlas import AtlasTexels, rasterise_atlas, uv_to_texel_xy
+from torchrefl.geometry.atlas_hits import AtlasHits
 from torchrefl.geometry.atlas_neighbours import AtlasNeighbours, face_jacobians
 from torchrefl.geometry.atlas_parametrise import parametrise
 from torchrefl.geometry.mesh_file import MeshData, read_mesh
@@ -23,7 +24,8 @@ class AtlasGeometry:
     mesh: the mesh the maps belong to (with the atlas xatlas made when the file had no UVs). parametrised: True
     when the atlas was made here, so the mesh must be written into the run folder (mesh_file.write_obj).
     texels: the rasterised atlas. surface: the Surface (grid (S, S), positions and normals in the world frame,
-    mm; extras 'face' (T,) int64, 'barycentric' (T, 3) float64, 'chart' (T,) int64; its `neighbours` are these).
+    mm; extras 'face' (T,) int64, 'barycentric' (T, 3) float64, 'chart' (T,) int64; its `neighbours` are these; its
+    `hits` map a point of the mesh to its texel by uv, geometry/atlas_hits.py).
     neighbours: the texels' surface neighbours (atlas_neighbours)."""
 
     mesh: MeshData
@@ -70,6 +72,7 @@ def atlas_geometry(
     S = int(texture_size)
     jac = face_jacobians(mesh.vertices, mesh.faces, uv_to_texel_xy(mesh.uvs, S))[texels.face]
     neighbours = AtlasNeighbours(texels.texel_index, (S, S), texels.chart, positions, normals, jac)
+    hits = AtlasHits(mesh, texels, positions, normals)
     surface = Surface(
         grid_shape=(S, S),
         texel_index=torch.from_numpy(texels.texel_index),
@@ -82,6 +85,7 @@ def atlas_geometry(
         source=mesh.source,
         extras={"face": texels.face, "barycentric": texels.barycentric, "chart": texels.chart},
         neighbours=neighbours,
+        hits=hits,
     )
     return AtlasGeometry(mesh, parametrised, texels, surface, neighbours)
 

@@ -41,6 +41,7 @@ from torchrefl.core.lobe_sampling import tangent_frame
 from torchrefl.core.rays import RayTracer
 from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.core.surface import Surface
+from torchrefl.core.texel_hits import TexelHits
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import ConfigError, GeometryError
 from torchrefl.transport.fold_hits import facing_corner, mixed_faces
@@ -58,6 +59,26 @@ def _as_array(name: str, x, shape_text: str) -> np.ndarray:
     if not np.issubdtype(a.dtype, np.number):
         raise GeometryError(f"{name} must be numeric {shape_text}, got dtype {a.dtype}")
     return a
+
+
+@dataclass
+class HitPatches:
+    """The patch a ray reaches where the mesh's faces hold several texels (an atlas): hits (core/texel_hits.py) maps
+    each hit point to its texel, texel_patch (T,) int64 the texel to its patch (-1: none)."""
+
+    hits: TexelHits
+    texel_patch: np.ndarray
+
+    def patches(self, tri: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(N,) int64 patch of each hit on faces tri (N,) (-1 on a miss) at Embree's barycentrics u, v (N,)."""
+        dst = np.full(len(tri), -1, dtype=np.int64)
+        hit = np.flatnonzero(tri >= 0)
+        if hit.size:
+            uh, vh = u[hit], v[hit]
+            texel, _ = self.hits.texels(tri[hit], np.stack([1 - uh - vh, uh, vh]))
+            texel = np.asarray(texel, dtype=np.int64)
+            dst[hit] = np.where(texel >= 0, self.texel_patch[np.maximum(texel, 0)], -1)
+        return dst
 
 
 def hemisphere_form_factors(
@@ -78,7 +99,9 @@ def hemisphere_form_factors(
     """Form factors F (Q, Q) float64 between Q patches by cosine-weighted hemisphere rays.
 
     tracer: RayTracer over the scene mesh (F faces). face_patch: (F,) int, patch of each face, -1 for
-    faces of no patch (blockers). origins, normals: (Q, K, 3) candidate ray start points on each
+    faces of no patch (blockers); or a HitPatches, where a face holds several patches (an atlas): a ray's hit point
+    then goes to its texel's patch, and the front of a face is the side its hit map's face normal points to.
+    origins, normals: (Q, K, 3) candidate ray start points on each
     patch and their normals (unit where the weight is > 0); weights: (Q, K) >= 0 area weights,
     0 = padding, positive row sums.
     Per patch, samples_per_patch rays: an origin drawn with probability weight / row sum, a
@@ -101,13 +124,17 @@ def hemisphere_form_factors(
     N = _check_form_factor_options(samples_per_patch, offset, layout)
     o, nm, w, row, used = _check_candidate_origins(origins, normals, weights)
     Q, K = o.shape[:2]
-    fp = _check_face_patch(face_patch, tracer, Q)
-    corner_rule = None if corners is None else _CornerRule.of(corners, len(fp))
-
     cdf = torch.from_numpy(np.cumsum(w, axis=1) / row[:, None])
     slot, frames, cstart = _ray_starts(o, nm, used, offset)
-    front = None if count_back_hits else _front_faces(tracer, fp, w, nm, Q).astype(np.float32)
-    sampler = _PatchRays(tracer, fp, cdf, slot, frames, cstart, front, corner_rule, N, int(seed))
+    if isinstance(face_patch, HitPatches):
+        point = _check_hit_patches(face_patch, tracer, Q)
+        front = None if count_back_hits else np.asarray(point.hits.face_normals, dtype=np.float32)
+        sampler = _PatchRays(tracer, None, cdf, slot, frames, cstart, front, None, N, int(seed), point)
+    else:
+        fp = _check_face_patch(face_patch, tracer, Q)
+        corner_rule = None if corners is None else _CornerRule.of(corners, len(fp))
+        front = None if count_back_hits else _front_faces(tracer, fp, w, nm, Q).astype(np.float32)
+        sampler = _PatchRays(tracer, fp, cdf, slot, frames, cstart, front, corner_rule, N, int(seed))
 
     # work units of whole patches (about UNIT_RAYS rays each), each sampled, traced and tallied by one thread
     # with its own random stream keyed by (seed, unit): the result does not depend on the thread count
@@ -194,6 +221,20 @@ def _check_face_patch(face_patch, tracer: RayTracer, Q: int) -> np.ndarray:
     return fp
 
 
+def _check_hit_patches(point: HitPatches, tracer: RayTracer, Q: int) -> HitPatches:
+    """hemisphere_form_factors' HitPatches checked against the tracer's faces and Q patches (GeometryError)."""
+    tp = np.asarray(point.texel_patch, dtype=np.int64)
+    if point.hits.num_faces != tracer.num_triangles or tp.shape != (point.hits.num_texels,):
+        raise GeometryError(
+            f"face_patch: the hit map covers {point.hits.num_faces} faces and {point.hits.num_texels} texels, "
+            f"texel_patch has shape {tp.shape}; expected the tracer's {tracer.num_triangles} faces and one patch per "
+            "texel"
+        )
+    if len(tp) and (tp.min() < -1 or tp.max() >= Q):
+        raise GeometryError(f"face_patch: texel_patch values must lie in -1..{Q - 1} (Q = {Q} patches from origins)")
+    return HitPatches(point.hits, tp)
+
+
 @dataclass
 class _CornerRule:
     """hemisphere_form_factors' corner rule: the patch (F, 3) int64 and normal (F, 3, 3) float32 of each face's
@@ -259,7 +300,7 @@ class _PatchRays:
     """What one work unit of hemisphere_form_factors needs to sample, trace and tally its patches' rays."""
 
     tracer: RayTracer
-    fp: np.ndarray
+    fp: Optional[np.ndarray]
     cdf: torch.Tensor
     slot: np.ndarray
     frames: np.ndarray
@@ -268,14 +309,20 @@ class _PatchRays:
     corner_rule: Optional[_CornerRule]
     N: int
     seed: int
+    point: Optional[HitPatches] = None  # set: a hit goes to the patch of its point's texel (fp is None)
 
     def unit(self, i: int, a: int, b: int) -> tuple[np.ndarray, np.ndarray, int]:
         """Rays of patches a..b-1 (work unit i): (sorted keys src * Q + dst, their counts, rays traced)."""
         Q = len(self.cdf)
         rng = np.random.default_rng([self.seed, 0xF0, i])
         src, j, d = self._directions(rng, a, b)
-        tri = self.tracer.first_hit_triangles(self.cstart[j], np.ascontiguousarray(d))
-        dst = np.where(tri >= 0, self.fp[np.maximum(tri, 0)], -1)
+        if self.point is None:
+            tri = self.tracer.first_hit_triangles(self.cstart[j], np.ascontiguousarray(d))
+            dst = np.where(tri >= 0, self.fp[np.maximum(tri, 0)], -1)
+        else:
+            tri, u, v, _ = self.tracer.first_hits(self.cstart[j], np.ascontiguousarray(d))
+            tri = tri.astype(np.int64)
+            dst = self.point.patches(tri, u, v)
         if self.corner_rule is not None:
             self.corner_rule.apply(dst, tri, d)
         if self.front is not None:
@@ -350,7 +397,9 @@ def form_factors_for_surface(
     (hemisphere_form_factors).
 
     Candidate origins of a patch are its texel positions with their normals, weighted by texel
-    area. tracer: a RayTracer over the surface mesh (built from surface.mesh_* when None).
+    area. A ray's hit goes to a patch by the surface's hits (core/texel_hits.py; None, the range mesh: the patch
+    of the face's first vertex, patches.face_patches, with the corner rule of face_corners). tracer: a RayTracer
+    over the surface mesh (built from surface.mesh_* when None).
     offset: ray start distance along the normal; None = 1e-3 x the median texel side
     (sqrt of the median texel area). kwargs go to hemisphere_form_factors (layout, progress,
     count_back_hits).
@@ -360,7 +409,10 @@ def form_factors_for_surface(
             f"surface from {surface.source}: mesh_vertices/mesh_faces are None; form factors need the triangle mesh"
         )
     patches = texel_patches(surface, patch_size, split_angle_deg)
-    fpatch = face_patches(surface, patches)
+    if surface.hits is None:  # the range mesh: a face is the patch of the texel at its first vertex
+        fpatch, corners = face_patches(surface, patches), face_corners(surface, patches)
+    else:  # a face holds several texels: each hit point goes to its texel's patch
+        fpatch, corners = HitPatches(surface.hits, patches.texel_patch.cpu().numpy()), None
     if tracer is None:
         tracer = RayTracer(surface.mesh_vertices, surface.mesh_faces)
     if offset is None:
@@ -379,7 +431,7 @@ def form_factors_for_surface(
         samples_per_patch=samples_per_patch,
         seed=seed,
         offset=float(offset),
-        corners=face_corners(surface, patches),
+        corners=corners,
         **kwargs,
     )
     return patches, F

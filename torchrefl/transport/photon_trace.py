@@ -1,4 +1,4 @@
-"""Photon tracing with Embree (Method III, dissertation Ch.5): light paths from point lights over the texel mesh.
+"""Photon tracing with Embree (Method III, dissertation Ch.5): light paths from point lights over the surface's mesh.
 
 Photons are aimed at the object: a photon of source s (position L, radiant intensity Y, RGB) first
 lands on mesh face f with probability proportional to the face's direct flux geometry (drawn by
@@ -8,13 +8,14 @@ which is the density of a ray from L whose first hit is f, so every photon carri
     Phi = Y * sum_f a_f / N                              (N photons of that source),
 and no photon is wasted on directions that miss. The first hit is not stored (direct light is computed analytically
 by the local terms) and needs no ray: the photon starts on the face with wi = l (docs/results/reference_check.md:
-why not from the texel vertex). Later hits are found with Embree; a hit's texel is the nearest mesh vertex (mesh
-vertices are texel grid points). From the first hit on, the photon is scattered about the normal of the face it is
-on (no photon re-enters the face it leaves, as the reference path tracer) by the current BRDF of the texel it hit,
-g = f cos_l = g_diffuse + g_specular (torchrefl.core.brdf; non-reciprocal lobes are evaluated with the light on the
-incident side, the way the fitter and the renderer use them), by one-sample component selection: with probability
-q = mean(Ps) / (mean(Pd) + mean(Ps)) a direction wo from the specular lobe, otherwise a cosine-weighted one, each
-with the weight of its own component
+why not from the texel vertex). Later hits are found with Embree; a hit's texel is the Surface's hit map's
+(core/texel_hits.py: on the scan's range mesh the nearest mesh vertex, mesh vertices being texel grid points; on
+a mesh's atlas the texel under the hit's uv). From the first hit on, the photon is scattered about the normal of
+the face it is on (no photon re-enters the face it leaves, as the reference path tracer) by the current BRDF of
+the texel it hit, g = f cos_l = g_diffuse + g_specular (torchrefl.core.brdf; non-reciprocal lobes are evaluated
+with the light on the incident side, the way the fitter and the renderer use them), by one-sample component
+selection: with probability q = mean(Ps) / (mean(Pd) + mean(Ps)) a direction wo from the specular lobe, otherwise
+a cosine-weighted one, each with the weight of its own component
     w = g_c(n, l=wi, v=wo) cos(n, wo) / (cos(n, wi) P(c) pdf_c(wo))    (Pd / (1 - q) for the diffuse one),
 then Russian roulette with survival s = min(0.95, max_c w) and Phi <- Phi w / s (PhotonTracer.scatter).
 Every later hit on the front side of the mesh
@@ -46,14 +47,14 @@ from torchrefl.core.lobe_sampling import (
 )
 from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
+from torchrefl.core.texel_hits import TexelHits
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import GeometryError
-from torchrefl.geometry.range_mesh import oriented_face_normals
-from torchrefl.transport.fold_hits import facing_corner, mixed_faces
+from torchrefl.geometry.face_split import split_faces
 from torchrefl.transport.photon_material import ScatterTables, TexelMaterial
+from torchrefl.transport.range_mesh_hits import RangeMeshHits
 
 CHUNK = 1 << 17  # photons per work unit
-COLLECT_COS = 0.9  # a face corner collects photons for its texel when their normals agree this well
 
 
 def _take3(a: np.ndarray, index: np.ndarray) -> np.ndarray:
@@ -97,17 +98,20 @@ class PhotonHits:
 
 
 class PhotonTracer:
-    """Photon tracing over the texel mesh of a Surface.
+    """Photon tracing over the traced mesh of a Surface.
 
-    Photon densities use each texel's collection area, one third of the area of the mesh faces around
-    its vertex (the part of the mesh whose hits snap to it: barycentric regions are a third each),
-    counting only faces whose normal agrees with the texel's (cos > COLLECT_COS): a face cutting across
-    a fold still scatters photons but does not count towards the fold texels' densities.
+    Which texel a point of the mesh belongs to, each texel's collection area (the area whose hits its photon
+    density divides by) and the faces' front sides come from hits (core/texel_hits.py, the Surface's `hits`):
+    None, the scan's range mesh (transport/range_mesh_hits.RangeMeshHits: mesh vertex v is grid point v, a hit goes
+    to the nearest corner, a texel collects a third of the faces around its vertex that lie along it); a mesh's
+    atlas (geometry/atlas_hits.AtlasHits: the real mesh, a hit's uv gives its texel, a texel collects its own
+    area).
 
-    tracer: Embree scene of surface.mesh_vertices / mesh_faces; texel_index, positions, normals:
-    the Surface's (mesh vertex v is grid point v; texel_index maps texels to grid points); brdf: model name;
-    offset: origin offset along the normal for scattered rays (scene units); max_bounces: cap on the
-    bounces after the first hit; min_bounces: bounces before Russian roulette starts.
+    tracer: Embree scene of the mesh; texel_index, positions, normals: the Surface's; brdf: model name;
+    hits: the Surface's hits (None: the range mesh of texel_index over the tracer's mesh); offset: origin offset
+    along the normal for scattered rays (scene units); max_bounces: cap on the bounces after the first hit;
+    min_bounces: bounces before Russian roulette starts. vertex_texel: (V,) texel at each mesh vertex on a range
+    mesh (RangeMeshHits.vertex_texel), None on an atlas.
     """
 
     def __init__(
@@ -118,6 +122,7 @@ class PhotonTracer:
         normals: np.ndarray,
         brdf: str,
         *,
+        hits: TexelHits | None = None,
         offset: float = 0.01,
         min_bounces: int = 1,
         max_bounces: int = 16,
@@ -136,99 +141,88 @@ class PhotonTracer:
         self.offset = float(offset)
         self.min_bounces = int(min_bounces)
         self.max_bounces = int(max_bounces)
-        V = len(tracer.vertices)
-        texel_index = np.asarray(texel_index, dtype=np.int64)
-        if texel_index.size and texel_index.max() >= V:
-            raise GeometryError(
-                f"photon tracing: texel grid index {int(texel_index.max())} is not a mesh vertex "
-                f"(the mesh has {V}); the mesh must be the texel grid's triangulation"
-            )
-        self.vertex_texel = np.full(V, -1, dtype=np.int64)
-        self.vertex_texel[texel_index] = np.arange(len(texel_index))
         faces = np.asarray(tracer.faces, dtype=np.int64)
-        if faces.size and (self.vertex_texel[faces] < 0).any():
-            raise GeometryError("photon tracing: some mesh faces use grid points that are not texels")
+        self.hits = RangeMeshHits(tracer.vertices, faces, texel_index, self.normals) if hits is None else hits
+        if self.hits.num_faces != len(faces) or self.hits.num_texels != len(self.normals):
+            raise GeometryError(
+                f"photon tracing: the surface's hits cover {self.hits.num_faces} faces and {self.hits.num_texels} "
+                f"texels, expected the traced mesh's {len(faces)} faces and the surface's {len(self.normals)} texels"
+            )
+        self.vertex_texel = getattr(self.hits, "vertex_texel", None)
         self.faces = faces
         self.frame_t, self.frame_b = tangent_frame(self.normals)
         verts = np.asarray(tracer.vertices, dtype=np.float64)
         fa = 0.5 * np.linalg.norm(
             np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]]), axis=1
         )
-        self.face_normals = oriented_face_normals(verts, faces, self.normals[self.vertex_texel[faces]])
-        self._face_area, self._centroids = fa, verts[faces].mean(1) if faces.size else np.zeros((0, 3))
+        self.face_normals = self.hits.face_normals
+        self.areas = self.hits.areas
         corners = verts[faces] if faces.size else np.zeros((0, 3, 3))
-        self._corner3 = [np.ascontiguousarray(corners[:, c].T, dtype=np.float32) for c in range(3)]  # 3 x (3, F)
-        # a face's corner collects for its texel only where the face lies along the texel's surface (normals within
-        # ~25 deg): faces across a fold scatter photons but do not average the crease strip's irradiance in
-        corner_texel = self.vertex_texel[faces] if faces.size else np.zeros((0, 3), dtype=np.int64)
-        self.collects = (
-            np.einsum("fi,fci->fc", self.face_normals, self.normals[corner_texel]) > COLLECT_COS
-            if faces.size
-            else np.zeros((0, 3), dtype=bool)
-        )
-        self.areas = (
-            np.bincount(
-                corner_texel.ravel(),
-                weights=(np.repeat(fa[:, None] / 3.0, 3, 1) * self.collects).ravel(),
-                minlength=len(texel_index),
-            )
-            if faces.size
-            else np.zeros(len(texel_index))
-        )
+        # photons land on emission triangles: the faces, or where faces are larger than texels (an atlas: hits'
+        # emission_size) the faces split to about that size, so that a_f at each one's centroid follows the light
+        self._parent = self._parent_bary = None
+        size = getattr(self.hits, "emission_size", None)
+        if size is not None and faces.size:
+            corners, self._parent, bary = split_faces(verts, faces, float(size))
+            self._parent_bary = [np.ascontiguousarray(bary[:, c].T, dtype=np.float32) for c in range(3)]  # 3 x (3, E)
+            fa = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+        self._face_area, self._centroids = fa, corners.mean(1) if faces.size else np.zeros((0, 3))
+        self._landing_normals = self.face_normals if self._parent is None else self.face_normals[self._parent]
+        self._corner3 = [np.ascontiguousarray(corners[:, c].T, dtype=np.float32) for c in range(3)]  # 3 x (3, E)
         # float32 copies for the hot path (Embree works in float32 anyway)
         f32 = lambda x: np.ascontiguousarray(np.asarray(x).T, dtype=np.float32)  # (3, N): component-major
         self._pos3, self._n3 = f32(self.positions), f32(self.normals)
         self._t3, self._b3, self._fn3 = f32(self.frame_t), f32(self.frame_b), f32(self.face_normals)
         self._ft3, self._fb3 = (f32(x) for x in tangent_frame(self.face_normals))
-        self._corner_texel = corner_texel.astype(np.int32).ravel()
-        self._corner_collects = self.collects.ravel()
-        # faces whose corners' texel normals disagree (they bridge a fold or a crease): hit_texels' corner rule
-        self._mixed_face = mixed_faces(self.normals[corner_texel]) if faces.size else np.zeros(0, dtype=bool)
         self._offset32 = np.float32(self.offset)
 
     def landing(self, source: np.ndarray) -> np.ndarray:
-        """(F,) a_f of the module docstring, per mesh face, for one source position (cached per position)."""
+        """(E,) a_f of the module docstring, per emission triangle (the mesh faces, or their split: __init__), for
+        one source position (cached per position)."""
         key = tuple(np.round(np.asarray(source, dtype=np.float64), 9))
         if key not in self._landing:
             L = np.broadcast_to(np.asarray(source, dtype=np.float64), self._centroids.shape)
             self._landing[key] = self._face_area * (
-                point_light(self._centroids, self.face_normals, L, self.tracer, offset=self.offset).irradiance()
+                point_light(self._centroids, self._landing_normals, L, self.tracer, offset=self.offset).irradiance()
             )
         return self._landing[key]
 
+    def emission_faces(self, element: np.ndarray) -> np.ndarray:
+        """(N,) mesh face of each emission triangle element (N,) (landing's index)."""
+        return element if self._parent is None else np.take(self._parent, element)
+
     def points_on(self, face: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Uniform points (3, N) float32 on mesh faces `face` (N,) and their texels (N,) int32: the nearest corner."""
+        """Uniform points (3, N) float32 on emission triangles `face` (N,) (the mesh faces unless split: landing)
+        and their texels (N,) (hits.texels)."""
         r1, r2 = rng.random((2, len(face)), dtype=np.float32)
         s1 = np.sqrt(r1)
         b = np.stack([1 - s1, s1 * (1 - r2), s1 * r2])  # (3, N) barycentric weights
         y = _take3(self._corner3[0], face) * b[0]
         y += _take3(self._corner3[1], face) * b[1]
         y += _take3(self._corner3[2], face) * b[2]
-        return y, np.take(self._corner_texel, face * 3 + b.argmax(0))
+        if self._parent is None:
+            return y, self.hits.texels(face, b)[0]
+        pb = _take3(self._parent_bary[0], face) * b[0]  # the point's weights on its mesh face
+        pb += _take3(self._parent_bary[1], face) * b[1]
+        pb += _take3(self._parent_bary[2], face) * b[2]
+        return y, self.hits.texels(np.take(self._parent, face), pb)[0]
 
     # ------------------------------------------------------------------ pieces
 
     def hit_texels(
         self, triangle: np.ndarray, u: np.ndarray, v: np.ndarray, direction: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(N,) int32 texel of each hit (the corner of the hit face with the largest barycentric weight, the
-        first one on a tie) and (N,) bool whether the hit counts in that texel's density (self.collects).
-        direction (3, N), the rays' directions: on a face that bridges a fold or crease the hit goes to the
-        corner that faces the ray (fold_hits.facing_corner, scored by barycentric weight; the form factors
-        apply the same rule): specular_gather's rays, which read the radiosity level's radiance. Photon hits take
-        the nearest corner, the region whose area collects them."""
-        w0 = 1 - u - v
-        corner = np.where(u >= v, np.where(u > w0, 1, 0), np.where(v > w0, 2, 0))
-        if direction is not None and triangle.size:
-            m = np.flatnonzero(np.take(self._mixed_face, triangle))
-            if m.size:
-                texels = self._corner_texel[triangle[m].astype(np.int64)[:, None] * 3 + np.arange(3)]  # (M, 3)
-                corner = corner.copy()
-                corner[m] = facing_corner(
-                    corner[m], self.normals[texels], np.asarray(direction)[:, m].T, np.stack([w0[m], u[m], v[m]], 1)
-                )
-        i = triangle.astype(np.int64) * 3 + corner
-        return np.take(self._corner_texel, i), np.take(self._corner_collects, i)
+        """(N,) texel of each hit on faces triangle (N,) at Embree's barycentrics u, v (N,) and (N,) bool whether
+        the hit counts in that texel's density: hits.texels (on the range mesh the corner of the hit face with
+        the largest barycentric weight, the first one on a tie). direction (3, N), the rays' directions:
+        hits.seen_texels, the texel the ray sees (on the range mesh, on a face that bridges a fold or crease, the
+        corner that faces the ray, fold_hits.facing_corner; the form factors apply the same rule): specular_gather's
+        rays, which read the radiosity level's radiance. Photon hits take hits.texels, the region whose area
+        collects them."""
+        bary = np.stack([1 - u - v, u, v])
+        if direction is None:
+            return self.hits.texels(triangle, bary)
+        return self.hits.seen_texels(triangle, bary, direction)
 
     def _frames(
         self, texel: np.ndarray, n: np.ndarray, own: np.ndarray | None, face: np.ndarray | None = None
@@ -384,6 +378,7 @@ class PhotonTracer:
         edges = np.floor(np.concatenate([[0.0], np.cumsum(a / total)]) * n + rng.random())
         face = np.repeat(np.arange(len(a), dtype=np.int64), np.diff(edges).astype(np.int64))
         y, texel = self.points_on(face, rng)
+        face = self.emission_faces(face)
         wi = np.asarray(source, dtype=np.float32)[:, None] - y
         wi /= np.sqrt(column_dot(wi, wi))
         power = np.repeat((intensity * (total / n_total)).astype(np.float32)[:, None], len(texel), 1)

@@ -98,7 +98,8 @@ class PhotonLevel(TransportLevel):
         return self.radiosity.start(init)
 
     def prepare(self) -> None:
-        """The photon tracer over the texel mesh and the light sources; logs the schedule."""
+        """The photon tracer over the surface's mesh (its hits map a hit to a texel) and the light sources; logs the
+        schedule."""
         inp = self.inputs
         cfg, surface, obs = inp.cfg, inp.surface, inp.obs
         pc, rc = cfg.photon, cfg.reflectance
@@ -110,6 +111,7 @@ class PhotonLevel(TransportLevel):
             surface.positions.double().numpy(),
             surface.normals.double().numpy(),
             rc.brdf,
+            hits=surface.hits,
             offset=offset,
             min_bounces=1,
             max_bounces=16,
