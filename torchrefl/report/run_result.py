@@ -54,7 +54,8 @@ class RunResult:
     observations per texel in T_diff and T_spec; kappa (3,): the camera gain; brdf: the model name;
     diffuse, minnaert_k: the diffuse part (lambert, or minnaert with its exponent; 1 = Lambert);
     metrics: metrics.json; config: the resolved config.yaml as a dict; unrecorded: the folder's files that the
-    run did not write (relative paths; ignored).
+    run did not write (relative paths; ignored); mesh: params.npz's `mesh`, the mesh whose atlas the maps lie on
+    (mesh_views; relative to the folder or absolute), else None.
     """
 
     folder: Path
@@ -75,6 +76,7 @@ class RunResult:
     diffuse: str = "lambert"
     minnaert_k: float = 1.0
     unrecorded: tuple[str, ...] = ()
+    mesh: str | None = None
 
     @property
     def grid_shape(self) -> tuple[int, int]:
@@ -146,25 +148,35 @@ class RunResult:
                 raise CaptureError(
                     f"RunResult.render: view_dir has shape {vd.shape}, expected (3,) or {self.grid_shape + (3,)}"
                 )
-        # one light as Observations, through the fitter's own observation model (transport.local)
-        T = len(x)
-        obs = Observations(
-            intensity=torch.zeros(1, T, 3, dtype=dtype),
-            valid=torch.ones(1, T, dtype=torch.bool),
-            saturated=torch.zeros(1, T, dtype=torch.bool),
-            shadowed=torch.zeros(1, T, dtype=torch.bool),
-            light_dir=l[None],
-            falloff=falloff[None],
-            light_intensity=Y[None],
-            view_dir=v,
-            kappa=t(self.kappa),
-            source=str(self.folder),
-        )
-        values = render_reference(self.brdf, n, obs, t(self.pd)[m], t(self.ps)[m], t(self.sigma)[m], self.minnaert_k)[0]
+        values = self.shade(np.flatnonzero(self.mask), n, l, v, falloff, Y)
         values = values * (brdf_mod.dot(n, v) > 0).to(dtype)[:, None]
         out = np.zeros(self.grid_shape + (3,))
         out[self.mask] = values.numpy()
         return out
+
+    def shade(self, texels, normals, light_dir, view_dir, falloff, intensity) -> torch.Tensor:
+        """(K, 3) kappa x Y x falloff x f(l, v) max(n.l, 0) at K points that take the estimate of texels (K,) (flat
+        indices row * W + col of the grid): normals, light_dir, view_dir (K, 3) unit vectors, falloff (K,),
+        intensity Y (3,) tensors of one dtype; one light through the fitter's own observation model
+        (transport.local), no visibility test."""
+        idx = torch.as_tensor(np.asarray(texels, dtype=np.int64))
+        dtype = normals.dtype
+        flat = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=dtype).reshape(-1, *a.shape[2:])[idx]
+        K = len(idx)
+        obs = Observations(
+            intensity=torch.zeros(1, K, 3, dtype=dtype),
+            valid=torch.ones(1, K, dtype=torch.bool),
+            saturated=torch.zeros(1, K, dtype=torch.bool),
+            shadowed=torch.zeros(1, K, dtype=torch.bool),
+            light_dir=light_dir[None],
+            falloff=falloff[None],
+            light_intensity=intensity[None],
+            view_dir=view_dir,
+            kappa=torch.as_tensor(np.asarray(self.kappa, dtype=np.float64), dtype=dtype),
+            source=str(self.folder),
+        )
+        pd, ps, sigma = flat(self.pd), flat(self.ps), flat(self.sigma)
+        return render_reference(self.brdf, normals, obs, pd, ps, sigma, self.minnaert_k)[0]
 
     def figure(self, sigma_max: float | None = None):
         """A matplotlib Figure (pyplot) with Pd (sRGB), Ps (mean over channels), sigma and the coverage map
@@ -300,4 +312,5 @@ def load_run(folder) -> RunResult:
         diffuse=diffuse,
         minnaert_k=minnaert_k,
         unrecorded=tuple(unrecorded_files(folder, marker)),
+        mesh=str(p["mesh"]) if "mesh" in p else None,
     )
