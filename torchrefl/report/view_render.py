@@ -91,9 +91,12 @@ def pixel_rays(c: Cameras, cam: int, supersample: int) -> tuple[np.ndarray, np.n
     sub = (np.arange(s) + 0.5) / s - 0.5
     v, u, dv, du = np.meshgrid(np.arange(H), np.arange(W), sub, sub, indexing="ij")
     uv = torch.from_numpy(np.stack([u + du, v + dv], -1).reshape(1, -1, 2)).double()
-    K = c.K[cam].double()[None]
-    eye = torch.eye(3, dtype=torch.float64)[None]
-    xy = undistort_points(uv, K, c.distortion[cam].double()[None], new_K=eye, num_iters=UNDISTORT_ITERATIONS)
+    K, dist = c.K[cam].double()[None], c.distortion[cam].double()[None]
+    if dist.any():
+        eye = torch.eye(3, dtype=torch.float64)[None]
+        xy = undistort_points(uv, K, dist, new_K=eye, num_iters=UNDISTORT_ITERATIONS)
+    else:  # no distortion: skip kornia's iteration (seconds on a megapixel)
+        xy = (uv - K[:, :2, 2]) / K[:, [0, 1], [0, 1]]
     xy = xy.reshape(-1, 2, 1)  # normalised (x', y'), z = 1
     dirs_cam = torch.cat([xy, torch.ones_like(xy[:, :1])], 1)[..., 0]
     dirs = (dirs_cam @ c.R[cam].double()).numpy()  # R^T d, row-wise
