@@ -69,12 +69,12 @@ def run_mesh(run: RunResult, capture: Path) -> MeshData:
 
 
 def capture_folder(run: RunResult, capture=None) -> Path:
-    """`capture` when given, else the folder of the run's mesh when it holds images.json (a synthetic run's
-    <run>/capture, or a mesh with its own UVs); RunFolderError asking for it otherwise."""
+    """`capture` when given, else the folder of the run's mesh when it holds images.json (a mesh with its own UVs),
+    else the run's own capture/ (a synthetic run's); RunFolderError asking for it otherwise."""
     if capture is not None:
         return Path(capture)
-    if run.mesh is not None:
-        folder = (run.folder / run.mesh).parent
+    beside = [(run.folder / run.mesh).parent] if run.mesh is not None else []
+    for folder in [*beside, run.folder / "capture"]:
         if (folder / IMAGES_JSON).is_file():
             return folder
     raise RunFolderError(
