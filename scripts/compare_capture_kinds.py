@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 import torchrefl
 from torchrefl.config import SyntheticConfig
-from torchrefl.report.run_result import RunResult
+from torchrefl.report.run_result import RunResult, load_run
 from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.synthetic.uv_objects import make_views_object
 
@@ -85,7 +85,7 @@ class Agreement:
     each fit's RMS error against its own truth there; pd_rms_truth_diff: the two truths' RMS difference (paper
     borders between the pair). ps_/sigma_median_rel_diff: median |a - b| / b (b the scan's) over the matched
     points where both fits measured the lobe (coverage 2), `lobe_matched` of them, with each fit's median relative
-    error against its truth there."""
+    error against its truth there and the two truths' median relative difference."""
 
     matched: int
     views_texels: int
@@ -101,6 +101,8 @@ class Agreement:
     ps_median_rel_err_scan: float | None
     sigma_median_rel_err_views: float | None
     sigma_median_rel_err_scan: float | None
+    ps_median_rel_truth_diff: float | None
+    sigma_median_rel_truth_diff: float | None
 
     def pd_tolerance(self) -> float:
         """The RMS difference two independent fits with these errors would show: their errors and the truths'
@@ -116,12 +118,15 @@ class Agreement:
             ("Pd RMS error vs truth", f"mesh_views {f(self.pd_rms_err_views)}, scan {f(self.pd_rms_err_scan)}"),
             ("Pd truths' RMS difference", f(self.pd_rms_truth_diff)),
             ("lobe measured by both", f"{self.lobe_matched} points"),
-            ("Ps median rel. difference", f(self.ps_median_rel_diff)),
+            ("Ps median rel. difference", f"{f(self.ps_median_rel_diff)} (truths: {f(self.ps_median_rel_truth_diff)})"),
             (
                 "Ps median rel. error",
                 f"mesh_views {f(self.ps_median_rel_err_views)}, scan {f(self.ps_median_rel_err_scan)}",
             ),
-            ("sigma median rel. difference", f(self.sigma_median_rel_diff)),
+            (
+                "sigma median rel. difference",
+                f"{f(self.sigma_median_rel_diff)} (truths: {f(self.sigma_median_rel_truth_diff)})",
+            ),
             (
                 "sigma median rel. error",
                 f"mesh_views {f(self.sigma_median_rel_err_views)}, scan {f(self.sigma_median_rel_err_scan)}",
@@ -202,6 +207,16 @@ def compare(views: RunResult, scan: RunResult, views_truth: dict, scan_truth: di
         ps_median_rel_err_scan=_rel(pss, psst),
         sigma_median_rel_err_views=_rel(sv, svt),
         sigma_median_rel_err_scan=_rel(ss, sst),
+        ps_median_rel_truth_diff=_rel(psvt, psst),
+        sigma_median_rel_truth_diff=_rel(svt, sst),
+    )
+
+
+def compare_runs(out: Path) -> Agreement:
+    """compare() of the two runs that fit_both wrote into `out`."""
+    views, scan = load_run(Path(out) / "mesh_views"), load_run(Path(out) / "scan")
+    return compare(
+        views, scan, _truth(views.folder / "capture" / "truth.npz"), _truth(Path(out) / "scan_capture" / "truth.npz")
     )
 
 
@@ -218,8 +233,9 @@ def main(argv=None) -> int:
     ap.add_argument("--size", choices=sorted(SIZES), default="tiny")
     ap.add_argument("--out", type=Path, required=True, help="a new folder for the two captures and runs")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--compare-only", action="store_true", help="compare the runs already in --out (no capture, fit)")
     args = ap.parse_args(argv)
-    print(run(args.out, args.size, args.seed).table())
+    print((compare_runs(args.out) if args.compare_only else run(args.out, args.size, args.seed)).table())
     return 0
 
 
