@@ -25,6 +25,11 @@ class DataMissingError(CaptureError):
     """The capture folder that capture.path names does not exist; the message says how to get the data."""
 
 
+class MissingPackageError(TorchReflError):
+    """An optional package that this input or output needs is not installed; the message names the file and the
+    install command."""
+
+
 class GeometryError(TorchReflError):
     """Geometry (range image, mesh, normals) is unusable: NaN, non-unit, degenerate."""
 

@@ -110,3 +110,26 @@ def test_colmap_model_missing_the_named_image(tmp_path):
 def test_cameras_neither_json_nor_model_folder(tmp_path):
     with pytest.raises(CaptureError, match=r"\.cameras is 'cams\.yaml'.*neither a \.json file nor a folder"):
         read_view_folder(make_folder(tmp_path, cameras="cams.yaml"))
+
+
+def test_exr_images_are_read_as_linear_floats(tmp_path):
+    """A folder of OpenEXR photographs (written by the openexr package's own writer): sizes checked against the
+    camera, samples returned as they are."""
+    OpenEXR = pytest.importorskip("OpenEXR")
+    images = [
+        {"file": "img/a.exr", "camera": "c0", "light": "l0"},
+        {"file": "img/b.exr", "camera": "c1", "light": "l1"},
+    ]
+    folder = make_folder(tmp_path, images=images)
+    rgb = np.random.default_rng(0).uniform(0, 1.2, size=(2, H, W, 3)).astype(np.float32)
+    for k, name in enumerate("ab"):
+        channels = {c: np.ascontiguousarray(rgb[k, ..., j]) for j, c in enumerate("RGB")}
+        with OpenEXR.File({}, channels) as f:
+            f.write(str(folder / "img" / f"{name}.exr"))
+    view = read_view_folder(folder)
+    assert view.bits == 32
+    np.testing.assert_array_equal(view.read_image(1), rgb[1])
+    with OpenEXR.File({}, {"Y": np.zeros((H, W + 1), np.float32)}) as f:
+        f.write(str(folder / "img" / "b.exr"))
+    with pytest.raises(CaptureError, match=rf"b\.exr is {W + 1}x{H} pixels, but its camera 'c1' is {W}x{H}"):
+        read_view_folder(folder)

@@ -1,4 +1,4 @@
-"""Image I/O at full bit depth: 8- and 16-bit PNG (and JPEG/TIFF) in, 8- and 16-bit PNG out.
+"""Image I/O at full bit depth: 8- and 16-bit PNG, OpenEXR (and JPEG/TIFF) in, 8- and 16-bit PNG out.
 
 Pillow, imageio and skimage.io silently reduce 16-bit RGB PNGs to 8 bits, which would throw
 away most of a linear capture's dynamic range. Images are therefore decoded with kornia_rs
@@ -7,7 +7,8 @@ variants kornia_rs does not decode (palette, grey + alpha, 1/2/4-bit grey) and f
 formats (BMP, ...).
 
 Values are returned as linear fractions of the sensor's full range: v / 255 for 8-bit files,
-v / 65535 for 16-bit files (no gamma is undone: captures are expected to be linear).
+v / 65535 for 16-bit files, OpenEXR samples as they are (capture.exr; reported as bit depth 32); no gamma is
+undone: captures are expected to be linear.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from torchrefl.capture.exr import EXR_BITS, exr_size, is_exr, read_exr
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import CaptureError
 
@@ -59,13 +61,16 @@ def _decode_pillow(path: Path, why: str) -> tuple[np.ndarray, int]:
 
 
 def _decode(path) -> tuple[np.ndarray, int]:
-    """Decode `path` into (H, W, C) uint8 or uint16 samples (C in 1, 3, 4) and the bit depth."""
+    """Decode `path` into (H, W, C) uint8 or uint16 samples (C in 1, 3, 4) and the bit depth, or float32 samples
+    (C in 1, 3) and EXR_BITS for an OpenEXR file."""
     import kornia_rs
 
     path = Path(path)
     if not path.is_file():
         what = "a folder" if path.is_dir() else "missing"
-        raise CaptureError(f"{path}: image file {what} (expected an 8- or 16-bit PNG)")
+        raise CaptureError(f"{path}: image file {what} (expected an 8- or 16-bit PNG or an OpenEXR image)")
+    if is_exr(path):
+        return read_exr(path), EXR_BITS
     png = _png_header(path)
     if png is not None:
         bit_depth, colour_type = png
@@ -98,11 +103,13 @@ def _full_scale(bits: int) -> np.float32:
 
 
 def _to_float(raw: np.ndarray, bits: int, out: np.ndarray | None = None) -> np.ndarray:
-    """(..., C) integer samples -> (..., 3) float32 fractions of full range (grey repeated, alpha dropped)."""
+    """(..., C) integer samples (float samples: already fractions) -> (..., 3) float32 fractions of full range (grey
+    repeated, alpha dropped)."""
     rgb = raw[..., :3] if raw.shape[-1] >= 3 else raw  # (.., 1) broadcasts over the 3 channels
     if out is None:
         out = np.empty(raw.shape[:-1] + (3,), dtype=np.float32)
-    np.divide(rgb, _full_scale(bits), out=out, dtype=np.float32, casting="unsafe")
+    scale = np.float32(1) if raw.dtype.kind == "f" else _full_scale(bits)
+    np.divide(rgb, scale, out=out, dtype=np.float32, casting="unsafe")
     return out
 
 
@@ -110,7 +117,8 @@ def read_image(path) -> tuple[np.ndarray, int]:
     """Read one image.
 
     Returns image: (H, W, 3) float32, linear values as fractions of full range
-    (v / 255 for 8-bit files, v / 65535 for 16-bit files), and the bit depth (8 or 16).
+    (v / 255 for 8-bit files, v / 65535 for 16-bit files, OpenEXR samples as they are), and the bit depth (8 or
+    16; EXR_BITS for OpenEXR).
     Grey images become 3 equal channels; an alpha channel is dropped.
     Raises CaptureError naming the file when it is missing, unreadable or of an unsupported
     depth or channel count.
@@ -235,6 +243,8 @@ def image_info(path) -> tuple[int, int, int]:
     if not path.is_file():
         what = "a folder" if path.is_dir() else "missing"
         raise CaptureError(f"{path}: image file {what}")
+    if is_exr(path):
+        return (*exr_size(path), EXR_BITS)
     if _png_header(path) is not None:
         with open(path, "rb") as fh:
             head = fh.read(25)

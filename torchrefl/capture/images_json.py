@@ -24,7 +24,7 @@ from torchrefl.errors import CaptureError
 IMAGES_JSON = "images.json"
 KEYS = ("encoding", "saturation_level", "kappa", "cameras", "images")
 IMAGE_KEYS = ("file", "camera", "light", "exposure", "mask")
-#: linear: samples are linear fractions of full range (8- or 16-bit PNG); srgb: 8-bit samples decoded by the
+#: linear: samples are linear fractions of full range (8- or 16-bit PNG, OpenEXR); srgb: 8-bit samples decoded by the
 #: sRGB curve
 ENCODINGS = ("linear", "srgb")
 

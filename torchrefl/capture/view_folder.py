@@ -29,7 +29,7 @@ class ViewFolder:
     cameras, lights, views: cameras.json / the COLMAP model, lights.json, images.json.
     camera_index, light_index: (I,) int64, image i's camera in `cameras` and light in `lights`.
     paths, masks: image i's file and mask file (None: no mask).
-    bits: the images' common bit depth (8 or 16).
+    bits: the images' common bit depth (8 or 16; 32 for OpenEXR images, float samples).
     warnings: cameras or lights that no image uses.
     """
 

@@ -182,6 +182,18 @@ class RunResult:
         out[self.mask] = values.numpy()
         return out
 
+    def shade(self, texels, normals, light_dir, view_dir, falloff, intensity) -> torch.Tensor:
+        """(K, 3) kappa x Y x falloff x f(l, v) max(n.l, 0) at K points that take the estimate of texels (K,) (flat
+        indices row * W + col of the grid): normals, light_dir, view_dir (K, 3) unit vectors, falloff (K,),
+        intensity Y (3,) tensors of one dtype; one light through the fitter's own observation model
+        (relight.shade), no visibility test."""
+        idx = torch.as_tensor(np.asarray(texels, dtype=np.int64))
+        dtype = normals.dtype
+        flat = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=dtype).reshape(-1, *a.shape[2:])[idx]
+        return shade(
+            self, normals, light_dir, falloff, view_dir, intensity, flat(self.pd), flat(self.ps), flat(self.sigma)
+        )
+
     def figure(self, sigma_max: float | None = None):
         """A matplotlib Figure (pyplot) with Pd (sRGB), Ps (mean over channels), sigma and the coverage map
         (torchrefl.report.figure); sigma_max: the top of sigma's colour range, by default the run's

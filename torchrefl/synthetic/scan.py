@@ -39,7 +39,7 @@ from torchrefl.core.point_light import point_light
 from torchrefl.core.rays import RayTracer
 from torchrefl.errors import GeometryError
 from torchrefl.synthetic.materials import region_materials
-from torchrefl.synthetic.objects import MESH_OBJECTS, make_object
+from torchrefl.synthetic.objects import MESH_OBJECTS, MeshObject, make_object
 from torchrefl.synthetic.path_tracer import IndirectRenderer
 
 
@@ -54,7 +54,10 @@ class SyntheticScan:
         seed: int = 0,
         kappa=(math.pi,) * 3,
         threads: int = 2,
+        obj: MeshObject | None = None,
     ):
+        """obj: a mesh object to scan instead of cfg.object (e.g. a mesh_views object, synthetic.uv_objects, to
+        capture one physical object both ways)."""
         self.cfg = cfg
         self.grid = grid or LightGridConfig()
         self.seed = seed
@@ -62,7 +65,7 @@ class SyntheticScan:
         self.kappa = np.asarray(kappa, dtype=np.float64)
         self.threads = threads
         self.saturation_level = 0.995  # written to scan.yaml (synthetic runs: capture.saturation_level)
-        self.object = make_object(cfg.object, seed, cfg.materials) if cfg.object in MESH_OBJECTS else None
+        self.object = obj or (make_object(cfg.object, seed, cfg.materials) if cfg.object in MESH_OBJECTS else None)
         if self.object is None:
             a, b, c = cfg.size_mm if cfg.object == "ellipsoid" else [cfg.size_mm[0]] * 3
         else:  # half extents of the mesh about the axis origin: they set the scanner's start distance
