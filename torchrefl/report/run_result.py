@@ -5,6 +5,7 @@
     print(run.summary())                 # the table the CLI prints at the end
     run.figure()                         # Pd, Ps, sigma and coverage maps (matplotlib)
     img = run.render(light_position=(0, 200, 400), camera=(0, 0, 300))   # relight the estimate
+    run.export("outputs/default_export")   # OBJ + MTL, glTF .glb, 16-bit PNG and EXR maps (docs/exports.md)
 
 `load_run` reads the outputs contract (docs/outputs.md) (params.npz, metrics.json, config.yaml) and
 checks it: a folder without a valid completeness marker (torchrefl.report.run_marker: an incomplete run),
@@ -165,6 +166,14 @@ class RunResult:
         out = np.zeros(self.grid_shape + (3,))
         out[self.mask] = values.numpy()
         return out
+
+    def export(self, out_dir, formats=None):
+        """Write the run's exports into out_dir (docs/exports.md): OBJ + MTL, glTF .glb, 16-bit PNG and OpenEXR
+        maps; formats: some of "maps", "obj", "glb" (None: every format the run's geometry allows). Returns an
+        ExportResult (torchrefl.report.export_run)."""
+        from torchrefl.report.export_run import export_run
+
+        return export_run(self, out_dir, formats)
 
     def figure(self, sigma_max: float | None = None):
         """A matplotlib Figure (pyplot) with Pd (sRGB), Ps (mean over channels), sigma and the coverage map
