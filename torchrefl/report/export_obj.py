@@ -33,14 +33,18 @@ def write_obj_mtl(obj_path: Path, mesh: TexturedMesh, texture: str) -> Path:
         f"# torchrefl {__version__}: the object's mesh, {mesh.units}; UVs into the texel grid (docs/exports.md)",
         f"mtllib {mtl_path.name}",
     ]
-    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.vertices]
-    lines += [f"vt {u:.9g} {v:.9g}" for u, v in uv]
+    # Python floats and ints (tolist) format several times faster than numpy scalars
+    lines += ["v %.9g %.9g %.9g" % tuple(p) for p in np.asarray(mesh.vertices, dtype=np.float64).tolist()]
+    lines += ["vt %.9g %.9g" % tuple(t) for t in uv.tolist()]
     if mesh.normals is not None:
-        lines += [f"vn {x:.6g} {y:.6g} {z:.6g}" for x, y, z in mesh.normals]
-        corners = lambda f, t: " ".join(f"{a}/{b}/{a}" for a, b in zip(f, t))
+        lines += ["vn %.6g %.6g %.6g" % tuple(n) for n in np.asarray(mesh.normals, dtype=np.float64).tolist()]
+        corner = "%d/%d/%d"
+        ids = np.stack([faces, tex, faces], -1)
     else:
-        corners = lambda f, t: " ".join(f"{a}/{b}" for a, b in zip(f, t))
+        corner = "%d/%d"
+        ids = np.stack([faces, tex], -1)
+    face = "f " + " ".join([corner] * 3)
     lines += [f"usemtl {MATERIAL}"]
-    lines += [f"f {corners(f, t)}" for f, t in zip(faces, tex)]
+    lines += [face % tuple(f) for f in ids.reshape(len(faces), -1).tolist()]
     obj_path.write_text("\n".join(lines) + "\n")
     return mtl_path
