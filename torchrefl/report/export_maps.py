@@ -87,12 +87,18 @@ def to_8bit(x: np.ndarray) -> np.ndarray:
     return np.round(np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
+def specular_scale(material: GltfMaterial, mask: np.ndarray) -> float:
+    """KHR_materials_specular's specularFactor: the largest strength over the estimated texels (specular.png's
+    255)."""
+    return max(float(material.specular[mask].max()) if np.any(mask) else 0.0, 0.0)
+
+
 def write_textures(folder: Path, material: GltfMaterial, mask: np.ndarray) -> dict[str, Path]:
     """The 8-bit textures of the mesh exports (module docstring); returns name -> path. The specular strength
-    is stored divided by its maximum (specular_scale in the result's material: the glTF specularFactor)."""
+    is stored divided by its largest value, specular_scale (the glTF specularFactor)."""
     folder.mkdir(parents=True, exist_ok=True)
     fill = lambda a: fill_from_nearest(a, mask)
-    top = max(float(material.specular[mask].max()) if mask.any() else 0.0, 0.0)
+    top = specular_scale(material, mask)
     strength = material.specular / top if top > 0 else np.zeros_like(material.specular)
     ones = np.ones(mask.shape)
     images = {
@@ -106,9 +112,3 @@ def write_textures(folder: Path, material: GltfMaterial, mask: np.ndarray) -> di
         paths[name] = folder / f"{name}.png"
         write_png(paths[name], img, bits=8)
     return paths
-
-
-def specular_scale(material: GltfMaterial, mask: np.ndarray) -> float:
-    """KHR_materials_specular's specularFactor: the largest strength over the estimated texels (specular.png's
-    255)."""
-    return max(float(material.specular[mask].max()) if np.any(mask) else 0.0, 0.0)

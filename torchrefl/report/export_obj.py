@@ -2,7 +2,8 @@
 
 object.obj: `v` in the mesh's units (millimetres), `vt` per distinct corner UV, `vn` per vertex where the mesh
 has normals, faces `f v/vt[/vn]`, `mtllib object.mtl`, `usemtl torchrefl`. object.mtl: Kd 1 1 1 (the texture is
-the colour), Ks 0, map_Kd basecolor.png (Pd, 8-bit sRGB: what OBJ readers expect of a colour texture).
+the colour), Ks 0, map_Kd the Pd texture (textures/basecolor.png, 8-bit sRGB: what OBJ readers expect of a
+colour texture).
 """
 
 from __future__ import annotations
