@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from torchrefl.report.export_material import SPECULAR_COLOR_FACTOR
-from torchrefl.report.export_mesh import TexturedMesh
+from torchrefl.report.export_mesh import TexturedMesh, unique_rows
 from torchrefl.version import __version__
 
 GLB_MAGIC = 0x46546C67  # "glTF"
@@ -69,11 +69,12 @@ class _Buffer:
 def split_vertices(mesh: TexturedMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """(positions (N, 3), uvs (N, 2), triangles (F, 3), normals (N, 3) or None): one glTF vertex per distinct
     (vertex, uv) pair of the mesh's corners."""
-    corners = np.concatenate([np.asarray(mesh.faces).reshape(-1, 1), np.asarray(mesh.uvs).reshape(-1, 2)], 1)
-    unique, inverse = np.unique(corners, axis=0, return_inverse=True)
-    vid = unique[:, 0].astype(np.int64)
+    vids = np.asarray(mesh.faces, dtype=np.int64).reshape(-1)
+    uvs = np.asarray(mesh.uvs, dtype=np.float64).reshape(-1, 2)
+    first, inverse = unique_rows(vids, uvs)
+    vid = vids[first]
     normals = None if mesh.normals is None else np.asarray(mesh.normals)[vid]
-    return np.asarray(mesh.vertices)[vid], unique[:, 1:], inverse.reshape(-1, 3), normals
+    return np.asarray(mesh.vertices)[vid], uvs[first], inverse.reshape(-1, 3), normals
 
 
 def write_glb(path: Path, mesh: TexturedMesh, textures: dict[str, Path], specular_factor: float) -> None:

@@ -9,7 +9,7 @@ exports (docs/exports.md).
 - coverage.png grey: the coverage code itself (0-7, docs/outputs.md), not scaled.
 EXR (float32, unclipped, linear): pd.exr and ps.exr (R, G, B, A), sigma.exr (Y: rad, A), normals.exr (R, G, B = x,
 y, z; A).
-Textures for the OBJ and the glTF files (texels without an estimate take their nearest estimated texel's value,
+Textures for the OBJ and the glTF files (texels without an estimate take their nearest estimated texel's value
 so that filtering at the edge of the estimate and across atlas gaps shows no black seams):
 - basecolor.png: Pd, 8-bit sRGB (glTF's baseColorTexture, the OBJ's map_Kd);
 - roughness.png: glTF's metallicRoughnessTexture, 8-bit linear (G roughness, B metallic 0, R 255);
@@ -74,13 +74,14 @@ def write_value_maps(folder: Path, pd, ps, sigma, normals, mask, coverage) -> li
     return written + [folder / "sigma.png", folder / "sigma.exr", folder / "coverage.png"]
 
 
-def fill_from_nearest(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """values (H, W, ...) with every texel outside `mask` given its nearest texel inside it (Euclidean on the grid)."""
+def nearest_inside(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) (H, W): for every texel the nearest texel inside `mask` (itself inside it; Euclidean on the
+    grid); the identity when the mask is full or empty."""
     mask = np.asarray(mask, dtype=bool)
     if mask.all() or not mask.any():
-        return np.asarray(values)
+        return np.indices(mask.shape)
     _, (r, c) = distance_transform_edt(~mask, return_indices=True)
-    return np.asarray(values)[r, c]
+    return r, c
 
 
 def to_8bit(x: np.ndarray) -> np.ndarray:
@@ -97,7 +98,8 @@ def write_textures(folder: Path, material: GltfMaterial, mask: np.ndarray) -> di
     """The 8-bit textures of the mesh exports (module docstring); returns name -> path. The specular strength
     is stored divided by its largest value, specular_scale (the glTF specularFactor)."""
     folder.mkdir(parents=True, exist_ok=True)
-    fill = lambda a: fill_from_nearest(a, mask)
+    rows, cols = nearest_inside(mask)
+    fill = lambda a: np.asarray(a)[rows, cols]
     top = specular_scale(material, mask)
     strength = material.specular / top if top > 0 else np.zeros_like(material.specular)
     ones = np.ones(mask.shape)

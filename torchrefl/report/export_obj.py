@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from torchrefl.report.export_mesh import TexturedMesh
+from torchrefl.report.export_mesh import TexturedMesh, unique_rows
 from torchrefl.version import __version__
 
 MATERIAL = "torchrefl"
@@ -27,25 +27,23 @@ def write_obj_mtl(obj_path: Path, mesh: TexturedMesh, texture: str) -> Path:
         f"# torchrefl {__version__}: the fitted diffuse reflectance Pd as the colour texture\n"
         f"newmtl {MATERIAL}\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\nmap_Kd {texture}\n"
     )
-    uv, corner = np.unique(np.asarray(mesh.uvs, dtype=np.float64).reshape(-1, 2), axis=0, return_inverse=True)
+    corner_uvs = np.asarray(mesh.uvs, dtype=np.float64).reshape(-1, 2)
+    first, corner = unique_rows(None, corner_uvs)
+    uv = corner_uvs[first]
     faces = np.asarray(mesh.faces, dtype=np.int64) + 1
     tex = corner.reshape(-1, 3) + 1
     lines = [
         f"# torchrefl {__version__}: the object's mesh, {mesh.units}; UVs into the texel grid (docs/exports.md)",
         f"mtllib {mtl_path.name}",
     ]
-    # Python floats and ints (tolist) format several times faster than numpy scalars
-    lines += ["v %.9g %.9g %.9g" % tuple(p) for p in np.asarray(mesh.vertices, dtype=np.float64).tolist()]
-    lines += ["vt %.9g %.9g" % tuple(t) for t in uv.tolist()]
+    # one % over a whole block of Python numbers (tolist): several times faster than numpy scalars line by line
+    block = lambda fmt, a: (fmt * len(a)) % tuple(np.asarray(a).ravel().tolist())
+    text = ["\n".join(lines) + "\n", block("v %.9g %.9g %.9g\n", mesh.vertices), block("vt %.9g %.9g\n", uv)]
     if mesh.normals is not None:
-        lines += ["vn %.6g %.6g %.6g" % tuple(n) for n in np.asarray(mesh.normals, dtype=np.float64).tolist()]
-        corner = "%d/%d/%d"
-        ids = np.stack([faces, tex, faces], -1)
+        text.append(block("vn %.6g %.6g %.6g\n", mesh.normals))
+        face, ids = "f %d/%d/%d %d/%d/%d %d/%d/%d\n", np.stack([faces, tex, faces], -1)
     else:
-        corner = "%d/%d"
-        ids = np.stack([faces, tex], -1)
-    face = "f " + " ".join([corner] * 3)
-    lines += [f"usemtl {MATERIAL}"]
-    lines += [face % tuple(f) for f in ids.reshape(len(faces), -1).tolist()]
-    obj_path.write_text("\n".join(lines) + "\n")
+        face, ids = "f %d/%d %d/%d %d/%d\n", np.stack([faces, tex], -1)
+    text += [f"usemtl {MATERIAL}\n", block(face, ids.reshape(len(faces), -1))]
+    obj_path.write_text("".join(text))
     return mtl_path
