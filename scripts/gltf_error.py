@@ -72,7 +72,7 @@ class Row:
     texels: int
     lights: int
     count: int
-    glossy_share: float  # share of the estimated texels with max Ps above 0.05
+    specular: float  # the median glTF specular strength s of the estimated texels (their diffuse is 1 - s too dark)
     fit_vs_photos: float | None  # the run's own metrics.json rerender mean |diff|
     fitted: float  # the written .glb vs the fitted model
     one_line: float
@@ -145,7 +145,7 @@ def compare(run: RunResult, obs: Observations, texel_index: np.ndarray, normals:
         if formula == "fitted":
             scale = 1.0 / np.maximum(1.0 - material["specular"], 1e-6)
             out["compensated"] = mean_dn(render_gltf(material, n, _double(obs), scale), fitted, mask)
-    out["glossy_share"] = float((ps.max(-1)[est] > 0.05).mean()) if est.any() else 0.0
+            out["specular"] = float(np.median(material["specular"][est])) if est.any() else 0.0
     return out
 
 
@@ -178,7 +178,7 @@ def _row(name: str, run: RunResult, lights: int, got: dict) -> Row:
         int(run.mask.sum()),
         lights,
         got["count"],
-        got["glossy_share"],
+        got["specular"],
         rerender,
         got["fitted"],
         got["one_line"],
@@ -241,13 +241,13 @@ def table(rows: list[Row], command: str) -> str:
     lines = [
         f"Written by `{command}` on {time.strftime('%Y-%m-%d')}.",
         "",
-        "| config | texels | lights | observations | glossy texels | fit vs photos | glTF fitted | glTF one-line "
+        "| config | texels | lights | observations | median s | fit vs photos | glTF fitted | glTF one-line "
         "| fitted, base Pd / (1 - s) | note |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r.name} | {r.texels} | {r.lights} | {r.count} | {100 * r.glossy_share:.0f}% | {fmt(r.fit_vs_photos)} "
+            f"| {r.name} | {r.texels} | {r.lights} | {r.count} | {r.specular:.3f} | {fmt(r.fit_vs_photos)} "
             f"| {fmt(r.fitted)} | {fmt(r.one_line)} | {fmt(r.compensated)} | {r.note} |"
         )
     return "\n".join(lines) + "\n"

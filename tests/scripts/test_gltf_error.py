@@ -17,7 +17,7 @@ def test_tiny_mode_measures_the_conversions(tmp_path, capsys):
     page = (tmp_path / "table.md").read_text()
     assert "Written by `python scripts/gltf_error.py --tiny`" in page and str(tmp_path) not in page
     row = script.tiny(tmp_path / "again")
-    assert row.count > 0 and row.glossy_share == 0.5
+    assert row.count > 0 and 0 < row.specular < 0.3  # glTF strength k(sigma) Ps, below Ps = 0.3 at sigma 0.15
     # the fitted conversion is closer to the fitted model than the one-line formula, and undoing glTF's diffuse
     # darkening closes most of the rest; all well under a few DN on this half-glossy cap
     assert row.compensated < row.fitted < row.one_line < 5.0
