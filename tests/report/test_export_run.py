@@ -157,6 +157,12 @@ def test_a_run_without_geometry_exports_maps_and_refuses_mesh_formats(tmp_path):
         run.export(tmp_path / "out2", formats=["glb"])
 
 
+def test_a_scan_run_without_grid_faces_says_to_rerun(tmp_path):
+    cylinder_run(tmp_path / "run", faces=False)  # a scan run written before params.npz had grid_faces
+    with pytest.raises(GeometryError, match=r"params.npz has no 'grid_faces' \(a scan run written before"):
+        export_run(tmp_path / "run", tmp_path / "out", formats=["obj"])
+
+
 def test_export_errors_name_the_path(tmp_path):
     cylinder_run(tmp_path / "run")
     (tmp_path / "a_file").write_text("not a folder")

@@ -27,12 +27,14 @@ from torchrefl.report.run_folder import output_folder
 FORMATS = ("maps", "obj", "glb")
 MESH_FORMATS = ("obj", "glb")
 EXPORT = "export"  # the export folder inside a run folder (output.export)
+SCAN_KINDS = ("cylindrical_scan", "synthetic_cylindrical")  # capture kinds whose params.npz holds grid_faces
 
 
 @dataclass(frozen=True)
 class ExportInput:
     """What an export needs, on the texel grid (H, W): the estimate, the texel normals, the coverage codes (or
-    None), the BRDF name and the mesh the maps lie on (None: no geometry); source names the run for messages."""
+    None), the BRDF name and the mesh the maps lie on (None: no geometry); source names the run for messages, and
+    no_mesh says why there is no mesh."""
 
     pd: np.ndarray
     ps: np.ndarray
@@ -43,6 +45,7 @@ class ExportInput:
     brdf: str
     mesh: TexturedMesh | None
     source: str
+    no_mesh: str = "this run has no geometry (a photometric stereo run: maps only)"
 
 
 @dataclass(frozen=True)
@@ -56,7 +59,7 @@ class ExportResult:
     specular_factor: float | None = None
 
 
-def _formats(asked, has_mesh: bool, source: str) -> tuple[str, ...]:
+def _formats(asked, has_mesh: bool, source: str, no_mesh: str) -> tuple[str, ...]:
     if asked is None:
         return FORMATS if has_mesh else ("maps",)
     asked = (asked,) if isinstance(asked, str) else tuple(asked)
@@ -66,8 +69,8 @@ def _formats(asked, has_mesh: bool, source: str) -> tuple[str, ...]:
     mesh_asked = [f for f in asked if f in MESH_FORMATS]
     if mesh_asked and not has_mesh:
         raise GeometryError(
-            f"{source}: export format(s) {', '.join(mesh_asked)} need the object's mesh, and this run has no "
-            "geometry (a photometric stereo run: maps only); ask for formats=['maps']"
+            f"{source}: export format(s) {', '.join(mesh_asked)} need the object's mesh, and {no_mesh}; "
+            "ask for formats=['maps']"
         )
     return asked
 
@@ -75,7 +78,7 @@ def _formats(asked, has_mesh: bool, source: str) -> tuple[str, ...]:
 def export_estimate(data: ExportInput, out_dir, formats=None, option: str = "export folder") -> ExportResult:
     """Write the exports of `data` into out_dir (created; the files there of an earlier export are replaced);
     formats: some of FORMATS, None for every format the geometry allows."""
-    chosen = _formats(formats, data.mesh is not None, data.source)
+    chosen = _formats(formats, data.mesh is not None, data.source, data.no_mesh)
     folder = output_folder(str(out_dir), option)
     folder.mkdir(parents=True, exist_ok=True)
     files: list[Path] = []
