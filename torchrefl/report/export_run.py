@@ -106,15 +106,12 @@ def export_run(run, out_dir, formats=None) -> ExportResult:
     run = load_run(run) if isinstance(run, (str, Path)) else run
     with np.load(run.folder / PARAMS, allow_pickle=False) as npz:
         params = {k: npz[k] for k in ("grid_faces", "mesh", "positions", "normals", "units") if k in npz.files}
+    mesh = read_run_mesh(run.folder, params)
+    section = run.config.get("capture")
+    why = ExportInput.no_mesh
+    if mesh is None and isinstance(section, dict) and section.get("kind") in SCAN_KINDS:
+        why = "its params.npz has no 'grid_faces' (a scan run written before torchrefl exported meshes: rerun it)"
     data = ExportInput(
-        run.pd,
-        run.ps,
-        run.sigma,
-        run.mask,
-        run.normals,
-        run.coverage,
-        run.brdf,
-        read_run_mesh(run.folder, params),
-        str(run.folder),
+        run.pd, run.ps, run.sigma, run.mask, run.normals, run.coverage, run.brdf, mesh, str(run.folder), why
     )
     return export_estimate(data, out_dir, formats)
