@@ -172,3 +172,17 @@ def test_export_errors_name_the_path(tmp_path):
     with pytest.raises(RunFolderError, match=r"no completeness marker run_complete.json: the run is incomplete"):
         export_run(tmp_path / "run", tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_output_export_switches_the_run_s_export_folder(tmp_path):
+    """A run writes export/ (a photometric stereo run: maps only) unless output.export is false."""
+    from report.test_run_folder import tiny_capture_args
+
+    from torchrefl.train import main
+
+    assert main(tiny_capture_args(tmp_path, f"output.dir={tmp_path / 'on'}", "--quiet")) == 0
+    assert sorted(p.name for p in (tmp_path / "on" / "export").iterdir()) == ["maps"]
+    assert (tmp_path / "on" / "export" / "maps" / "pd.exr").is_file()
+    assert "export/maps/pd.png" in json.loads((tmp_path / "on" / "run_complete.json").read_text())["files"]
+    args = tiny_capture_args(tmp_path, f"output.dir={tmp_path / 'off'}", "output.export=false", "--quiet")
+    assert main(args) == 0 and not (tmp_path / "off" / "export").exists()
