@@ -79,6 +79,32 @@ def test_outputs_contract(small_run):
     json.loads((out / "metrics.json").read_text(), parse_constant=lambda c: pytest.fail(f"metrics.json holds {c}"))
 
 
+def test_the_run_exports_a_glb_and_obj_other_readers_open(small_run):
+    """output.export (on by default): the range mesh as OBJ and .glb (trimesh and pygltflib read them), the base
+    colour texture the fitted Pd within 1 DN (8-bit sRGB), the scan's full turn closed by the seam's faces."""
+    import pygltflib
+    import trimesh
+    from reference.gltf_brdf import GlbMaterial
+
+    p, ex = np.load(small_run / "params.npz"), small_run / "export"
+    faces = p["grid_faces"]
+    glb = trimesh.load(ex / "object.glb")
+    (mesh,) = glb.geometry.values()
+    obj = trimesh.load(ex / "object.obj", process=False)
+    assert len(mesh.faces) == len(obj.faces) == len(faces)
+    v_lines = sum(line.startswith("v ") for line in (ex / "object.obj").open())
+    assert v_lines == len(np.unique(faces))  # one vertex per grid point (trimesh splits the seam's: two UVs)
+    assert pygltflib.GLTF2().load(str(ex / "object.glb")).materials[0].extensions["KHR_materials_specular"]
+    cols = faces % 128
+    assert ((cols.min(1) == 0) & (cols.max(1) == 127)).any()  # the wrap-around faces are there
+    base = GlbMaterial(ex / "object.glb").base_color  # linear, decoded from the file's sRGB PNG
+    m = p["mask"]
+    dn = lambda x: np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.clip(x, 0, 1) ** (1 / 2.4) - 0.055) * 255
+    assert np.abs(dn(base[m]) - dn(np.clip(p["pd"][m], 0, 1))).max() <= 1.0 + 1e-6
+    for name in ("pd.png", "ps.png", "sigma.png", "normals.png", "coverage.png", "pd.exr", "sigma.exr"):
+        assert (ex / "maps" / name).stat().st_size > 0
+
+
 def test_small_synthetic_accuracy(small_run):
     m = json.loads((small_run / "metrics.json").read_text())
     gt = m["ground_truth"]

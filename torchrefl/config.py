@@ -401,6 +401,7 @@ class OutputConfig:
     dir: str = opt("outputs/default", "output folder (relative paths are relative to the current directory)")
     map_lights: int = opt(3, "number of lights for observed / re-rendered / difference PNGs", low=0)
     progress: bool = opt(True, "show progress bars")
+    export: bool = opt(True, "write export/: OBJ + MTL, glTF .glb, 16-bit PNG and OpenEXR maps (docs/exports.md)")
 
 
 @dataclass

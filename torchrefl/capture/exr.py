@@ -2,8 +2,9 @@
 
 A sample is read as it is, a linear fraction of the sensor's full range (1.0 = full range; nothing is divided,
 clipped or gamma-decoded). The channels must be R, G, B or Y (grey), optionally with A (dropped); the file's
-data window must be its display window; NaN or infinite samples are an error naming the file. `openexr_module`
-is the one import of the package (a MissingPackageError naming the file and the install command without it).
+data window must be its display window; NaN or infinite samples are an error naming the file. core/exr.py's
+`openexr_module` is the one import of the package (a MissingPackageError naming the file and the install command
+without it).
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from torchrefl.errors import CaptureError, MissingPackageError
+from torchrefl.core.exr import openexr_module
+from torchrefl.errors import CaptureError
 
 EXR_MAGIC = b"\x76\x2f\x31\x01"
 #: the bit depth images.read_image reports for EXR files (their samples are decoded to float32)
@@ -24,18 +26,6 @@ def is_exr(path: Path) -> bool:
     """The file starts with OpenEXR's magic number."""
     with open(path, "rb") as fh:
         return fh.read(4) == EXR_MAGIC
-
-
-def openexr_module(path, why: str = "reading"):
-    """The OpenEXR module; MissingPackageError naming `path` when the `openexr` package is not installed."""
-    try:
-        import OpenEXR
-    except ImportError:
-        raise MissingPackageError(
-            f"{path}: {why} an OpenEXR image needs the 'openexr' package (3.x), which is not installed: "
-            "pip install openexr"
-        ) from None
-    return OpenEXR
 
 
 def _open(path: Path, header_only: bool):

@@ -16,6 +16,8 @@ from torchrefl.fit.result import FitResult
 from torchrefl.geometry.mesh_file import write_obj
 from torchrefl.planning.light_selection import SelectionResult
 from torchrefl.report.coverage import specular_sources
+from torchrefl.report.export_mesh import atlas_mesh, scan_mesh
+from torchrefl.report.export_run import EXPORT, ExportInput, export_estimate
 from torchrefl.report.figure import write_figure
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference, strict_json
@@ -40,10 +42,42 @@ def mesh_of_maps(out: Path, cap: Capture) -> str | None:
         return str(source)
 
 
+def grid_faces(cap: Capture) -> np.ndarray | None:
+    """params.npz's `grid_faces`: the range mesh's triangles over the texel grid's points (vertex r * W + c) of a
+    capture whose mesh is its grid triangulation (cylindrical_scan); None for the other kinds."""
+    surface = cap.surface
+    H, W = surface.grid_shape
+    if cap.mesh is not None or not surface.has_mesh or len(surface.mesh_vertices) != H * W:
+        return None
+    return np.asarray(surface.mesh_faces, dtype=np.int32)
+
+
+def export_input(cap: Capture, res: FitResult, brdf: str) -> ExportInput:
+    """The run's estimate and mesh as report.export_run takes them."""
+    surface = cap.surface
+    grid = lambda x, fill=0.0: surface.to_grid(x, fill=fill)
+    positions, normals = grid(surface.positions.double()), grid(surface.normals.double())
+    faces = grid_faces(cap)
+    mesh = scan_mesh(positions, normals, faces, surface.units) if faces is not None else None
+    mesh = atlas_mesh(cap.mesh) if cap.mesh is not None else mesh
+    return ExportInput(
+        grid(res.pd.double().numpy()),
+        grid(res.ps.double().numpy()),
+        grid(res.sigma.double().numpy()),
+        surface.to_grid(res.estimated.numpy(), fill=False),
+        np.asarray(normals),
+        grid(res.coverage.numpy()),
+        brdf,
+        mesh,
+        str(surface.source),
+    )
+
+
 def write_params(path: Path, cfg: Config, cap: Capture, res: FitResult, mesh: str | None = None) -> None:
     """params.npz: the estimate and the texel geometry on the texel grid (with `mesh`, the mesh it lies on)."""
     surface, obs = cap.surface, cap.obs
     grid = lambda x, fill=0.0: surface.to_grid(x, fill=fill)
+    faces = grid_faces(cap)
     with atomic_file(path) as fh:
         np.savez_compressed(
             fh,
@@ -62,6 +96,7 @@ def write_params(path: Path, cfg: Config, cap: Capture, res: FitResult, mesh: st
             diffuse=np.array(res.diffuse.model),
             minnaert_k=np.array(res.diffuse.k),
             **({"mesh": np.array(mesh)} if mesh is not None else {}),
+            **({"grid_faces": faces} if faces is not None else {}),
         )
 
 
@@ -149,6 +184,9 @@ def write_outputs(
                 grid(res.predicted[p].double().numpy()),
                 shown,
             )
+    if cfg.output.export:
+        with stages.stage("export"):
+            export_estimate(export_input(cap, res, cfg.reflectance.brdf), out / EXPORT, option="output.export")
     metrics["timing_s"] = {k: round(v, 3) for k, v in stages.timing.items()}
     metrics["timing_s"]["total"] = round(stages.total(), 3)
     atomic_write_text(out / "metrics.json", strict_json(metrics))

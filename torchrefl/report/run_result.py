@@ -9,6 +9,7 @@
     from torchrefl.report.relight_camera import orbit_camera
     cam = orbit_camera(run.scene.centre, run.scene.radius, 30, 20, 300)   # a pinhole camera (capture.cameras)
     frame = run.render(camera=cam, light=Light(intensity=2e5, position=(0, 200, 400))).image   # with cast shadows
+    run.export("outputs/default_export")   # OBJ + MTL, glTF .glb, 16-bit PNG and EXR maps (docs/exports.md)
 
 `load_run` reads the outputs contract (docs/outputs.md) (params.npz, metrics.json, config.yaml) and
 checks it: a folder without a valid completeness marker (torchrefl.report.run_marker: an incomplete run),
@@ -193,6 +194,14 @@ class RunResult:
         return shade(
             self, normals, light_dir, falloff, view_dir, intensity, flat(self.pd), flat(self.ps), flat(self.sigma)
         )
+
+    def export(self, out_dir, formats=None):
+        """Write the run's exports into out_dir (docs/exports.md): OBJ + MTL, glTF .glb, 16-bit PNG and OpenEXR
+        maps; formats: some of "maps", "obj", "glb" (None: every format the run's geometry allows). Returns an
+        ExportResult (torchrefl.report.export_run)."""
+        from torchrefl.report.export_run import export_run
+
+        return export_run(self, out_dir, formats)
 
     def figure(self, sigma_max: float | None = None):
         """A matplotlib Figure (pyplot) with Pd (sRGB), Ps (mean over channels), sigma and the coverage map
