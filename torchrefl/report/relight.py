@@ -27,7 +27,6 @@ import torch
 
 from torchrefl.capture.lights_json import Lights
 from torchrefl.capture.mesh_views import check_lights_outside, read_units
-from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.observations import Observations
 from torchrefl.core.point_light import light_geometry
 from torchrefl.core.progress import bar
@@ -304,18 +303,15 @@ def _relight_grid(run, camera, light: Light) -> RelitImage:
             "orthographic camera of its photographs (torchrefl.report.relight.photographs_camera, --camera photographs)"
         )
     m = run.mask
-    t = lambda a: torch.from_numpy(np.asarray(a, dtype=np.float64))
-    x, n = t(run.positions)[torch.from_numpy(m)], t(run.normals)[torch.from_numpy(m)]
-    n = n / n.norm(dim=1, keepdim=True).clamp_min(1e-12)
-    v = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(x)
-    if light.position is not None:
-        to = t(light.position) - x
-        dist2 = (to * to).sum(-1)
-        l, falloff = to / dist2.sqrt().clamp_min(1e-300)[:, None], 1.0 / dist2.clamp_min(1e-300)
-    else:
-        l, falloff = t(light.direction).expand_as(x), torch.ones(len(x), dtype=torch.float64)
-    values = shade(run, n, l, falloff, v, light.intensity, t(run.pd)[m], t(run.ps)[m], t(run.sigma)[m])
-    values = values * ((brdf_mod.dot(n, v) > 0) & (brdf_mod.dot(n, l) > 0)).to(values.dtype)[:, None]
+    x, n = (np.asarray(a, dtype=np.float64)[m] for a in (run.positions, run.normals))
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    lit = light_geometry(x, n, None, position=light.position, direction=light.direction, offset=0.0)
+    keep = lit.lit & (n[:, 2] > 0)  # facing the light and the camera (v = +z)
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(np.asarray(a, dtype=np.float64)[keep]))
+    v = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(int(keep.sum()), 3)
+    maps = (t(a[m]) for a in (run.pd, run.ps, run.sigma))
+    values = np.zeros((len(x), 3))
+    values[keep] = shade(run, t(n), t(lit.direction), t(lit.falloff), v, light.intensity, *maps).numpy()
     image = np.zeros(run.grid_shape + (3,))
-    image[m] = values.numpy()
+    image[m] = values
     return RelitImage(image, m.copy(), m.copy(), m.copy())
