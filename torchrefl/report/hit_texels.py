@@ -97,16 +97,22 @@ class TexelMesh:
         if self.atlas is None:
             stencil = bilinear_weights if interpolation == "bilinear" else nearest_weights
             return stencil(coords, self.grid_shape, self.wrap)
-        bary = np.stack([1.0 - barycentric.sum(1), barycentric[:, 0], barycentric[:, 1]])
-        near = self.atlas.texel_index[self.atlas.texels(triangle, bary)[0]][:, None]
         if interpolation == "nearest":
-            return TexelWeights(near, np.ones(near.shape))
+            near = self._chart_nearest(triangle, barycentric)
+            return TexelWeights(near[:, None], np.ones((len(near), 1)))
         w = bilinear_weights(coords, self.grid_shape)
         weight = np.where(self.cell_chart[w.index] == self.atlas.face_chart[triangle][:, None], w.weight, 0.0)
-        total = weight.sum(1, keepdims=True)
-        none = total[:, 0] <= 0.0  # no texel of the hit's chart among the four: its chart's nearest texel
-        weight = np.where(none[:, None], np.eye(1, 4), weight / np.where(none, 1.0, total[:, 0])[:, None])
-        return TexelWeights(np.where(none[:, None], near, w.index), weight)
+        total = weight.sum(1)
+        none = np.flatnonzero(total <= 0.0)  # no texel of the hit's chart among the four: its chart's nearest
+        weight /= np.where(total > 0.0, total, 1.0)[:, None]
+        w.index[none] = self._chart_nearest(triangle[none], barycentric[none])[:, None]
+        weight[none] = np.eye(1, 4)
+        return TexelWeights(w.index, weight)
+
+    def _chart_nearest(self, triangle: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+        """(N,) flat grid index of the texel of each hit's chart nearest its grid cell (AtlasHits.texels)."""
+        bary = np.stack([1.0 - barycentric.sum(1), barycentric[:, 0], barycentric[:, 1]])
+        return self.atlas.texel_index[self.atlas.texels(triangle, bary)[0]]
 
     @cached_property
     def cell_chart(self) -> np.ndarray:
