@@ -5,7 +5,7 @@ or end within EPS of it are left out of the comparison (Embree works in float32)
 import numpy as np
 import pytest
 
-from torchrefl.core.point_light import PointLight, point_light
+from torchrefl.core.point_light import PointLight, light_geometry, point_light
 from torchrefl.core.rays import RayTracer
 from torchrefl.errors import GeometryError
 
@@ -184,3 +184,24 @@ def test_shape_errors(scene):
         point_light(np.zeros((3, 3)), np.ones((3, 3)), np.ones((2, 3)), tr, offset=OFFSET)
     with pytest.raises(GeometryError, match="offset"):
         point_light(np.zeros((1, 3)), np.array([[0.0, 0, 1]]), np.array([[0.0, 0, 3]]), tr, offset=-1.0)
+
+
+def test_light_geometry_of_a_point_and_a_directional_light(scene):
+    """A point light is point_light's; a directional light has its direction everywhere, distance 1, and its shadow
+    ray reaches past the scene (the occluder at z = 1 shadows the point under it, not the open ground)."""
+    _, _, tr = scene
+    x = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    n = np.tile([0.0, 0.0, 1.0], (3, 1))
+    L = np.array([0.1, -0.2, 2.0])
+    point = light_geometry(x, n, tr, position=L, offset=OFFSET)
+    ref = point_light(x, n, np.broadcast_to(L, x.shape), tr, offset=OFFSET)
+    np.testing.assert_array_equal(point.direction, ref.direction)
+    np.testing.assert_array_equal(point.shadowed, ref.shadowed)
+    towards = np.array([0.0, 0.28, 0.96])  # meets z = 1 at y = 0.29, over the occluder
+    sun = light_geometry(x, n, tr, direction=towards, offset=OFFSET, trace=[True, True, False])
+    np.testing.assert_allclose(sun.direction, np.tile(towards, (3, 1)))
+    np.testing.assert_allclose(sun.falloff, 1.0)
+    np.testing.assert_allclose(sun.cosine, 0.96)
+    assert sun.shadowed.tolist() == [True, False, False]  # under the occluder; open ground; not traced
+    with pytest.raises(GeometryError, match="exactly one of position"):
+        light_geometry(x, n, tr, offset=OFFSET)

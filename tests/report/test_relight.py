@@ -60,9 +60,11 @@ def test_true_parameters_render_like_the_synthetic_renderer(tmp_path):
     inner[1:-1, 1:-1] &= ours.covered[1:-1, 2:]
     assert inner.sum() > 1500 and expect[inner].max() > 0.3  # a lit object with a highlight
     diff = np.abs(ours.image - expect)[inner] * 255
-    # the estimate is on 3-7 px texels (bilinear at material borders), the reference exact: small on average
-    assert diff.mean() < 1.0, diff.mean()
-    assert np.percentile(diff, 90) < 2.0
+    # the estimate is on 3-7 px texels (bilinear at material borders), the normals the mesh's interpolated corner
+    # normals, the reference exact: 0.05 DN on average, 0.08 DN at the 90th percentile when measured (texel normals
+    # instead gave 0.12 and 0.19)
+    assert diff.mean() < 0.1, diff.mean()
+    assert np.percentile(diff, 90) < 0.15
 
 
 def test_a_light_inside_the_object_is_a_named_error(tmp_path):

@@ -1,19 +1,17 @@
-"""render_view: a mesh_views estimate re-rendered in a photograph's camera. At the true maps of a noiseless synthetic
-capture it reproduces the photograph (rendered independently, by the synthetic renderer); its pixel rays go back
-through the cameras' own projection (with distortion) to the pixel points."""
+"""render_view: a mesh_views estimate re-rendered in a photograph's camera (through report.relight). At the true maps
+of a noiseless synthetic capture it reproduces the photograph (rendered independently, by the synthetic renderer)."""
 
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
-from torchrefl.capture.cameras import Cameras
 from torchrefl.config import MeshViewsConfig
 from torchrefl.errors import RunFolderError
+from torchrefl.geometry.atlas_surface import load_atlas_geometry
 from torchrefl.report.run_result import RunResult
-from torchrefl.report.view_render import pixel_rays, render_view
+from torchrefl.report.view_render import render_view
 from torchrefl.synthetic.mesh_views import write_capture
 
 S = 32
@@ -21,13 +19,17 @@ SCENE = dict(width=96, height=72, focal_px=160.0, cameras_per_ring=2, camera_ele
 
 
 def run_of(truth: dict, mesh: Path | None, folder: Path) -> RunResult:
-    """A RunResult holding the given maps (the truth) on the capture's atlas."""
+    """A RunResult holding the given maps (the truth) on the capture's atlas, with the atlas's texel positions and
+    normals (as the loader writes them into params.npz) when the mesh is given."""
     mask = np.isfinite(truth["sigma"])
-    zeros = np.zeros(mask.shape + (3,))
+    positions = normals = np.zeros(mask.shape + (3,))
+    if mesh is not None:
+        surface = load_atlas_geometry(mesh, S).surface
+        positions, normals = (surface.to_grid(a.numpy()) for a in (surface.positions, surface.normals))
     maps = {k: np.nan_to_num(truth[k]) for k in ("pd", "ps", "sigma")}
     return RunResult(
-        folder=folder, mask=mask, positions=zeros, normals=zeros, kappa=np.full(3, np.pi), brdf="torrance_sparrow",
-        units="mm", coverage=None, n_diffuse=None, n_specular=None, metrics={}, config={},
+        folder=folder, mask=mask, positions=positions, normals=normals, kappa=np.full(3, np.pi),
+        brdf="torrance_sparrow", units="mm", coverage=None, n_diffuse=None, n_specular=None, metrics={}, config={},
         mesh=None if mesh is None else str(mesh), **maps,
     )  # fmt: skip
 
@@ -45,8 +47,8 @@ def test_the_true_maps_rerender_the_photograph(capture):
     assert view.shown.sum() > 1500 and (view.rendered[view.shown].max(-1) > 0.05).sum() > 1000
     diff = np.abs(view.rendered - view.photograph)[view.shown] * 255
     # the photograph takes the exact normal and material at each sub-sample, the re-render its texel's maps and the
-    # interpolated normal: within the issue's held-out mean of 0.5 DN, no pixel off by a quantisation-sized 2 DN
-    assert view.difference()["mean_abs_diff_8bit"] < 0.5 and np.percentile(diff, 99) < 2.0
+    # interpolated normal: within 0.2 DN on average (docs/outputs.md), no pixel off by a quantisation-sized 2 DN
+    assert view.difference()["mean_abs_diff_8bit"] < 0.2 and np.percentile(diff, 99) < 2.0
     assert not view.rendered[~view.shown].any()
     brighter = render_view(replace(run, pd=run.pd * 1.1), 1)  # an estimate 10 % off shows as such
     assert brighter.difference()["mean_abs_diff_8bit"] > 5 * view.difference()["mean_abs_diff_8bit"]
@@ -59,27 +61,3 @@ def test_a_run_without_its_mesh_or_capture_is_a_named_error(capture, tmp_path):
         render_view(run_of(capture.truth, None, tmp_path), 0, capture=capture.folder)
     with pytest.raises(RunFolderError, match="no image 9"):
         render_view(run_of(capture.truth, capture.folder / "mesh.obj", tmp_path), 9)
-
-
-def test_pixel_rays_project_back_onto_their_pixel_points():
-    R = torch.linalg.matrix_exp(torch.tensor([[0.0, -0.3, 0.1], [0.3, 0.0, -0.2], [-0.1, 0.2, 0.0]]))
-    cams = Cameras.from_arrays(
-        ["c"],
-        [40],
-        [30],
-        [50.0],
-        [55.0],
-        [19.0],
-        [15.5],
-        [[-0.2, 0.05, 0.01, -0.02, 0.0]],
-        R,
-        [[5.0, -3.0, 200.0]],
-        "t",
-    )
-    centre, dirs = pixel_rays(cams, 0, 2)
-    np.testing.assert_allclose(centre, cams.centres()[0].numpy())
-    points = centre + 100.0 * dirs.reshape(-1, 3)
-    uv = cams.project(torch.from_numpy(points), 0).uv.numpy().reshape(30, 40, 4, 2)
-    v, u = np.mgrid[0:30, 0:40]
-    np.testing.assert_allclose(uv[:, :, 0], np.stack([u - 0.25, v - 0.25], -1), atol=1e-6)
-    np.testing.assert_allclose(uv[:, :, 3], np.stack([u + 0.25, v + 0.25], -1), atol=1e-6)

@@ -28,7 +28,7 @@ from torchrefl.capture.view_folder import ViewFolder, read_view_folder
 from torchrefl.capture.views_sampling import OUTSIDE, REASON_KEYS, CameraView, camera_view, footprint_values
 from torchrefl.config import Config, read_yaml_mapping
 from torchrefl.core.observations import Observations
-from torchrefl.core.point_light import PointLight, point_light
+from torchrefl.core.point_light import light_geometry
 from torchrefl.core.rays import RayTracer
 from torchrefl.errors import CaptureError
 from torchrefl.geometry.atlas import uv_to_texel_xy
@@ -101,17 +101,6 @@ def check_lights_outside(lights, tracer: RayTracer, used) -> None:
             )
 
 
-def _light_geometry(lights, k: int, x, n, tracer, offset, min_cos, trace) -> PointLight:
-    """PointLight of light k at the texels (a directional light: its direction, distance 1, no falloff)."""
-    if lights.point[k]:
-        L = np.broadcast_to(lights.position[k].astype(x.dtype), x.shape)
-        return point_light(x, n, L, tracer, offset=offset, min_cos=min_cos, trace=trace)
-    towards = lights.direction[k].astype(x.dtype)
-    reach = 10.0 * float(np.ptp(tracer.vertices, axis=0).max()) + 1.0
-    pl = point_light(x, n, x + reach * towards[None], tracer, offset=offset, min_cos=min_cos, trace=trace)
-    return PointLight(np.broadcast_to(towards, x.shape), np.ones(len(x), x.dtype), pl.cosine, pl.lit, pl.shadowed)
-
-
 def _camera_images(meta: ViewFolder, chosen: list, cam: int) -> tuple[list, list]:
     """The positions among `chosen` of camera `cam`'s images and those images (H, W, 3), decoded (ViewFolder)."""
     mine = [k for k, i in enumerate(chosen) if meta.camera_index[i] == cam]
@@ -179,8 +168,16 @@ def load_views_observations(
             saturated[p] = view.seen & (sat[:, 0] > 0)
             masked[p] = view.seen & (out[:, 0] > 0)
             view_dir[p] = view.view_dir
-            pl = _light_geometry(
-                lights, light_of[p], x32, n32, tracer, offset, cfg.reflectance.min_cos_light, view.seen
+            k = light_of[p]
+            pl = light_geometry(
+                x32,
+                n32,
+                tracer,
+                position=lights.position[k] if lights.point[k] else None,
+                direction=None if lights.point[k] else lights.direction[k],
+                offset=offset,
+                min_cos=cfg.reflectance.min_cos_light,
+                trace=view.seen,
             )
             light_dir[p], dist[p], cos_l[p], lit[p], shadowed[p] = (
                 pl.direction,

@@ -10,6 +10,10 @@ scan, so every point may see its light from another place):
 
 and a light of intensity Y gives the irradiance E = Y max(n . l, 0) visible / d^2 (PointLight.irradiance).
 
+`light_geometry` is the same for one light that is either a point light or a directional light (the capture
+loader of mesh_views, the relighting renderer): a directional light has its direction everywhere, distance 1 (no
+falloff), and its shadow ray ends DIRECTIONAL_REACH scene extents beyond each point.
+
 The shadow test is RayTracer.visible (torchrefl.core.rays), whose docstring states the one origin-offset rule
 (`offset` in scene units, e.g. geometry.shadow_offset_mm); only lit points are traced.
 
@@ -24,6 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from torchrefl.errors import GeometryError
+
+#: a directional light's shadow ray ends this many scene extents (the tracer's largest bounding-box side) + 1 away
+DIRECTIONAL_REACH = 10.0
 
 
 @dataclass
@@ -87,3 +94,24 @@ def point_light(points, normals, lights, tracer, *, offset: float, min_cos: floa
     if tracer is not None and idx.size:
         shadowed[idx] = ~tracer.visible(x[idx], n[idx], L[idx], offset=offset)
     return PointLight(direction, distance, cosine, lit, shadowed)
+
+
+def light_geometry(
+    points, normals, tracer, *, position=None, direction=None, offset: float, min_cos: float = 0.0, trace=None
+) -> PointLight:
+    """PointLight of points (N, 3) with normals (N, 3) under one light: a point light at position (3,) or a
+    directional light towards direction (3,) (unit): l = direction at every point, distance 1 (falloff 1), the
+    shadow ray to a target DIRECTIONAL_REACH scene extents beyond the point (module doc). tracer, offset, min_cos,
+    trace: point_light's. GeometryError unless exactly one of position and direction is given."""
+    if (position is None) == (direction is None):
+        raise GeometryError("light_geometry: give exactly one of position (a point light) and direction")
+    x = np.asarray(points)
+    if position is not None:
+        L = np.broadcast_to(np.asarray(position).astype(x.dtype), x.shape)
+        return point_light(x, normals, L, tracer, offset=offset, min_cos=min_cos, trace=trace)
+    towards = np.asarray(direction).astype(x.dtype)
+    extent = float(np.ptp(tracer.vertices, axis=0).max()) if tracer is not None else 0.0
+    targets = x + (DIRECTIONAL_REACH * extent + 1.0) * towards[None]
+    pl = point_light(x, normals, targets, tracer, offset=offset, min_cos=min_cos, trace=trace)
+    ones = np.ones(len(x), dtype=pl.distance.dtype)
+    return PointLight(np.broadcast_to(towards, x.shape), ones, pl.cosine, pl.lit, pl.shadowed)

@@ -1,12 +1,14 @@
 """Relighting a fitted object: its image from any camera under any point or directional light, with cast shadows.
 
 Per pixel (supersample^2 stratified rays; report.relight_camera): Embree's closest hit on the run's mesh
-(report.hit_texels: the scan grid's triangulation, or the mesh_views mesh) -> the texel coordinates of the hit
--> the estimate there (bilinear over estimated texels, or the nearest texel) -> a shadow ray from the hit to the
-light (core.rays.RayTracer.visible, origin offset geometry.shadow_offset_mm along the face normal) -> the fitter's
-own observation model, transport.local.render_reference (i = kappa Y falloff g(n, l, v), core.brdf), with the
-run's BRDF, diffuse part and kappa. The pixel is the mean over its samples (a miss, a back-facing sample or one
-without an estimate counts 0). Values are sensor fractions of full range at exposure 1, like the capture's.
+(report.hit_texels: the scan grid's triangulation, or the mesh_views mesh) -> the texels the hit reads (bilinear
+over estimated texels, on an atlas only those of the hit's chart, or the nearest texel) -> the estimate there,
+with the normal blended from the hit face's corner normals (the loader's texel normals at its points) -> a shadow
+ray from the hit to the light (core.point_light.light_geometry, as the capture loader traces it: origin offset
+geometry.shadow_offset_mm along that normal) -> the fitter's own observation model,
+transport.local.render_reference (i = kappa Y falloff g(n, l, v), core.brdf), with the run's BRDF, diffuse part
+and kappa. The pixel is the mean over its samples (a miss, a back-facing sample or one without an estimate
+counts 0). Values are sensor fractions of full range at exposure 1, like the capture's.
 
 Transport is local (direct light and cast shadows): the interreflection of the radiosity and photon levels is not
 added (a relit frame of a concave object is darker than a photograph in its concavities by that amount).
@@ -25,8 +27,8 @@ import torch
 
 from torchrefl.capture.lights_json import Lights
 from torchrefl.capture.mesh_views import check_lights_outside, read_units
-from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.observations import Observations
+from torchrefl.core.point_light import light_geometry
 from torchrefl.core.progress import bar
 from torchrefl.core.rays import RayTracer
 from torchrefl.errors import CaptureError, RunFolderError
@@ -88,11 +90,13 @@ class Light:
 class RelitImage:
     """image (H, W, 3) float64: predicted sensor values (fractions of full range, exposure 1); covered (H, W) bool:
     some ray of the pixel meets the object; estimated (H, W) bool: every ray of the pixel that meets the object
-    lands on estimated texels (the image is complete there)."""
+    lands on estimated texels (the image is complete there); filled (H, W) bool: every ray of the pixel meets the
+    object (no silhouette pixel)."""
 
     image: np.ndarray
     covered: np.ndarray
     estimated: np.ndarray
+    filled: np.ndarray
 
 
 @dataclass
@@ -129,7 +133,7 @@ def run_mesh(run) -> TexelMesh | None:
         raise RunFolderError(f"{where}, which cannot be read ({exc})") from None
     if mesh.uvs is None:
         raise RunFolderError(f"{where}, which has no UVs (expected the mesh with the atlas the maps lie on)")
-    return atlas_texel_mesh(mesh.vertices, mesh.faces, mesh.uvs, run.grid_shape)
+    return atlas_texel_mesh(mesh, run.grid_shape)
 
 
 def relight_scene(run, threads: int = 2) -> RelightScene:
@@ -142,7 +146,7 @@ def relight_scene(run, threads: int = 2) -> RelightScene:
     if mesh is None:
         return RelightScene(None, None, centre, radius)
     tracer = RayTracer(mesh.vertices, mesh.faces, threads=threads)
-    texels = texel_image(run.pd, run.ps, run.sigma, run.normals, run.mask, wrap=mesh.wrap, dtype=SHADE_DTYPE)
+    texels = texel_image(run.pd, run.ps, run.sigma, run.mask, dtype=SHADE_DTYPE)
     return RelightScene(mesh, tracer, centre, radius, texels)
 
 
@@ -238,7 +242,10 @@ def relight(
     k2 = int(supersample) ** 2
     covered = hit_count > 0
     return RelitImage(
-        (total / k2).reshape(H, W, 3), covered.reshape(H, W), (covered & (done_count == hit_count)).reshape(H, W)
+        (total / k2).reshape(H, W, 3),
+        covered.reshape(H, W),
+        (covered & (done_count == hit_count)).reshape(H, W),
+        (hit_count == k2).reshape(H, W),
     )
 
 
@@ -258,28 +265,27 @@ def _trace_block(run, scene: RelightScene, light: Light, o, d, offset, shadows, 
     if not idx.size:
         return values, hit, done
     x = o[idx] + hits.distance[idx, None] * d[idx]
-    s = sample_texels(scene.texels, scene.mesh.texel_coords(hits.triangle[idx], hits.barycentric[idx]), interpolation)
+    tri, bary = hits.triangle[idx], hits.barycentric[idx]
+    s = sample_texels(scene.texels, scene.mesh.texel_weights(tri, bary, interpolation))
     done[idx] = s.estimated.numpy()
-    if light.position is not None:
-        to = light.position[None] - x
-        dist = np.linalg.norm(to, axis=1)
-        l = to / np.maximum(dist, 1e-300)[:, None]
-        falloff = 1.0 / np.maximum(dist, 1e-300) ** 2
-        targets = np.broadcast_to(light.position, x.shape)
-    else:
-        l = np.broadcast_to(light.direction, x.shape)
-        falloff = np.ones(len(x))
-        targets = x + (4.0 * scene.radius + 1.0) * l  # beyond the object
-    dt = scene.texels.image.dtype
-    v, l = torch.from_numpy(-d[idx]).to(dt), torch.from_numpy(np.ascontiguousarray(l)).to(dt)
-    keep = (s.estimated & (brdf_mod.dot(s.normals, v) > 0) & (brdf_mod.dot(s.normals, l) > 0)).numpy()
-    if shadows and keep.any():
-        k = np.flatnonzero(keep)
-        keep[k] = scene.tracer.visible(x[k], scene.mesh.face_normals(hits.triangle[idx[k]]), targets[k], offset=offset)
+    n = scene.mesh.normals(tri, bary)
+    front = s.estimated.numpy() & (np.einsum("ni,ni->n", n, d[idx]) < 0)
+    lit = light_geometry(
+        x,
+        n,
+        scene.tracer if shadows else None,
+        position=light.position,
+        direction=light.direction,
+        offset=offset,
+        trace=front,
+    )
+    keep = front & lit.visible
     if keep.any():
         k = torch.from_numpy(keep)
-        f = torch.from_numpy(falloff).to(dt)[k]
-        out = shade(run, s.normals[k], l[k], f, v[k], light.intensity, s.pd[k], s.ps[k], s.sigma[k])
+        t = lambda a: torch.from_numpy(np.ascontiguousarray(a[keep])).to(scene.texels.table.dtype)
+        out = shade(
+            run, t(n), t(lit.direction), t(lit.falloff), t(-d[idx]), light.intensity, s.pd[k], s.ps[k], s.sigma[k]
+        )
         values[idx[keep]] = out.numpy()
     return values, hit, done
 
@@ -297,18 +303,15 @@ def _relight_grid(run, camera, light: Light) -> RelitImage:
             "orthographic camera of its photographs (torchrefl.report.relight.photographs_camera, --camera photographs)"
         )
     m = run.mask
-    t = lambda a: torch.from_numpy(np.asarray(a, dtype=np.float64))
-    x, n = t(run.positions)[torch.from_numpy(m)], t(run.normals)[torch.from_numpy(m)]
-    n = n / n.norm(dim=1, keepdim=True).clamp_min(1e-12)
-    v = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(x)
-    if light.position is not None:
-        to = t(light.position) - x
-        dist2 = (to * to).sum(-1)
-        l, falloff = to / dist2.sqrt().clamp_min(1e-300)[:, None], 1.0 / dist2.clamp_min(1e-300)
-    else:
-        l, falloff = t(light.direction).expand_as(x), torch.ones(len(x), dtype=torch.float64)
-    values = shade(run, n, l, falloff, v, light.intensity, t(run.pd)[m], t(run.ps)[m], t(run.sigma)[m])
-    values = values * ((brdf_mod.dot(n, v) > 0) & (brdf_mod.dot(n, l) > 0)).to(values.dtype)[:, None]
+    x, n = (np.asarray(a, dtype=np.float64)[m] for a in (run.positions, run.normals))
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    lit = light_geometry(x, n, None, position=light.position, direction=light.direction, offset=0.0)
+    keep = lit.lit & (n[:, 2] > 0)  # facing the light and the camera (v = +z)
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(np.asarray(a, dtype=np.float64)[keep]))
+    v = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(int(keep.sum()), 3)
+    maps = (t(a[m]) for a in (run.pd, run.ps, run.sigma))
+    values = np.zeros((len(x), 3))
+    values[keep] = shade(run, t(n), t(lit.direction), t(lit.falloff), v, light.intensity, *maps).numpy()
     image = np.zeros(run.grid_shape + (3,))
-    image[m] = values.numpy()
-    return RelitImage(image, m.copy(), m.copy())
+    image[m] = values
+    return RelitImage(image, m.copy(), m.copy(), m.copy())
