@@ -183,18 +183,6 @@ class RunResult:
         out[self.mask] = values.numpy()
         return out
 
-    def shade(self, texels, normals, light_dir, view_dir, falloff, intensity) -> torch.Tensor:
-        """(K, 3) kappa x Y x falloff x f(l, v) max(n.l, 0) at K points that take the estimate of texels (K,) (flat
-        indices row * W + col of the grid): normals, light_dir, view_dir (K, 3) unit vectors, falloff (K,),
-        intensity Y (3,) tensors of one dtype; one light through the fitter's own observation model
-        (relight.shade), no visibility test."""
-        idx = torch.as_tensor(np.asarray(texels, dtype=np.int64))
-        dtype = normals.dtype
-        flat = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=dtype).reshape(-1, *a.shape[2:])[idx]
-        return shade(
-            self, normals, light_dir, falloff, view_dir, intensity, flat(self.pd), flat(self.ps), flat(self.sigma)
-        )
-
     def export(self, out_dir, formats=None):
         """Write the run's exports into out_dir (docs/exports.md): OBJ + MTL, glTF .glb, 16-bit PNG and OpenEXR
         maps; formats: some of "maps", "obj", "glb" (None: every format the run's geometry allows). Returns an
