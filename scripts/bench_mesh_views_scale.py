@@ -11,11 +11,12 @@ folder, named after the case) and reused by later runs. Sizes (--case):
 
 The focal length makes one texel about 3.5 px across at the object's near side (the loader leaves texels narrower
 than 2.5 px out of an image), so at full size each camera sees a part of the object and most texels are seen by a
-few images. Stages: render (only when the folder is new), geometry (mesh + atlas), tracer (BVH), observations
-(load_views_observations), load rest (truth, texel mesh), then the fit's own stages (precompute, initialise, fit).
-Each stage's peak resident memory is the kernel's VmHWM reset at the stage's start (/proc/self/clear_refs); the run's
-peak is ru_maxrss. The rays part replays the rays camera_view casts (texel visibility and depth steps) through the
-bare embreex scene (float32 contiguous, split over the same threads) and compares rays per second.
+few images. Stages: render (only when the folder is new), load: geometry (mesh + atlas), load: observations
+(load_views_observations), load: other (the rest of MeshViewsLoader.load: the folder's metadata, the BVH, the truth,
+the texel mesh), then the fit's own stages (fit: precompute, initialise, fit). Each stage's peak resident memory is
+the kernel's VmHWM reset at the stage's start (/proc/self/clear_refs; the reset also resets ru_maxrss), the run's
+peak the largest of them. The rays part replays the rays camera_view casts (texel visibility and depth steps)
+through the bare embreex scene (float32 contiguous, split over the same threads) and compares rays per second.
 
     python scripts/bench_mesh_views_scale.py --case quarter [--folder DIR] [--markdown results.md]
 """
@@ -294,9 +295,9 @@ class ScaleResult:
     errors: dict | None  # report.metrics.ground_truth_errors against truth.npz
 
 
-def measure(case: Case, folder: Path, threads: int = 2, rays: bool = True, log=None) -> ScaleResult:
-    """Render (when needed), load and fit the case's capture in this process, stage by stage (module doc), then
-    the camera-visibility rays."""
+def measure(case: Case, folder: Path, threads: int = 2, rays: bool = True, fit: bool = True, log=None) -> ScaleResult:
+    """Render (when needed), load and (fit: True) fit the case's capture in this process, stage by stage (module
+    doc), then the camera-visibility rays."""
     log = log or (lambda msg, echo=True: None)
     torch.set_num_threads(threads)
     meter = Meter()
@@ -314,11 +315,13 @@ def measure(case: Case, folder: Path, threads: int = 2, rays: bool = True, log=N
         meter.mark("load: other")
         cap = loader.load(folder, cfg, log)
     meter.mark(None)
-    fit = fit_capture(cfg, cap, MeteredStages(meter, log), log, torch.device("cpu"))
-    meter.mark(None)
     errors = None
-    if cap.truth is not None:
-        errors = ground_truth_errors(fit.pd, fit.ps, fit.sigma, cap.truth, fit.estimated, fit.counts["T_spec"] >= 2)
+    if fit:
+        res = fit_capture(cfg, cap, MeteredStages(meter, log), log, torch.device("cpu"))
+        meter.mark(None)
+        if cap.truth is not None:
+            errors = ground_truth_errors(res.pd, res.ps, res.sigma, cap.truth, res.estimated, res.counts["T_spec"] >= 2)
+        del res
     result = ScaleResult(
         case,
         cap.surface.num_texels,
@@ -326,12 +329,12 @@ def measure(case: Case, folder: Path, threads: int = 2, rays: bool = True, log=N
         int(cap.obs.valid.sum()),
         int(cap.obs.valid.any(0).sum()),
         merged(meter.segments),
-        resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+        max([s.peak_bytes for s in meter.segments] + [resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024]),
         meter.resets,
         None,
         errors,
     )
-    del cap, fit
+    del cap
     if rays:
         meta, geom = loader.load_geometry(folder, cfg)
         result.rays = ray_rates(meta, geom, RayTracer(geom.mesh.vertices, geom.mesh.faces, threads=threads), cfg)
@@ -381,7 +384,7 @@ def report(res: ScaleResult, command: str) -> str:
         "|---|---:|---:|",
     ]
     lines += [f"| {s.name} | {s.seconds:.1f} | {s.peak_bytes / gib:.2f} |" for s in res.segments]
-    lines.append(f"| **run (ru_maxrss)** | {sum(s.seconds for s in res.segments):.1f} | {res.peak_bytes / gib:.2f} |")
+    lines.append(f"| **run** | {sum(s.seconds for s in res.segments):.1f} | {res.peak_bytes / gib:.2f} |")
     if not res.resets:
         lines.append("\n(the kernel did not allow resetting the peak: each stage's peak is the run's so far)")
     if res.rays is not None:
@@ -397,12 +400,16 @@ def main(argv=None) -> ScaleResult:
     ap.add_argument("--folder", type=Path, default=None, help="the capture folder (rendered there when new)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--no-rays", action="store_true", help="skip the camera-visibility rays measurement")
+    ap.add_argument("--no-fit", action="store_true", help="stop after the loader")
     ap.add_argument("--markdown", type=Path, default=None, help="also write the report to this file")
     args = ap.parse_args(argv)
     case = CASES[args.case]
     folder = args.folder or Path(tempfile.gettempdir()) / f"torchrefl_mesh_views_scale_{case.name}"
-    res = measure(case, folder, args.threads, rays=not args.no_rays, log=lambda msg, echo=True: print(msg))
+    res = measure(
+        case, folder, args.threads, rays=not args.no_rays, fit=not args.no_fit, log=lambda msg, echo=True: print(msg)
+    )
     command = f"python scripts/bench_mesh_views_scale.py --case {case.name} --threads {args.threads}"
+    command += " --no-fit" * args.no_fit + " --no-rays" * args.no_rays
     page = report(res, command)
     print(page)
     if args.markdown is not None:
