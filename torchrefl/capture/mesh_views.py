@@ -200,21 +200,27 @@ def _light_row(rows: ImageRows, p: int, pl: PointLight) -> None:
     rows.lit[p], rows.shadowed[p] = pl.lit, pl.shadowed
 
 
-def _read_rows(meta: ViewFolder, chosen: list, frame: TexelFrame, tracer: RayTracer, cfg: Config) -> ImageRows:
+def _read_rows(
+    meta: ViewFolder, chosen: list, frame: TexelFrame, tracer: RayTracer, cfg: Config, saturation: float
+) -> ImageRows:
     """ImageRows of the chosen images: camera by camera, one camera view and then its images one at a time (one
-    image in memory)."""
+    image in memory); a pixel at or above `saturation` saturates the texels it contributes to."""
     T, P = len(frame.points), len(chosen)
     rows = ImageRows.empty(P, T)
-    saturation = meta.views.saturation_level
-    saturation = saturation if saturation is not None else cfg.capture.saturation_level
     x32, n32 = frame.points.astype(np.float32), frame.normals.astype(np.float32)
     offset = cfg.geometry.shadow_offset_mm
     for cam in sorted({int(meta.camera_index[i]) for i in chosen}):
-        f = frame
         view = camera_view(
-            meta.cameras, cam, f.points, f.normals, f.areas, f.steps, tracer,
-            offset=offset, min_cos_view=cfg.reflectance.min_cos_view,
-        )  # fmt: skip
+            meta.cameras,
+            cam,
+            frame.points,
+            frame.normals,
+            frame.areas,
+            frame.steps,
+            tracer,
+            offset=offset,
+            min_cos_view=cfg.reflectance.min_cos_view,
+        )
         for p in [k for k, i in enumerate(chosen) if meta.camera_index[i] == cam]:
             i = chosen[p]
             image = meta.read_image(i)
@@ -326,7 +332,7 @@ def load_views_observations(
     saturation = v.saturation_level if v.saturation_level is not None else cfg.capture.saturation_level
     kappa = np.asarray(v.kappa if v.kappa is not None else cfg.capture.kappa, dtype=np.float64)
     check_lights_outside(lights, tracer, light_of)
-    rows = _read_rows(meta, chosen, texel_frame(geom), tracer, cfg)
+    rows = _read_rows(meta, chosen, texel_frame(geom), tracer, cfg, saturation)
     valid = _valid(rows)
     _check_projects(rows, meta, geom)
     if not valid.any():
