@@ -39,7 +39,6 @@ import torch
 
 import torchrefl.capture.mesh_views as mesh_views
 from torchrefl.capture.mesh_views import MeshViewsLoader
-from torchrefl.capture.views_sampling import camera_view
 from torchrefl.config import MeshViewsConfig, load_config
 from torchrefl.core.progress import Stages
 from torchrefl.core.rays import RayTracer
@@ -255,17 +254,7 @@ def ray_rates(meta, geom, tracer: RayTracer, cfg, repeat: int = 2) -> RayRates:
         rec = RecordingTracer(tracer)
         start = time.perf_counter()
         for cam in range(len(meta.cameras)):
-            camera_view(
-                meta.cameras,
-                cam,
-                frame.points,
-                frame.normals,
-                frame.areas,
-                frame.steps,
-                rec,
-                offset=cfg.geometry.shadow_offset_mm,
-                min_cos_view=cfg.reflectance.min_cos_view,
-            )
+            mesh_views.frame_view(meta, cam, frame, rec, cfg)
         best["view"] = min(best["view"], time.perf_counter() - start)
         best["ours"] = min(best["ours"], rec.seconds)
         rays = rec.rays

@@ -94,6 +94,15 @@ def texel_frame(geom: AtlasGeometry) -> TexelFrame:
     )
 
 
+def frame_view(meta: ViewFolder, cam: int, frame: TexelFrame, tracer: RayTracer, cfg: Config) -> CameraView:
+    """What camera index `cam` of meta's cameras sees of the texels (capture.views_sampling.camera_view, with the
+    config's shadow offset and minimum n.v)."""
+    f, off, min_cos = frame, cfg.geometry.shadow_offset_mm, cfg.reflectance.min_cos_view
+    return camera_view(
+        meta.cameras, cam, f.points, f.normals, f.areas, f.steps, tracer, offset=off, min_cos_view=min_cos
+    )
+
+
 def _directions(n: int) -> np.ndarray:
     """(n, 3) unit directions spread over the sphere (a Fibonacci lattice)."""
     k = np.arange(n) + 0.5
@@ -210,17 +219,7 @@ def _read_rows(
     x32, n32 = frame.points.astype(np.float32), frame.normals.astype(np.float32)
     offset = cfg.geometry.shadow_offset_mm
     for cam in sorted({int(meta.camera_index[i]) for i in chosen}):
-        view = camera_view(
-            meta.cameras,
-            cam,
-            frame.points,
-            frame.normals,
-            frame.areas,
-            frame.steps,
-            tracer,
-            offset=offset,
-            min_cos_view=cfg.reflectance.min_cos_view,
-        )
+        view = frame_view(meta, cam, frame, tracer, cfg)
         for p in [k for k, i in enumerate(chosen) if meta.camera_index[i] == cam]:
             i = chosen[p]
             image = meta.read_image(i)
