@@ -15,7 +15,7 @@ sampling, silhouettes and depth steps left out), its light's direction, falloff 
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +28,7 @@ from torchrefl.capture.view_folder import ViewFolder, read_view_folder
 from torchrefl.capture.views_sampling import OUTSIDE, REASON_KEYS, CameraView, camera_view, footprint_values
 from torchrefl.config import Config, read_yaml_mapping
 from torchrefl.core.observations import Observations
-from torchrefl.core.point_light import light_geometry
+from torchrefl.core.point_light import PointLight, light_geometry
 from torchrefl.core.rays import RayTracer
 from torchrefl.errors import CaptureError
 from torchrefl.geometry.atlas import uv_to_texel_xy
@@ -74,6 +74,34 @@ def texel_steps(geom: AtlasGeometry) -> np.ndarray:
     return jac[geom.texels.face]
 
 
+@dataclass
+class TexelFrame:
+    """The atlas's texels as the cameras sample them (float64, mm): points (T, 3), unit normals (T, 3), areas (T,)
+    and steps (T, 3, 2) (texel_steps)."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    areas: np.ndarray
+    steps: np.ndarray
+
+
+def texel_frame(geom: AtlasGeometry) -> TexelFrame:
+    """The TexelFrame of an atlas geometry."""
+    s = geom.surface
+    return TexelFrame(
+        s.positions.double().numpy(), s.normals.double().numpy(), s.areas.double().numpy(), texel_steps(geom)
+    )
+
+
+def frame_view(meta: ViewFolder, cam: int, frame: TexelFrame, tracer: RayTracer, cfg: Config) -> CameraView:
+    """What camera index `cam` of meta's cameras sees of the texels (capture.views_sampling.camera_view, with the
+    config's shadow offset and minimum n.v)."""
+    f, off, min_cos = frame, cfg.geometry.shadow_offset_mm, cfg.reflectance.min_cos_view
+    return camera_view(
+        meta.cameras, cam, f.points, f.normals, f.areas, f.steps, tracer, offset=off, min_cos_view=min_cos
+    )
+
+
 def _directions(n: int) -> np.ndarray:
     """(n, 3) unit directions spread over the sphere (a Fibonacci lattice)."""
     k = np.arange(n) + 0.5
@@ -101,74 +129,92 @@ def check_lights_outside(lights, tracer: RayTracer, used) -> None:
             )
 
 
-def _camera_images(meta: ViewFolder, chosen: list, cam: int) -> tuple[list, list]:
-    """The positions among `chosen` of camera `cam`'s images and those images (H, W, 3), decoded (ViewFolder)."""
-    mine = [k for k, i in enumerate(chosen) if meta.camera_index[i] == cam]
-    return mine, [meta.read_image(chosen[k]) for k in mine]
+@dataclass
+class ImageRows:
+    """What the images record, one row p per image and one column per texel (float32 / bool; P images, T texels).
+
+    intensity (P, T, 3): the footprint's pixel value / the image's exposure, 0 where not seen; view_dir,
+    light_dir (P, T, 3) unit vectors; dist (P, T) texel-light distance (1 for a directional light); cos_l (P, T)
+    n . l; seen, lit, shadowed, saturated, masked (P, T); unseen (P, T) uint8: 0 where seen, else 1 + the index in
+    UNSEEN of why the camera does not see the texel."""
+
+    intensity: np.ndarray
+    view_dir: np.ndarray
+    light_dir: np.ndarray
+    dist: np.ndarray
+    cos_l: np.ndarray
+    seen: np.ndarray
+    lit: np.ndarray
+    shadowed: np.ndarray
+    saturated: np.ndarray
+    masked: np.ndarray
+    unseen: np.ndarray
+
+    @classmethod
+    def empty(cls, P: int, T: int) -> "ImageRows":
+        f3 = lambda: np.zeros((P, T, 3), dtype=np.float32)  # noqa: E731
+        b = lambda: np.zeros((P, T), dtype=bool)  # noqa: E731
+        return cls(
+            f3(), f3(), f3(), np.ones((P, T), np.float32), np.zeros((P, T), np.float32),
+            b(), b(), b(), b(), b(), np.zeros((P, T), np.uint8),
+        )  # fmt: skip
+
+    def not_seen(self, k: int) -> np.ndarray:
+        """(P, T) bool: observations left out for the reason UNSEEN[k]."""
+        return self.unseen == k + 1
 
 
-def _masked_out(meta: ViewFolder, i: int, shape) -> np.ndarray:
-    """(H, W, 1) float32: 1 where image i's mask leaves the pixel out, else 0."""
-    mask = meta.read_mask(i)
-    if mask is None:
-        return np.zeros(shape[:2] + (1,), dtype=np.float32)
-    return (~mask)[..., None].astype(np.float32)
+#: the reasons a camera does not see a texel (views_sampling.CameraView.reasons), in ImageRows.unseen's order
+UNSEEN = list(REASON_KEYS)
 
 
-def load_views_observations(
-    meta: ViewFolder, geom: AtlasGeometry, tracer: RayTracer, cfg: Config, log: Log
-) -> tuple[Observations, dict, list[str]]:
-    """The Observations of the chosen images (capture.light_subset indexes images.json's images), the statistics
-    and the warnings. meta's cameras and lights are in mm, like the mesh."""
-    where = meta.views.source
-    chosen = light_indices(cfg.capture.light_subset, len(meta.views.images), where)
-    images = [meta.views.images[i] for i in chosen]
-    light_of = [int(meta.light_index[i]) for i in chosen]
-    s = geom.surface
-    x = s.positions.double().numpy()
-    n = s.normals.double().numpy()
-    areas = s.areas.double().numpy()
-    steps = texel_steps(geom)
-    T, P = s.num_texels, len(images)
+def _footprint_flag(flags: np.ndarray, view: CameraView, T: int) -> np.ndarray:
+    """(T,) bool: a pixel of the (H, W) bool image `flags` contributes to the seen texel's footprint value."""
+    return footprint_values(flags[..., None].astype(np.float32), view, T)[:, 0] > 0
+
+
+def _image_row(rows: ImageRows, p: int, view: CameraView, image: np.ndarray, mask, exposure: float, saturation):
+    """Row p of rows from one image (H, W, 3) float32 of view's camera: the footprint values divided by the
+    exposure, the saturated texels (a pixel at or above `saturation` in the footprint), the texels its mask
+    (H, W) bool or None leaves out, the view and why texels are not seen."""
+    T = rows.intensity.shape[1]
+    for k, reason in enumerate(UNSEEN):
+        if reason in view.reasons:  # a reason no texel reached may be missing
+            rows.unseen[p][view.reasons[reason]] = k + 1
+    seen = view.seen
+    rows.seen[p] = seen
+    values = footprint_values(image, view, T)
+    rows.intensity[p] = np.where(seen[:, None], values / np.float32(exposure), 0.0)
+    rows.saturated[p] = seen & _footprint_flag((image >= saturation).any(-1), view, T)
+    if mask is not None:
+        rows.masked[p] = seen & _footprint_flag(~mask, view, T)
+    rows.view_dir[p] = view.view_dir
+
+
+def _light_row(rows: ImageRows, p: int, pl: PointLight) -> None:
+    """Row p's light geometry."""
+    rows.light_dir[p], rows.dist[p], rows.cos_l[p] = pl.direction, pl.distance, pl.cosine
+    rows.lit[p], rows.shadowed[p] = pl.lit, pl.shadowed
+
+
+def _read_rows(
+    meta: ViewFolder, chosen: list, frame: TexelFrame, tracer: RayTracer, cfg: Config, saturation: float
+) -> ImageRows:
+    """ImageRows of the chosen images: camera by camera, one camera view and then its images one at a time (one
+    image in memory); a pixel at or above `saturation` saturates the texels it contributes to."""
+    T, P = len(frame.points), len(chosen)
+    rows = ImageRows.empty(P, T)
+    x32, n32 = frame.points.astype(np.float32), frame.normals.astype(np.float32)
     offset = cfg.geometry.shadow_offset_mm
-    v = meta.views
-    saturation = v.saturation_level if v.saturation_level is not None else cfg.capture.saturation_level
-    kappa = np.asarray(v.kappa if v.kappa is not None else cfg.capture.kappa, dtype=np.float64)
-    lights = meta.lights
-    check_lights_outside(lights, tracer, light_of)
-    # the dense (P, T) tensors are what the rest of the code takes: float32 (a sparse form is a later issue)
-    intensity = np.zeros((P, T, 3), dtype=np.float32)
-    view_dir = np.zeros((P, T, 3), dtype=np.float32)
-    light_dir = np.zeros((P, T, 3), dtype=np.float32)
-    dist = np.ones((P, T), dtype=np.float32)
-    cos_l = np.zeros((P, T), dtype=np.float32)
-    seen = np.zeros((P, T), dtype=bool)
-    lit = np.zeros((P, T), dtype=bool)
-    shadowed = np.zeros((P, T), dtype=bool)
-    saturated = np.zeros((P, T), dtype=bool)
-    masked = np.zeros((P, T), dtype=bool)
-    unseen_by: dict[str, np.ndarray] = {}  # reason -> (P, T) bool observations a camera view leaves out
-    projects = False  # some texel lies in front of some camera and inside its image
-    x32, n32 = x.astype(np.float32), n.astype(np.float32)
     for cam in sorted({int(meta.camera_index[i]) for i in chosen}):
-        view: CameraView = camera_view(
-            meta.cameras, cam, x, n, areas, steps, tracer, offset=offset, min_cos_view=cfg.reflectance.min_cos_view
-        )
-        projects = projects or bool((~view.reasons[OUTSIDE]).any())
-        mine, pixels = _camera_images(meta, chosen, cam)
-        for j, p in enumerate(mine):
-            im = images[p]
-            for reason, mask in view.reasons.items():
-                unseen_by.setdefault(reason, np.zeros((P, T), dtype=bool))[p] = mask
-            values = footprint_values(pixels[j], view, T)
-            sat = footprint_values((pixels[j] >= saturation).any(-1, keepdims=True).astype(np.float32), view, T)
-            out = footprint_values(_masked_out(meta, chosen[p], pixels[j].shape), view, T)
-            seen[p] = view.seen
-            intensity[p] = np.where(view.seen[:, None], values / np.float32(im.exposure), 0.0)
-            saturated[p] = view.seen & (sat[:, 0] > 0)
-            masked[p] = view.seen & (out[:, 0] > 0)
-            view_dir[p] = view.view_dir
-            k = light_of[p]
+        view = frame_view(meta, cam, frame, tracer, cfg)
+        for p in [k for k, i in enumerate(chosen) if meta.camera_index[i] == cam]:
+            i = chosen[p]
+            image = meta.read_image(i)
+            _image_row(rows, p, view, image, meta.read_mask(i), meta.views.images[i].exposure, saturation)
+            del image
+            k = int(meta.light_index[i])
+            lights = meta.lights
             pl = light_geometry(
                 x32,
                 n32,
@@ -179,76 +225,134 @@ def load_views_observations(
                 min_cos=cfg.reflectance.min_cos_light,
                 trace=view.seen,
             )
-            light_dir[p], dist[p], cos_l[p], lit[p], shadowed[p] = (
-                pl.direction,
-                pl.distance,
-                pl.cosine,
-                pl.lit,
-                pl.shadowed,
-            )
-    finite = np.isfinite(intensity).all(-1)
-    removed = {
-        **{f"not seen: {reason}": mask for reason, mask in unseen_by.items()},
-        "not lit (n.l at or below reflectance.min_cos_light)": ~lit,
-        "in cast shadow": shadowed,
-        f"saturated (>= {saturation:g})": saturated,
-        "masked out by the image's mask": masked,
-        "not finite": ~finite,
+            _light_row(rows, p, pl)
+    return rows
+
+
+def _removed(rows: ImageRows, saturation: float) -> dict[str, np.ndarray]:
+    """Filter description -> (P, T) bool observations it removes (capture.checks.observations_left)."""
+    return {
+        **{f"not seen: {reason}": rows.not_seen(k) for k, reason in enumerate(UNSEEN)},
+        "not lit (n.l at or below reflectance.min_cos_light)": ~rows.lit,
+        "in cast shadow": rows.shadowed,
+        f"saturated (>= {saturation:g})": rows.saturated,
+        "masked out by the image's mask": rows.masked,
+        "not finite": ~np.isfinite(rows.intensity).all(-1),
     }
-    valid = ~np.logical_or.reduce(list(removed.values()))
-    if not projects:
-        raise CaptureError(
-            f"{meta.folder}: nothing projects onto the object: no texel of the mesh {geom.mesh.source} lies in front "
-            f"of a camera of {meta.cameras.source} inside its image and facing it; the mesh and the cameras are not "
-            "in the same frame (or not in the same units: scene.yaml's units)"
-        )
-    observations_left(valid, removed, where)
-    paths = [meta.paths[i] for i in chosen]
-    shows = np.flatnonzero(seen.any(1))  # images in which some texel is seen (the content checks' images)
-    filled = np.where(seen[..., None], intensity, intensity[np.arange(P), seen.argmax(1)][:, None])[shows]
-    warnings = image_content_checks(filled, [paths[i] for i in shows])
+
+
+def _valid(rows: ImageRows) -> np.ndarray:
+    """(P, T) bool: seen, lit, not shadowed, saturated nor masked, finite (what _removed removes, in place)."""
+    valid = rows.seen & rows.lit
+    valid &= ~rows.shadowed
+    valid &= ~rows.saturated
+    valid &= ~rows.masked
+    valid &= np.isfinite(rows.intensity).all(-1)
+    return valid
+
+
+def _content_warnings(rows: ImageRows, paths: list) -> list[str]:
+    """capture.checks.image_content_checks on each image's seen texels (an image's row padded with its first seen
+    value to the longest row), and a warning naming the images that show no texel."""
+    P = len(paths)
+    shows = np.flatnonzero(rows.seen.any(1))  # images in which some texel is seen
+    counts = rows.seen[shows].sum(1)
+    compact = np.empty((len(shows), int(counts.max(initial=0)), 3), dtype=np.float32)
+    for j, p in enumerate(shows):
+        values = rows.intensity[p][rows.seen[p]]
+        compact[j] = values[0]
+        compact[j, : len(values)] = values
+    warnings = image_content_checks(compact, [paths[i] for i in shows])
     if len(shows) < P:
         blind = [str(paths[i]) for i in sorted(set(range(P)) - set(shows.tolist()))]
         warnings.append(
             f"{len(blind)} image(s) show no texel of the object usably (outside the image, occluded, too small or "
             f"at silhouettes), e.g. {', '.join(blind[:3])}: is its camera pointed at the object?"
         )
-    Y = lights.intensity[light_of]
-    point = lights.point[light_of]
-    falloff = np.where(np.asarray(point)[:, None], 1.0 / np.maximum(dist, 1e-9) ** 2, 1.0).astype(np.float32)
-    implied_albedo_check(
-        intensity, valid, cos_l, Y[:, None, :] * falloff[..., None], kappa, f"{lights.source} (intensity)"
+    return warnings
+
+
+def _albedo_check(rows: ImageRows, valid: np.ndarray, lights, light_of: list, kappa: np.ndarray) -> np.ndarray:
+    """capture.checks.implied_albedo_check of the rows; returns the (P, T) float32 falloff (1 / dist^2 for a point
+    light, 1 for a directional one)."""
+    point = np.asarray(lights.point[light_of])
+    falloff = np.where(point[:, None], 1.0 / np.maximum(rows.dist, np.float32(1e-9)) ** 2, np.float32(1.0))
+    falloff = falloff.astype(np.float32, copy=False)
+    scale = lights.intensity[light_of].astype(np.float32)[:, None, :] * falloff[..., None]
+    implied_albedo_check(rows.intensity, valid, rows.cos_l, scale, kappa, f"{lights.source} (intensity)")
+    return falloff
+
+
+def _stats(meta: ViewFolder, rows: ImageRows, valid: np.ndarray, images: list, saturation: float) -> dict:
+    """The loader's statistics (metrics.json's capture section)."""
+    P, T = rows.seen.shape
+    return {
+        "bit_depth": meta.bits,
+        "images": P,
+        "cameras": len({im.camera for im in images}),
+        "texels": T,
+        "texels_seen_by_no_image": int((~rows.seen.any(0)).sum()),
+        "valid_observations": int(valid.sum()),
+        "saturation_level": float(saturation),
+        "saturated_observations": int((rows.saturated & rows.lit).sum()),
+        "shadowed_observations": int(rows.shadowed.sum()),
+        "masked_observations": int(rows.masked.sum()),
+        **{
+            f"not_seen_{REASON_KEYS[reason]}_observations": int(rows.not_seen(k).sum())
+            for k, reason in enumerate(UNSEEN)
+        },
+    }
+
+
+def _check_projects(rows: ImageRows, meta: ViewFolder, geom: AtlasGeometry) -> None:
+    """CaptureError when no texel lies in front of any camera and inside its image (the frames differ)."""
+    if (rows.unseen != UNSEEN.index(OUTSIDE) + 1).any():
+        return
+    raise CaptureError(
+        f"{meta.folder}: nothing projects onto the object: no texel of the mesh {geom.mesh.source} lies in front "
+        f"of a camera of {meta.cameras.source} inside its image and facing it; the mesh and the cameras are not "
+        "in the same frame (or not in the same units: scene.yaml's units)"
     )
+
+
+def load_views_observations(
+    meta: ViewFolder, geom: AtlasGeometry, tracer: RayTracer, cfg: Config, log: Log
+) -> tuple[Observations, dict, list[str]]:
+    """The Observations of the chosen images (capture.light_subset indexes images.json's images), the statistics
+    and the warnings. meta's cameras and lights are in mm, like the mesh. The (P, T) arrays are float32, each
+    image read, sampled and dropped in turn."""
+    where = meta.views.source
+    chosen = light_indices(cfg.capture.light_subset, len(meta.views.images), where)
+    images = [meta.views.images[i] for i in chosen]
+    light_of = [int(meta.light_index[i]) for i in chosen]
+    v, lights = meta.views, meta.lights
+    saturation = v.saturation_level if v.saturation_level is not None else cfg.capture.saturation_level
+    kappa = np.asarray(v.kappa if v.kappa is not None else cfg.capture.kappa, dtype=np.float64)
+    check_lights_outside(lights, tracer, light_of)
+    rows = _read_rows(meta, chosen, texel_frame(geom), tracer, cfg, saturation)
+    valid = _valid(rows)
+    _check_projects(rows, meta, geom)
+    if not valid.any():
+        observations_left(valid, _removed(rows, saturation), where)
+    warnings = _content_warnings(rows, [meta.paths[i] for i in chosen])
+    falloff = _albedo_check(rows, valid, lights, light_of, kappa)
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(cfg.torch_dtype)  # noqa: E731
+    point = lights.point[light_of]
     obs = Observations(
-        intensity=t(intensity),
+        intensity=t(rows.intensity),
         valid=torch.from_numpy(valid),
-        saturated=torch.from_numpy(saturated),
-        shadowed=torch.from_numpy(shadowed),
-        light_dir=t(light_dir),
+        saturated=torch.from_numpy(rows.saturated),
+        shadowed=torch.from_numpy(rows.shadowed),
+        light_dir=t(rows.light_dir),
         falloff=t(falloff),
-        light_intensity=t(Y),
-        view_dir=t(view_dir),
+        light_intensity=t(lights.intensity[light_of]),
+        view_dir=t(rows.view_dir),
         kappa=t(kappa),
         light_positions=t(lights.position[light_of]) if point.all() else None,
         light_names=[Path(im.file).name for im in images],
         source=where,
     )
-    by_image = seen.any(0)
-    stats = {
-        "bit_depth": meta.bits,
-        "images": P,
-        "cameras": len({im.camera for im in images}),
-        "texels": T,
-        "texels_seen_by_no_image": int((~by_image).sum()),
-        "valid_observations": int(valid.sum()),
-        "saturation_level": float(saturation),
-        "saturated_observations": int((saturated & lit).sum()),
-        "shadowed_observations": int(shadowed.sum()),
-        "masked_observations": int(masked.sum()),
-        **{f"not_seen_{REASON_KEYS[reason]}_observations": int(mask.sum()) for reason, mask in unseen_by.items()},
-    }
-    return obs, stats, warnings
+    return obs, _stats(meta, rows, valid, images, saturation), warnings
 
 
 def load_views_truth(folder: Path, geom: AtlasGeometry, texture_size: int) -> dict | None:

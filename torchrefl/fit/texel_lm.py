@@ -23,6 +23,8 @@ from torchrefl.fit.refine import _LOG_EPS, Objective, robust_loss
 #: the iterations stop once one lowers the total cost by less than this fraction
 TOLERANCE = 1e-3
 _LAMBDA0, _LAMBDA_MIN, _LAMBDA_MAX = 1e-2, 1e-7, 1e7
+#: fitted observations per chunk of the normal equations' sums (bounds their float64 temporaries: ~100 MB at K = 7)
+_CHUNK = 1 << 18
 
 
 def irls_weight(r: torch.Tensor, kind: str, scale: float) -> torch.Tensor:
@@ -133,8 +135,12 @@ def levenberg_marquardt(
 def _normal_equations(problem: _TexelProblem, x: list, columns: list) -> tuple:
     """(T, K, K) J^T W J and (T, K) J^T W r per texel (float64), the Jacobian's columns by forward-mode
     derivatives along each raw component of every texel at once (the texels do not interact); and the residuals
-    r, pulls at x (the first derivative's primal)."""
+    r, pulls at x (the first derivative's primal). The columns are kept at the fitted observations only (the
+    residuals are 0 elsewhere) and the sums run over chunks of them: memory follows the fitted observations, not
+    images x texels x K."""
     o = problem.objective
+    fitted = o.weight
+    t_idx = fitted.nonzero()[:, 1]  # each fitted observation's texel, in the order r[fitted] lists them
     cols, pcols = [], []
     for i, j in columns:
         tangent = [torch.zeros_like(q) for q in x]
@@ -143,13 +149,20 @@ def _normal_equations(problem: _TexelProblem, x: list, columns: list) -> tuple:
         else:
             tangent[i][:, j] = 1.0
         (r, pulls), (jr, jp) = torch.func.jvp(problem.residuals, tuple(x), tuple(tangent))
-        cols.append(jr)
+        cols.append(jr[fitted])  # (N, 3)
+        del jr
         pcols.append(jp)
-    w = irls_weight(r, o.loss, o.loss_scale_8bit)
-    J = torch.stack(cols, -1).double()  # (P, T, 3, K)
-    wd = w.double()
-    H = torch.einsum("ptck,ptc,ptcl->tkl", J, wd, J)
-    g = torch.einsum("ptck,ptc,ptc->tk", J, wd, r.double())
+    rf = r[fitted]
+    w = irls_weight(rf, o.loss, o.loss_scale_8bit)
+    T, K = r.shape[1], len(columns)
+    H = torch.zeros((T, K, K), dtype=torch.float64, device=r.device)
+    g = torch.zeros((T, K), dtype=torch.float64, device=r.device)
+    for a in range(0, len(t_idx), _CHUNK):
+        part = slice(a, a + _CHUNK)
+        J = torch.stack([c[part] for c in cols], -1).double()  # (n, 3, K)
+        wd = w[part].double()
+        H.index_add_(0, t_idx[part], torch.einsum("nck,nc,ncl->nkl", J, wd, J))
+        g.index_add_(0, t_idx[part], torch.einsum("nck,nc,nc->nk", J, wd, rf[part].double()))
     if pulls.shape[1]:
         Jp = torch.stack(pcols, -1).double()  # (T, n (C + 1), K)
         H = H + torch.einsum("tjk,tjl->tkl", Jp, Jp)
