@@ -24,6 +24,7 @@ LAYERS = [
     "run",
     "plan",
     "train",
+    "batch",
     "cli",
     "__init__",
 ]
