@@ -17,6 +17,7 @@ COMMANDS = {
     "train": ("torchrefl.train", "fit a config (a YAML file or a bundled name such as default) into a run folder"),
     "plan": ("torchrefl.plan", "choose the light positions for a config's object and write the rig's capture plan"),
     "rig": ("torchrefl.rig.__main__", "drive the GRBL light gantry: probe, home, move, capture (or --dry-run)"),
+    "batch": ("torchrefl.batch.__main__", "fit many captures (a batch file) as Ray tasks, here or on a cluster"),
 }
 
 
