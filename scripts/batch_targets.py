@@ -61,7 +61,13 @@ PHOTON = {
         "noise_dn": 0.3,
     },
     "selection": {"num_lights": 6},
-    "photon": {"photons_per_light": 20000, "outer_iterations": 3, "damping": 0.2, "smoothing": 1.0},
+    "photon": {
+        "photons_per_light": 5000,
+        "outer_iterations": 3,
+        "damping": 0.2,
+        "smoothing": 1.0,
+        "specular_gather": 0,
+    },
     "fit": {"model": "photon", "iterations": 10, "holdout": [2]},
     "output": {"progress": False, "map_lights": 0},
 }

@@ -34,18 +34,26 @@ def require_ray():
     return ray
 
 
-def _start(ray, address: str | None, num_cpus: int | None) -> bool:
-    """Connect to the cluster at `address`, or start Ray here (num_cpus: the CPUs it offers; None: all); False when
-    Ray was already running in this process (the caller's session is used and left running)."""
+def thread_env(threads: int) -> dict[str, str]:
+    """The environment of a batch's worker processes: OpenMP, OpenBLAS and MKL pools of `threads` threads (set before
+    the worker imports numpy and torch), as the fit's own torch and Embree threads (the config's `threads`)."""
+    return {name: str(threads) for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
+def _start(ray, address: str | None, num_cpus: int | None, threads: int = 1) -> bool:
+    """Connect to the cluster at `address`, or start Ray here (num_cpus: the CPUs it offers; None: all), with worker
+    processes of `threads` threads (thread_env); False when Ray was already running in this process (the caller's
+    session is used and left running)."""
     if ray.is_initialized():
         return False
-    package_root = str(Path(__file__).resolve().parents[2])  # workers import this torchrefl, as the driver does
-    path = os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH", "")) if p)
+    env = thread_env(threads)
     kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level="ERROR")
     if address is None:
-        ray.init(num_cpus=num_cpus, runtime_env={"env_vars": {"PYTHONPATH": path}}, **kwargs)
+        package_root = str(Path(__file__).resolve().parents[2])  # workers import this torchrefl, as the driver does
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH", "")) if p)
+        ray.init(num_cpus=num_cpus, runtime_env={"env_vars": env}, **kwargs)
     else:
-        ray.init(address=address, **kwargs)
+        ray.init(address=address, runtime_env={"env_vars": env}, **kwargs)
     return True
 
 
@@ -76,7 +84,7 @@ def run_batch(
     ray = require_ray()
     rows, todo = _pending(batch)
     write_summary(batch.output, list(rows.values()))
-    started = _start(ray, address, num_cpus) if todo else False
+    started = _start(ray, address, num_cpus, task_threads(batch)) if todo else False
     try:
         remote = ray.remote(task_fn).options(
             num_cpus=batch.cpus_per_task,
