@@ -79,10 +79,24 @@ def emit(**figures) -> None:
     print(json.dumps(figures), flush=True)
 
 
+def ray_start_s(workers: int) -> float:
+    """Seconds for Ray to start here, run one empty task on a fresh worker and stop: the batch's fixed cost."""
+    from torchrefl.batch.runner import _start, require_ray
+
+    ray = require_ray()
+    start = time.perf_counter()
+    _start(ray, None, workers)
+    ray.get(ray.remote(lambda: 0).remote())
+    ray.shutdown()
+    return time.perf_counter() - start
+
+
 def throughput(work: Path, fits: int) -> None:
     (work / "small.yaml").write_text(yaml.safe_dump(SMALL))
     for workers in (1, 2):
+        fixed = ray_start_s(workers)
         doc = {"base": "small.yaml", "synthetic_seeds": list(range(1, fits + 1)), "output": f"out{workers}"}
+        shutil.rmtree(work / f"out{workers}", ignore_errors=True)
         (work / f"batch{workers}.yaml").write_text(yaml.safe_dump(doc))
         start = time.perf_counter()
         rows = run_batch(read_batch(work / f"batch{workers}.yaml"), num_cpus=workers, progress=False)
@@ -95,7 +109,10 @@ def throughput(work: Path, fits: int) -> None:
             complete=sum(r.status == "complete" for r in rows),
             wall_s=round(wall, 1),
             captures_per_hour=round(3600 * fits / wall, 1),
+            ray_start_s=round(fixed, 1),
+            captures_per_hour_after_start=round(3600 * fits / (wall - fixed), 1),
             mean_fit_s=round(sum(fit_s) / max(len(fit_s), 1), 1),
+            mean_fit_cpu_s=round(sum(r.cpu_seconds or 0 for r in rows) / max(len(rows), 1), 1),
         )
 
 

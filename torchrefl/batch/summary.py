@@ -26,6 +26,7 @@ class Row:
     error: str = ""
     model: str | None = None
     seconds: float | None = None
+    cpu_seconds: float | None = None  # CPU time of the fit's process (all its threads): > seconds means threads ran
     attempts: int = 0
     holdout_mean_abs_diff_8bit: float | None = None
     holdout_rmse_8bit: float | None = None
@@ -38,8 +39,16 @@ class Row:
         return self.status in ("complete", "skipped")
 
 
-def row_of(name: str, status: str, output: Path, metrics: dict, seconds: float | None, attempts: int = 1) -> Row:
-    """The row of a finished run from its metrics (metrics.json's keys)."""
+def row_of(
+    name: str,
+    status: str,
+    output: Path,
+    metrics: dict,
+    seconds: float | None,
+    attempts: int = 1,
+    cpu: float | None = None,
+) -> Row:
+    """The row of a finished run from its metrics (metrics.json's keys), its wall and CPU seconds."""
     holdout, truth = metrics.get("holdout") or {}, metrics.get("ground_truth") or {}
     return Row(
         name,
@@ -47,6 +56,7 @@ def row_of(name: str, status: str, output: Path, metrics: dict, seconds: float |
         str(output),
         model=metrics.get("model"),
         seconds=None if seconds is None else round(seconds, 2),
+        cpu_seconds=None if cpu is None else round(cpu, 2),
         attempts=attempts,
         holdout_mean_abs_diff_8bit=holdout.get("mean_abs_diff_8bit"),
         holdout_rmse_8bit=holdout.get("rmse_8bit"),

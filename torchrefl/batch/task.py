@@ -40,11 +40,12 @@ def run_task(base: str, task: BatchTask, threads: int) -> Row:
     """Fit one task (resuming its unfinished run when there is one) and return its row; any error is caught and
     recorded in the row (a named error's message; else the exception's type, message and where it was raised), so
     one failing capture never stops the batch."""
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     try:
         cfg = task_config(base, task, threads)
         metrics = run(cfg, quiet=True, resume=True)
-        return row_of(task.name, "complete", task.output, metrics, time.perf_counter() - start)
+        seconds = time.perf_counter() - start
+        return row_of(task.name, "complete", task.output, metrics, seconds, cpu=time.process_time() - cpu)
     except TorchReflError as exc:
         error = str(exc)
     except Exception as exc:  # a crash of one fit is that capture's failure, not the batch's
