@@ -25,6 +25,7 @@ LAYERS = [
     "plan",
     "render",
     "train",
+    "batch",
     "cli",
     "__init__",
 ]

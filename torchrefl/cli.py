@@ -18,6 +18,7 @@ COMMANDS = {
     "plan": ("torchrefl.plan", "choose the light positions for a config's object and write the rig's capture plan"),
     "render": ("torchrefl.render", "relight a finished run: its image from a camera under a light, or a turntable"),
     "rig": ("torchrefl.rig.__main__", "drive the GRBL light gantry: probe, home, move, capture (or --dry-run)"),
+    "batch": ("torchrefl.batch.__main__", "fit many captures (a batch file) as Ray tasks, here or on a cluster"),
 }
 
 

@@ -20,12 +20,14 @@ import yaml
 from torchrefl.capture.base import Capture, loader_for
 from torchrefl.config import Config, load_config, resolve_path, to_dict
 from torchrefl.core.atomic_files import atomic_write_text
+from torchrefl.core.checkpoints import Checkpoints
 from torchrefl.core.progress import Stages
 from torchrefl.errors import ConfigError, TorchReflError
 from torchrefl.fit.pipeline import fit_capture
 from torchrefl.report.outputs import write_outputs
 from torchrefl.report.run_folder import StagedRunFolder, output_folder
 from torchrefl.report.run_result import RunResult, load_run
+from torchrefl.report.run_resume import Resumable, resumable_run
 from torchrefl.report.summary import summary_table
 from torchrefl.version import __version__
 
@@ -36,12 +38,12 @@ SYNTHETIC_KINDS = ("synthetic_cylindrical", "synthetic_mesh_views")
 class RunLog:
     """Writes timestamped lines to log.txt and (unless quiet, or echo=False) to stderr."""
 
-    def __init__(self, path: Path, quiet: bool = False):
+    def __init__(self, path: Path, quiet: bool = False, append: bool = False):
         self.path = path
         self.quiet = quiet
         self.start = time.perf_counter()
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(path, "w")
+        self._fh = open(path, "a" if append else "w")
 
     def __call__(self, msg: str, echo: bool = True) -> None:
         line = f"[{time.perf_counter() - self.start:7.2f}s] {msg}"
@@ -76,8 +78,9 @@ def _capture(cfg: Config, out: Path, stages: Stages, log) -> tuple[Capture, obje
         return loader_for(cfg.capture.kind).load(resolve_path(cfg, cfg.capture.path), cfg, log), None
 
 
-def _pipeline(cfg: Config, out: Path, target: Path, stages: Stages, log) -> dict:
-    """Capture, fit and outputs into the staging folder `out`; returns the metrics."""
+def _pipeline(cfg: Config, out: Path, target: Path, stages: Stages, log, checkpoints: Checkpoints) -> dict:
+    """Capture, fit and outputs into the staging folder `out`; returns the metrics. The capture and the fit are
+    checkpoints (a resumed run takes them from there)."""
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     device = torch_device(cfg)
@@ -85,10 +88,10 @@ def _pipeline(cfg: Config, out: Path, target: Path, stages: Stages, log) -> dict
         f"torchrefl {__version__}: capture {cfg.capture.kind}, model {cfg.fit.model}, brdf {cfg.reflectance.brdf}, "
         f"{cfg.dtype} on {device}; outputs in {target} (written in {out.name} until complete)"
     )
-    cap, selection = _capture(cfg, out, stages, log)
+    cap, selection = checkpoints.point("capture", lambda: _capture(cfg, out, stages, log))
     for warning in cap.warnings:
         log(f"warning: {warning}")
-    res = fit_capture(cfg, cap, stages, log, device)
+    res = checkpoints.point("fit", lambda: fit_capture(cfg, cap, stages, log, device, checkpoints))
     return write_outputs(cfg, out, cap, res, selection, stages, str(device))
 
 
@@ -97,20 +100,28 @@ def quiet_config(cfg: Config) -> Config:
     return dataclasses.replace(cfg, output=dataclasses.replace(cfg.output, progress=False))
 
 
-def run(cfg: Config, quiet: bool = False, overwrite: bool = False) -> dict:
+def run(cfg: Config, quiet: bool = False, overwrite: bool = False, resume: bool = False) -> dict:
     """Run the pipeline for a loaded config; returns the metrics dict. The output folder is checked first
     (OutputError); an earlier run there is replaced only with overwrite=True, and only when this run completes.
     quiet: no log lines and no progress bars on stderr (log.txt is still written). Log lines go to stderr; the
-    summary table only to log.txt (the caller shows it: the command line prints it on stdout)."""
+    summary table only to log.txt (the caller shows it: the command line prints it on stdout). resume: continue
+    the newest unfinished run of this config from its checkpoints (torchrefl.report.run_resume; none: start anew).
+    """
     target = output_folder(cfg.output.dir)
     if cfg.capture.kind not in SYNTHETIC_KINDS:
         loader_for(cfg.capture.kind)  # an unknown kind is refused before the staging folder is made
-    staged = StagedRunFolder(target, overwrite)
-    log = RunLog(staged.path / "log.txt", quiet=quiet)
+    config_text = yaml.safe_dump(to_dict(cfg), sort_keys=False)
+    resumable = resumable_run(target, config_text) if resume else Resumable(None, "")
+    staged = StagedRunFolder(target, overwrite, resumable.folder)
+    log = RunLog(staged.path / "log.txt", quiet=quiet, append=resumable.folder is not None)
     stages = Stages(log)
+    checkpoints = Checkpoints(staged.path, log)
     try:
-        atomic_write_text(staged.path / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
-        metrics = _pipeline(quiet_config(cfg) if quiet else cfg, staged.path, target, stages, log)
+        if resumable.note:
+            log(resumable.note)
+        atomic_write_text(staged.path / "config.yaml", config_text)
+        metrics = _pipeline(quiet_config(cfg) if quiet else cfg, staged.path, target, stages, log, checkpoints)
+        checkpoints.remove()
         start = time.perf_counter()
         staged.commit()
         log(f"run folder {target} complete: marker written and moved into place in {time.perf_counter() - start:.3f} s")
@@ -138,10 +149,15 @@ def run(cfg: Config, quiet: bool = False, overwrite: bool = False) -> dict:
 
 
 def fit(
-    config: Config | str | Path, overrides: list[str] = (), *, quiet: bool = True, overwrite: bool = False
+    config: Config | str | Path,
+    overrides: list[str] = (),
+    *,
+    quiet: bool = True,
+    overwrite: bool = False,
+    resume: bool = False,
 ) -> RunResult:
     """Fit a config (a Config, or a YAML file or bundled config name with dotted.key=value overrides) and return the
-    finished run."""
+    finished run (resume: continue the newest unfinished run of the config, as run)."""
     cfg = config if isinstance(config, Config) else load_config(config, list(overrides))
-    run(cfg, quiet=quiet, overwrite=overwrite)
+    run(cfg, quiet=quiet, overwrite=overwrite, resume=resume)
     return load_run(output_folder(cfg.output.dir))

@@ -1,4 +1,4 @@
-"""python -m torchrefl.train CONFIG [dotted.key=value ...] [--overwrite] [--quiet]  |  --list
+"""python -m torchrefl.train CONFIG [dotted.key=value ...] [--overwrite] [--resume] [--quiet]  |  --list
 
 CONFIG is a YAML file or the name of a bundled config (`default`; --list prints them).
 
@@ -21,7 +21,7 @@ from torchrefl.report.summary import summary_table
 from torchrefl.run import run
 
 PROG = "python -m torchrefl.train"
-USAGE = f"{PROG} CONFIG [dotted.key=value ...] [--overwrite] [--quiet]"
+USAGE = f"{PROG} CONFIG [dotted.key=value ...] [--overwrite] [--resume] [--quiet]"
 NO_CONFIG = (
     "CONFIG is missing: give a YAML config file (e.g. configs/default.yaml) or the name of a bundled config "
     f"(e.g. default; {PROG} --list lists them), then any dotted.key=value overrides; {PROG} --help lists every "
@@ -57,6 +57,12 @@ def main(argv=None) -> int:
         help="replace an earlier run in output.dir (kept until this run completes; without the flag "
         "a folder holding a run is refused)",
     )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the newest unfinished (killed or failed) run of this config into output.dir from its last "
+        "checkpoint (after each stage and each photon outer iteration); the log says which; none: start anew",
+    )
     parser.add_argument("--list", action="store_true", help="print the bundled configs and exit")
     args = parser.parse_intermixed_args(argv)
     if args.list:
@@ -69,7 +75,7 @@ def main(argv=None) -> int:
 
     def work() -> int:
         cfg = load_config(args.config, args.overrides)
-        metrics = run(cfg, quiet=args.quiet, overwrite=args.overwrite)
+        metrics = run(cfg, quiet=args.quiet, overwrite=args.overwrite, resume=args.resume)
         print(summary_table(metrics))
         print(f"\nrun folder: {output_folder(cfg.output.dir)}")
         return 0

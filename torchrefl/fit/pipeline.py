@@ -9,11 +9,13 @@ start (torchrefl.fit.initialise), the objective and the refinement loop.
 from __future__ import annotations
 
 from functools import partial
+from pathlib import Path
 
 import torch
 
 from torchrefl.capture.base import Capture
 from torchrefl.config import Config
+from torchrefl.core.checkpoints import Checkpoints
 from torchrefl.core.params import TexelParams
 from torchrefl.core.progress import Stages, bar
 from torchrefl.errors import ConfigError
@@ -21,6 +23,7 @@ from torchrefl.fit.emitter_fill import nearest_fitted
 from torchrefl.fit.initialise import COVER_MATERIAL, COVER_MISFIT, initialise_local, mark_untrusted
 from torchrefl.fit.misfit import MISFIT_DEVIATIONS, misfit_texels, near_edge
 from torchrefl.fit.observe import observe
+from torchrefl.fit.outer_state import INITIALISE, OUTER, outer_state, restore_outer
 from torchrefl.fit.reestimate import reestimate
 from torchrefl.fit.refine import Objective, Prior, neighbour_pairs, refine
 from torchrefl.fit.result import FitResult
@@ -102,6 +105,18 @@ class ObjectiveFactory:
         if pooled is not None:
             self.lend(pooled, params)
 
+    def state(self) -> dict:
+        """What the re-estimations changed (the lobe prior's targets, the pooled texels): a checkpoint's share."""
+        prior = self.lobe_prior
+        return {"ps": prior.ps.detach().clone(), "sigma": prior.sigma.detach().clone(), "pooled": self.pooled}
+
+    def restore(self, state: dict) -> None:
+        """Put back what state() returned."""
+        with torch.no_grad():
+            self.lobe_prior.ps.copy_(state["ps"])
+            self.lobe_prior.sigma.copy_(state["sigma"])
+        self.pooled = state["pooled"]
+
     def __call__(self, predict, mask) -> Objective:
         fc = self.fc
         return Objective(
@@ -123,12 +138,28 @@ def refinement_optimizer(cfg: Config, params: TexelParams) -> str:
     return "lbfgs" if name == "lm" and (params.shared_specular or cfg.fit.smoothness > 0) else name
 
 
-def refit(level: TransportLevel, params: TexelParams, make_objective: ObjectiveFactory, cfg: Config) -> list[float]:
-    """The refinement loop every level shares (transport.levels.base); returns the loss history."""
-    fc, history = cfg.fit, []
+def refit(
+    level: TransportLevel,
+    params: TexelParams,
+    make_objective: ObjectiveFactory,
+    cfg: Config,
+    checkpoints: Checkpoints | None = None,
+) -> list[float]:
+    """The refinement loop every level shares (transport.levels.base); returns the loss history. checkpoints: the
+    state after the first refresh and after each outer iteration is saved there (torchrefl.fit.outer_state), and
+    the loop continues from the one saved last."""
+    fc = cfg.fit
     optimizer = refinement_optimizer(cfg, params)
-    level.refresh(params, 0)
-    for k in range(level.refits):
+    checkpoints = checkpoints or Checkpoints(Path("."), enabled=False)
+    saved = checkpoints.load(OUTER)
+    if saved is None:
+        history, done = [], 0
+        level.refresh(params, 0)
+        checkpoints.save(OUTER, outer_state(0, level, params, make_objective, history))
+    else:
+        history, done = restore_outer(saved, level, params, make_objective)
+        level.inputs.log(f"resume: {level.name} refinement after outer iteration {done} of {level.refits}")
+    for k in range(done, level.refits):
         again = reestimate(level, params, cfg)
         if again.restarted:
             level.inputs.log(
@@ -156,6 +187,7 @@ def refit(level: TransportLevel, params: TexelParams, make_objective: ObjectiveF
                         params, objective, optimizer, step.iterations, fc.learning_rate, progress=pb, train=train
                     )
         level.refresh(params, k + 1)
+        checkpoints.save(OUTER, outer_state(k + 1, level, params, make_objective, history))
     level.finish(params)
     if not history:  # no refit (e.g. photon.outer_iterations 0): the start's loss
         with torch.no_grad():
@@ -239,22 +271,32 @@ def drop_misfits(result: FitResult, capture: Capture, log) -> None:
     )
 
 
-def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torch.device) -> FitResult:
-    """Classify, start, and refine at the transport level cfg.fit.model (or auto's choice)."""
+def fit_capture(
+    cfg: Config, capture: Capture, stages: Stages, log, device: torch.device, checkpoints: Checkpoints | None = None
+) -> FitResult:
+    """Classify, start, and refine at the transport level cfg.fit.model (or auto's choice). checkpoints: the start
+    and the refinement's outer iterations are saved there, and a resumed run continues from them."""
+    checkpoints = checkpoints or Checkpoints(Path("."), enabled=False)
     with stages.stage("precompute"):
         inputs, seen = level_inputs(cfg, capture, log, device)
         level = named_level(inputs)
         prepare(level)
     with stages.stage("initialise"):
-        init = inputs.initialise(capture.obs.intensity)
-        source = emitter_source(cfg, inputs, init, log)
+        saved = checkpoints.load(INITIALISE)
+        first = inputs.initialise(capture.obs.intensity) if saved is None else saved["first"]
+        source = emitter_source(cfg, inputs, first, log)
         if source is not None:
             level.use_emitters(source)
         if cfg.fit.model == "auto" and isinstance(level, RadiosityLevel):
-            level = choose(level, init)
+            level = choose(level, first)
             if level.name == "photon":
                 level.prepare()
-        init = level.start(init)
+        if saved is None:
+            init = level.start(first)
+            checkpoints.save(INITIALISE, {"first": first, "init": init})
+        else:
+            init = saved["init"]
+            log(f"resume: the {level.name} level's start from the checkpoint")
     log(init.note)
     log(f"transport level: {level.name} ({level.reason})")
     with stages.stage("fit"):
@@ -264,7 +306,7 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
             why = "one lobe for the whole object (fit.specular: shared)" if params.shared_specular else "fit.smoothness"
             log(f"fit.optimizer {cfg.fit.optimizer}: {why} couples the texels, refined with {optimizer} instead")
         objectives = ObjectiveFactory(cfg, inputs, init)
-        history = refit(level, params, objectives, cfg)
+        history = refit(level, params, objectives, cfg, checkpoints)
         with torch.no_grad():
             pd, ps, sigma = (x.detach() for x in params.values())
             predicted = level.render(pd, ps, sigma).cpu()

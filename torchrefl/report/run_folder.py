@@ -71,7 +71,8 @@ def users_files(folder: Path) -> list[str]:
     return [name for name in unrecorded_files(folder, marker) if not own(name)]
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process `pid` exists (on this machine)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -93,15 +94,19 @@ def _exchange(a: Path, b: Path) -> bool:
 
 class StagedRunFolder:
     """The staging folder of one run into `target`; `commit()` moves it into place, `abandon()` keeps it as
-    NAME.failed."""
+    NAME.failed. resume_from: an unfinished run into `target` (torchrefl.report.run_resume) whose folder becomes
+    this run's staging folder, its files and checkpoints kept."""
 
-    def __init__(self, target: Path, overwrite: bool = False):
+    def __init__(self, target: Path, overwrite: bool = False, resume_from: Path | None = None):
         self.target = Path(target)
         self.path = self.target.parent / STAGING.format(name=self.target.name, pid=os.getpid())
-        self._remove_stale_staging()
+        self._remove_stale_staging(keep=resume_from)
         self._check_target(overwrite)
         try:
-            self.path.mkdir(parents=True)
+            if resume_from is not None:
+                os.replace(resume_from, self.path)
+            else:
+                self.path.mkdir(parents=True)
         except OSError as exc:
             raise OutputError(f"{self.path}: cannot create the run's staging folder ({exc.strerror})") from None
 
@@ -128,13 +133,13 @@ class StagedRunFolder:
                 "(it is kept until the new run completes), or choose another output.dir"
             )
 
-    def _remove_stale_staging(self) -> None:
-        """Remove the staging folders of killed runs into the same target; an earlier run moved aside by a run
-        killed between its two renames (no atomic swap) is put back."""
+    def _remove_stale_staging(self, keep: Path | None = None) -> None:
+        """Remove the staging folders of killed runs into the same target (but `keep`, the run to resume); an
+        earlier run moved aside by a run killed between its two renames (no atomic swap) is put back."""
         prefix = STAGING.format(name=self.target.name, pid="")
         for p in sorted(self.target.parent.glob(f"{prefix}*")) if self.target.parent.is_dir() else []:
             pid, _, replaced = p.name[len(prefix) :].partition(REPLACED)
-            if not pid.isdigit() or _pid_alive(int(pid)):
+            if not pid.isdigit() or pid_alive(int(pid)) or (keep is not None and p == Path(keep)):
                 continue
             if replaced == "" and p.name.endswith(REPLACED) and not self.target.exists():
                 os.replace(p, self.target)

@@ -138,6 +138,13 @@ class TransportLevel(ABC):
     def finish(self, params) -> None:
         """Called after the last refit (default: nothing)."""
 
+    def state(self) -> dict:
+        """What refresh() keeps between outer iterations, for a checkpoint (default: nothing)."""
+        return {}
+
+    def restore(self, state: dict) -> None:
+        """Put back what state() returned (a resumed fit continues after the outer iteration it was saved at)."""
+
     def render(self, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
         """(P, T, 3) the final predicted images of the fitted parameters: the held-out and re-rendered images
         (default: predict)."""

@@ -275,6 +275,20 @@ class PhotonLevel(TransportLevel):
         if score < self._best[0]:
             self._best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, self.cache)
 
+    def state(self) -> dict:
+        return {
+            "scores": list(self.scores),
+            "cache": self.cache,
+            "last_trace": self._last_trace,
+            "traced_pd": self._traced_pd,
+            "best": self._best,
+        }
+
+    def restore(self, state: dict) -> None:
+        self.scores = list(state["scores"])
+        self.cache, self._last_trace = state["cache"], state["last_trace"]
+        self._traced_pd, self._best = state["traced_pd"], state["best"]
+
     def finish(self, params) -> None:
         """Keep the parameters (and the cache) of the best-scored refresh."""
         score, k_best, state, cache = self._best
