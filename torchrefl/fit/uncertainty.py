@@ -15,7 +15,7 @@ larger) and keeps an undetermined one (sigma of a texel without a highlight) fin
 
 Noise: capture.noise_dn when given; else per channel from the fit's residuals, robustly and with the
 degrees of freedom accounted for: each residual is divided by sqrt(1 - h) (h its leverage, the hat matrix's
-diagonal w / s_c^2 J^T Cov J) and s_c = 1.4826 MAD of those (two passes, the first with the raw residuals' MAD).
+diagonal w / s_c^2 J^T Cov J, at the raw residuals' MAD) and s_c = 1.4826 MAD of those.
 
 Texels whose Ps and sigma the fit did not estimate from their own observations (coverage other than "measured":
 the lobe of their colour, their neighbours' or the object's) have Ps, sigma std at the range's std, marked not
@@ -98,13 +98,22 @@ def jacobian(model: Callable, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.T
     return torch.stack(cols, -1)
 
 
-def information(J: torch.Tensor, weight: torch.Tensor, noise_dn: torch.Tensor) -> torch.Tensor:
-    """(T, K, K) float64 Fisher information per texel: sum over p, c of weight / noise_dn[c]^2 J J^T.
-    J (P, T, 3, K) in DN per parameter unit; weight (P, T, 3) the observations' weights (0 = not fitted);
-    noise_dn (3,) per channel."""
-    w = weight.double() / noise_dn.double().square()
+def channel_information(J: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """(3, T, K, K) float64 per channel c: sum over p of weight J J^T (the information at unit noise).
+    J (P, T, 3, K) in DN per parameter unit; weight (P, T, 3) the observations' weights (0 = not fitted)."""
     Jd = J.double()
-    return torch.einsum("ptck,ptc,ptcl->tkl", Jd, w, Jd)
+    return torch.einsum("ptck,ptc,ptcl->ctkl", Jd, weight.double(), Jd)
+
+
+def information(J: torch.Tensor, weight: torch.Tensor, noise_dn: torch.Tensor) -> torch.Tensor:
+    """(T, K, K) float64 Fisher information per texel: sum over p, c of weight / noise_dn[c]^2 J J^T;
+    noise_dn (3,) per channel in DN (channel_information's J and weight)."""
+    return scaled(channel_information(J, weight), noise_dn)
+
+
+def scaled(per_channel: torch.Tensor, noise_dn: torch.Tensor) -> torch.Tensor:
+    """(T, K, K) the information of per_channel (3, T, K, K) at unit noise for noise_dn (3,) per channel."""
+    return (per_channel / noise_dn.to(per_channel).square()[:, None, None, None]).sum(0)
 
 
 def covariance(info: torch.Tensor, prior_var: torch.Tensor) -> torch.Tensor:
@@ -130,14 +139,13 @@ def mad_noise(r: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return torch.stack(out)
 
 
-def residual_noise(r, J, weight, mask, prior_var, lobe_measured) -> torch.Tensor:
-    """(3,) per-channel noise in DN from the fit's residuals r (P, T, 3), leverage-corrected (module docstring)."""
+def residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured) -> torch.Tensor:
+    """(3,) per-channel noise in DN from the fit's residuals r (P, T, 3), leverage-corrected (module docstring):
+    the leverages at the raw residuals' MAD (they depend on the noise only through the broad prior's share)."""
     s = mad_noise(r, mask).clamp_min(1e-3)
-    for _ in range(2):
-        cov = texel_covariance(information(J, weight, s), prior_var, lobe_measured)
-        h = leverage(J, weight, s, cov).clamp(0.0, MAX_LEVERAGE)
-        s = mad_noise(r.double() / torch.sqrt(1.0 - h), mask).clamp_min(1e-3)
-    return s
+    cov = texel_covariance(scaled(per_channel, s), prior_var, lobe_measured)
+    h = leverage(J, weight, s, cov).clamp(0.0, MAX_LEVERAGE)
+    return mad_noise(r.double() / torch.sqrt(1.0 - h), mask).clamp_min(1e-3)
 
 
 def texel_covariance(info: torch.Tensor, prior_var: torch.Tensor, lobe_measured: torch.Tensor) -> torch.Tensor:
@@ -197,11 +205,12 @@ def texel_uncertainty(
     mask = fit_mask.to(pd.device)
     weight = irls_weight(r, loss, loss_scale_8bit) * mask[..., None].to(r.dtype)
     prior_var = ranges.prior_var(ps.shape[1])
+    per_channel = channel_information(J, weight)
     if noise_dn is None:
-        s, source = residual_noise(r, J, weight, mask, prior_var, lobe_measured), "residuals"
+        s, source = residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured), "residuals"
     else:
         s, source = torch.full((3,), float(noise_dn), dtype=torch.float64), "capture.noise_dn"
-    info = information(J, weight, s.to(J.device))
+    info = scaled(per_channel, s)
     if shared_lobe is not None:
         cov = shared_lobe_covariance(info, prior_var.to(info.device), shared_lobe.to(info.device))
     else:
