@@ -195,3 +195,15 @@ def test_one_light_and_no_observation_stay_finite():
         assert bool(torch.isfinite(std).all())
     assert torch.allclose(u.sigma_std[3], RANGE_STD[6])
     assert torch.allclose(u.pd_std[3], RANGE_STD[0].expand(3))
+
+
+def test_a_shared_lobe_is_known_better_than_any_texel_alone():
+    """fit.specular: shared hands the one lobe over expanded (stride 0) to every texel."""
+    obs, terms, (pd, ps, sigma) = glossy_scene(T=20, seed=0)
+    ps, sigma = ps[:1].expand(20, -1), sigma[:1].expand(20)
+    every = torch.ones(20, dtype=torch.bool)
+    args = (model_of(terms), pd, ps, sigma, obs.intensity, obs.valid, every, RANGES)
+    shared = texel_uncertainty(*args, noise_dn=0.5, shared_lobe=every)
+    alone = texel_uncertainty(*args, noise_dn=0.5)
+    assert torch.allclose(shared.sigma_std, shared.sigma_std[0].expand(20))
+    assert float(shared.sigma_std[0]) < float(alone.sigma_std.min())

@@ -85,7 +85,7 @@ def jacobian(model: Callable, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.T
     components of every texel at once, the K tangents batched by vmap (3x faster than one jvp each on the default
     scene; one jvp each where the model has an operation vmap does not batch). model: (pd (T, 3), ps (T, C),
     sigma (T,)) -> (P, T, 3), each texel's images a function of its own parameters only."""
-    x = (pd.detach(), ps.detach(), sigma.detach())
+    x = tuple(q.detach().contiguous() for q in (pd, ps, sigma))  # a shared lobe comes expanded (stride 0)
     widths = [q.shape[1] if q.dim() == 2 else 1 for q in x]
     eye = torch.eye(sum(widths), dtype=pd.dtype, device=pd.device)
     tangents, at = [], 0
