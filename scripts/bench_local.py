@@ -1,8 +1,8 @@
 """Benchmark of the paper-size Method I problem (512 x 450 texels, 12 lights selected from 60).
 
-Prints the time of every pipeline stage and the rays/s of the two Embree stages (light
-selection over all candidates, shadow rays of the captured lights) over the raw Embree
-occlusion rays/s measured in the same run on the same rays: one bare scene.run call on one
+Prints the time of every pipeline stage (and the parameters' uncertainty as a share of the fit's time) and the
+rays/s of the two Embree stages (light selection over all candidates, shadow rays of the captured lights) over the
+raw Embree occlusion rays/s measured in the same run on the same rays: one bare scene.run call on one
 thread, and bare calls split over the same number of threads torchrefl uses. Speed is only
 ever compared within one run (the machines are shared and noisy).
 
@@ -90,6 +90,10 @@ def main():
         print(f"  {k:<18}{v:8.2f}{mark}")
     total = sum(t[k] for k in pipeline)
     print(f"  Method I pipeline (* = selection + shadow rays + precompute + initialise + fit): {total:.2f} s")
+    share = t.get("uncertainty", 0.0) / t["fit"]
+    print(
+        f"  uncertainty (torchrefl.fit.uncertainty): {t.get('uncertainty', 0.0):.2f} s, {share:.1%} of the fit's time"
+    )
 
     # Embree stages against raw Embree on the same rays, same run
     geom = load_scan_geometry(out / "run" / "capture", threads=args.threads)
@@ -134,6 +138,7 @@ def main():
             {
                 "timing_s": t,
                 "pipeline_s": total,
+                "uncertainty_share_of_fit": share,
                 "embree": [
                     dict(
                         zip(

@@ -73,6 +73,20 @@ def test_outputs_contract(small_run):
     assert len(list((out / "maps").glob("light_*_diff.png"))) == 2
     assert (out / "config.yaml").is_file() and (out / "log.txt").is_file()
     assert (out / "selection" / "coverage.png").is_file()
+    # the parameters' std: finite and > 0 where estimated, the range's std where the lobe was not measured
+    for key, of in (("pd_std", "pd"), ("ps_std", "ps"), ("sigma_std", "sigma")):
+        std = p[key][p["mask"]]
+        assert p[key].shape == p[of].shape and np.isfinite(std).all() and (std > 0).all()
+        assert (out / "maps" / f"{key}.png").stat().st_size > 0
+    lobe = p["lobe_measured"]
+    assert (lobe == (p["mask"] & (p["coverage"] == 2))).all()
+    assert np.allclose(p["sigma_std"][p["mask"] & ~lobe], (0.6 - 0.01) / 12**0.5)
+    assert np.median(p["sigma_std"][lobe] / p["sigma"][lobe]) < 0.1
+    u = m["uncertainty"]
+    assert u["noise_source"] == "residuals" and all(0.2 < x < 1.0 for x in u["noise_dn"])
+    assert 0 < u["determined_share"] <= u["lobe_measured"] / m["coverage"]["estimated"]
+    assert u["sigma_std"]["median"] <= u["sigma_std"]["p95"]
+    assert "uncertainty" in m["timing_s"]
     resolved = yaml.safe_load((out / "config.yaml").read_text())
     assert resolved["synthetic"]["columns"] == 128
     assert (out / "run_complete.json").is_file() and m["capture"]["warnings"] == []

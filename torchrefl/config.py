@@ -93,6 +93,9 @@ class SyntheticConfig:
     supersample: int = opt(3, "sub-samples per texel side used to render textures (finer than the fitter)", low=1)
     mesh_subdivisions: int = opt(6, "icosphere subdivisions of the object mesh (the truth geometry)", low=1)
     noise_dn: float = opt(0.3, "Gaussian sensor noise, in 8-bit digital numbers", low=0.0)
+    noise_seed: Optional[int] = opt(
+        None, "seed of the texture images' sensor noise (null = the run's seed; another value: a new draw, same scene)"
+    )
     range_noise_mm: float = opt(0.0, "Gaussian range noise in mm", low=0.0)
     range_bits: Optional[int] = opt(
         None, "quantise the range image to this many bits (the seed's scanner: 8); null = no quantisation"
@@ -160,6 +163,12 @@ class CaptureConfig:
     )
     kappa: list = opt([PI, PI, PI], "camera calibration gain per channel (i = kappa * L_o); pi reduces to eq. 2.9")
     light_subset: Optional[list] = opt(None, "indices of the lights to load (null = all; mesh_views: of the images)")
+    noise_dn: Optional[float] = opt(
+        None,
+        "the camera's sensor noise std per channel, 8-bit DN, for the parameters' uncertainty (null = estimated from "
+        "the fit's residuals)",
+        low=0.0,
+    )
     texture_size: int = opt(
         256, "mesh_views: side of the texel atlas, texels (the parameter maps are texture_size x texture_size)", low=16
     )

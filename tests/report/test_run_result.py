@@ -14,8 +14,9 @@ from torchrefl.report.run_result import load_run
 matplotlib.use("Agg")
 
 
-def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow", minnaert_k=None):
-    """A run folder with known parameters on a spherical cap of radius 50 (texel grid H x W)."""
+def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow", minnaert_k=None, stds=False):
+    """A run folder with known parameters on a spherical cap of radius 50 (texel grid H x W); stds: with the
+    parameters' std (the lobe measured in the left half of the grid)."""
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True, exist_ok=True)
     u, v = np.meshgrid(np.linspace(-0.5, 0.5, W), np.linspace(-0.4, 0.4, H))
@@ -36,6 +37,15 @@ def write_run(folder, H=6, W=7, seed=0, ps_channels=3, brdf="torrance_sparrow", 
     )
     if minnaert_k is not None:
         params.update(diffuse=np.array("minnaert"), minnaert_k=np.array(minnaert_k))
+    if stds:
+        lobe = np.zeros((H, W), dtype=bool)
+        lobe[:, : W // 2] = True
+        params.update(
+            pd_std=np.full((H, W, 3), 0.01),
+            ps_std=0.05 * params["ps"],
+            sigma_std=0.2 * params["sigma"],
+            lobe_measured=lobe,
+        )
     np.savez_compressed(folder / "params.npz", **params)
     (folder / "metrics.json").write_text(
         json.dumps(
@@ -128,6 +138,38 @@ def test_summary_and_figure(tmp_path):
     assert len(fig.axes) >= 4
     assert "Pd" in fig.axes[0].get_title()
     matplotlib.pyplot.close(fig)
+
+
+def test_the_figure_shows_the_relative_std_where_the_lobe_was_measured(tmp_path):
+    write_run(tmp_path / "run", stds=True)
+    run = load_run(tmp_path / "run")
+    assert run.sigma_std.shape == run.sigma.shape and run.lobe_measured.dtype == bool
+    fig = run.figure()
+    panels = {ax.get_title().split(" (")[0]: ax for ax in fig.axes if ax.get_title()}
+    assert {"Ps relative std", "sigma relative std"} <= set(panels)
+    shown = panels["sigma relative std"].get_images()[0].get_array()
+    # the lobe measured in the left columns (0.2 relative); the right columns hatched (not determined)
+    assert np.allclose(shown[:, :3].compressed(), 0.2)
+    assert shown[:, 4:].mask.all()
+    matplotlib.pyplot.close(fig)
+    write_run(tmp_path / "plain")
+    assert load_run(tmp_path / "plain").pd_std is None
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (lambda p: p.pop("sigma_std"), "has pd_std, ps_std, lobe_measured but not sigma_std"),
+        (lambda p: p.update(ps_std=p["ps_std"][..., :1]), "'ps_std' has shape"),
+        (lambda p: p.update(sigma_std=-p["sigma_std"]), "'sigma_std' expected finite values >= 0"),
+    ],
+)
+def test_bad_std_arrays_are_named_errors(tmp_path, change, match):
+    write_run(tmp_path / "run", stds=True)
+    params = dict(np.load(tmp_path / "run" / "params.npz"))
+    change(params)
+    with pytest.raises(RunFolderError, match=match):
+        load_run(resealed(tmp_path / "run", params))
 
 
 def resealed(folder, params=None, **files):

@@ -28,6 +28,7 @@ from torchrefl.fit.reestimate import reestimate
 from torchrefl.fit.refine import Objective, Prior, neighbour_pairs, refine
 from torchrefl.fit.result import FitResult
 from torchrefl.fit.texel_lm import levenberg_marquardt
+from torchrefl.fit.uncertainty import fit_uncertainty
 from torchrefl.transport.levels.auto import choose, named_level, prepare
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
@@ -320,4 +321,5 @@ def fit_capture(
     drop_misfits(result, capture, log)
     if capture.stats.get("preprocessing"):  # the geometry the level's choice rests on (geometry.median_size)
         result.model_reason += f"; geometry: {capture.stats['preprocessing']}"
+    result.uncertainty = fit_uncertainty(cfg, level, result, stages)
     return result

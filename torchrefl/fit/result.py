@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Optional
 
 import torch
+
+if TYPE_CHECKING:
+    from torchrefl.fit.uncertainty import Uncertainty
 
 
 @dataclass
@@ -45,3 +49,4 @@ class FitResult:
     model_numbers: dict = field(default_factory=dict)  # auto's measured interreflection
     photon: dict | None = None  # the photon level's per-refresh image differences and cache statistics
     misfit: int = 0  # texels without an estimate because the fitted model cannot explain them (fit.misfit)
+    uncertainty: Optional[Uncertainty] = None  # the std of every parameter (torchrefl.fit.uncertainty)

@@ -43,14 +43,15 @@ def described_texels(mask: np.ndarray, coverage: np.ndarray | None) -> np.ndarra
     return mask if coverage is None else mask | (np.asarray(coverage) != 0)
 
 
-def figure_size(described: np.ndarray) -> tuple[float, float]:
-    """(width, height) in inches of the 2 x 2 figure of the (H, W) `described` texels' crop box: WIDTH_IN wide,
-    the panels' aspect kept, the height bounded so that a strip or a column of texels stays readable."""
+def figure_size(described: np.ndarray, panel_rows: int = 2) -> tuple[float, float]:
+    """(width, height) in inches of the figure of 2 x panel_rows panels of the (H, W) `described` texels' crop box:
+    WIDTH_IN wide, the panels' aspect kept, the height bounded so that a strip or a column of texels stays
+    readable."""
     box = crop_box(described)
     rows, cols = box[0].stop - box[0].start, box[1].stop - box[1].start
     panel_w = 0.39 * WIDTH_IN
     panel_h = float(np.clip(panel_w * rows / max(cols, 1), 1.6, 6.0))
-    return WIDTH_IN, 2 * panel_h + 2.6
+    return WIDTH_IN, panel_rows * panel_h + 2.6
 
 
 def draw_reflectance(
@@ -62,23 +63,25 @@ def draw_reflectance(
     coverage: np.ndarray | None = None,
     sigma_max: float | None = None,
     title: str = "",
+    relative: tuple[np.ndarray, np.ndarray] | None = None,
 ):
-    """Draw the four panels into an empty matplotlib Figure `fig` (made with layout="constrained") and return it.
+    """Draw the four panels (six with `relative`) into an empty matplotlib Figure `fig` (made with
+    layout="constrained") and return it.
 
     pd (H, W, 3), ps (H, W) or (H, W, C), sigma (H, W), mask (H, W) bool: texels with an estimate; coverage (H, W)
     codes 0-7 (torchrefl.report.maps) or None; sigma_max: the fit's upper bound on sigma (rad), the top of its
-    colour range where given."""
+    colour range where given; relative: (H, W) relative std of Ps and of sigma (torchrefl.report.uncertainty.
+    relative_maps; NaN: not determined, shown as the background), drawn as a third row."""
     mask = np.asarray(mask, dtype=bool)
     ps = np.asarray(ps, dtype=np.float64)
     ps = ps.mean(axis=-1) if ps.ndim == 3 else ps
     box = crop_box(described_texels(mask, coverage))
     extent = (box[1].start - 0.5, box[1].stop - 0.5, box[0].stop - 0.5, box[0].start - 0.5)
-    hidden = lambda a: np.ma.masked_array(np.asarray(a, dtype=np.float64)[box], ~mask[box])
-    axes = fig.subplots(2, 2, sharex=True, sharey=True)
+    axes = fig.subplots(2 if relative is None else 3, 2, sharex=True, sharey=True)
     for ax in axes.flat:
         show_no_data(ax)
         ax.tick_params(labelsize=8)
-    for ax in axes[1]:
+    for ax in axes[-1]:
         ax.set_xlabel("texel column", fontsize=9)
     for ax in axes[:, 0]:
         ax.set_ylabel("texel row", fontsize=9)
@@ -89,13 +92,18 @@ def draw_reflectance(
     axes[0, 0].imshow(rgba, **show)
     axes[0, 0].set_title("Pd, diffuse albedo (sRGB, 0-1)", fontsize=11)
 
-    for ax, values, cmap, limits, label in (
-        (axes[0, 1], ps, "magma", (0.0, None), "Ps, specular albedo (mean of channels)"),
-        (axes[1, 0], sigma, "viridis", (0.0, sigma_max), "sigma, lobe width [rad]"),
-    ):
-        rng = robust_range(values, mask, lower=limits[0], upper=limits[1])
+    panels = [
+        (axes[0, 1], ps, mask, "magma", (0.0, None), "Ps, specular albedo (mean of channels)"),
+        (axes[1, 0], sigma, mask, "viridis", (0.0, sigma_max), "sigma, lobe width [rad]"),
+    ]
+    for ax, rel, name in zip(axes[2] if relative is not None else (), relative or (), ("Ps", "sigma")):
+        shown = mask & np.isfinite(rel)  # not determined: the background
+        label = f"{name} relative std, std / value (hatched: not determined)"
+        panels.append((ax, rel, shown, "cividis", (0.0, None), label))
+    for ax, values, shown, cmap, limits, label in panels:
+        rng = robust_range(np.nan_to_num(values, posinf=0.0), shown, lower=limits[0], upper=limits[1])
         colours = _colormap(cmap)
-        im = ax.imshow(hidden(values), cmap=colours, vmin=rng.vmin, vmax=rng.vmax, **show)
+        im = ax.imshow(np.ma.masked_array(values[box], ~shown[box]), cmap=colours, vmin=rng.vmin, vmax=rng.vmax, **show)
         bar = fig.colorbar(im, ax=ax, extend=rng.extend, shrink=0.9)
         bar.set_label(label, fontsize=9)
         bar.ax.tick_params(labelsize=8)
@@ -178,13 +186,15 @@ def write_figure(
     coverage: np.ndarray | None,
     sigma_max: float | None,
     title: str,
+    relative: tuple[np.ndarray, np.ndarray] | None = None,
     dpi: int = 100,
 ) -> None:
     """Draw the reflectance figure (draw_reflectance's arguments) into a Figure of its own, not pyplot's (no global
     matplotlib state changes), and save it as a PNG at `path`."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=figure_size(described_texels(mask, coverage)), layout="constrained")
-    draw_reflectance(fig, pd, ps, sigma, mask, coverage, sigma_max, title)
+    rows = 2 if relative is None else 3
+    fig = Figure(figsize=figure_size(described_texels(mask, coverage), rows), layout="constrained")
+    draw_reflectance(fig, pd, ps, sigma, mask, coverage, sigma_max, title, relative)
     with atomic_file(path) as fh:
         fig.savefig(fh, format="png", dpi=dpi)

@@ -10,6 +10,7 @@ light maps, without a valid observation) are transparent (alpha 0), never shown 
   interpolated, green Pd and Ps, sigma measured, red Pd from the upper bound only (Ps, sigma interpolated),
   magenta untrusted geometry (not fitted), yellow Pd with the object's lobe, orange misfit (no estimate), cyan Pd
   with its material's lobe fitted to its interreflected light.
+- pd_std.png, ps_std.png, sigma_std.png: the parameters' std (torchrefl.report.uncertainty).
 - light_NNN_{observed,rendered,diff}.png: observed and re-rendered images of a few lights
   (gamma 1/2.2 for viewing) and the signed difference (grey 128 = 0, +-16 DN full swing).
 The display ranges come from torchrefl.report.display; torchrefl.report.figure draws the same maps with colour
@@ -56,7 +57,7 @@ def _rgb(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _rgba(rgb: np.ndarray, shown: np.ndarray) -> np.ndarray:
+def rgba_map(rgb: np.ndarray, shown: np.ndarray) -> np.ndarray:
     """(H, W, 4) floats in [0, 1]: rgb (H, W, 1 or 3) clipped, alpha 1 on the `shown` texels and 0 elsewhere."""
     rgb = np.where(shown[..., None], np.clip(np.nan_to_num(_rgb(rgb)), 0.0, 1.0), 0.0)
     return np.concatenate([rgb, shown[..., None].astype(np.float64)], axis=-1)
@@ -74,11 +75,11 @@ def write_parameter_maps(
     """Write pd/ps/sigma/coverage PNGs into folder; returns the display scales used (the values shown white)."""
     folder.mkdir(parents=True, exist_ok=True)
     mask = np.asarray(mask, dtype=bool)
-    write_png(folder / "pd.png", _rgba(srgb(_rgb(pd)), mask), bits=8)
+    write_png(folder / "pd.png", rgba_map(srgb(_rgb(pd)), mask), bits=8)
     ps_white = robust_range(ps, np.broadcast_to(mask[..., None], np.shape(ps)), lower=0.0).vmax
-    write_png(folder / "ps.png", _rgba(_rgb(ps) / ps_white, mask), bits=8)
+    write_png(folder / "ps.png", rgba_map(_rgb(ps) / ps_white, mask), bits=8)
     sigma_white = robust_range(sigma, mask, lower=0.0, upper=sigma_max).vmax
-    write_png(folder / "sigma.png", _rgba(sigma / sigma_white, mask), bits=8)
+    write_png(folder / "sigma.png", rgba_map(sigma / sigma_white, mask), bits=8)
     cov = np.zeros(mask.shape + (4,), dtype=np.uint8)
     for code, colour in COVERAGE_COLOURS.items():
         if code:
@@ -91,8 +92,8 @@ def write_light_maps(folder: Path, name: str, observed: np.ndarray, rendered: np
     """observed, rendered: (H, W, 3) fractions of full range; mask (H, W) texels shown."""
     folder.mkdir(parents=True, exist_ok=True)
     mask = np.asarray(mask, dtype=bool)
-    view = lambda x: _rgba(np.clip(x, 0, 1) ** (1 / 2.2), mask)
+    view = lambda x: rgba_map(np.clip(x, 0, 1) ** (1 / 2.2), mask)
     write_png(folder / f"{name}_observed.png", view(observed), bits=8)
     write_png(folder / f"{name}_rendered.png", view(rendered), bits=8)
     diff = (rendered - observed) * 255.0
-    write_png(folder / f"{name}_diff.png", _rgba(0.5 + diff / 32.0, mask), bits=8)
+    write_png(folder / f"{name}_diff.png", rgba_map(0.5 + diff / 32.0, mask), bits=8)

@@ -21,6 +21,7 @@ from torchrefl.report.export_run import EXPORT, ExportInput, export_estimate
 from torchrefl.report.figure import write_figure
 from torchrefl.report.maps import write_light_maps, write_parameter_maps
 from torchrefl.report.metrics import ground_truth_errors, image_difference, strict_json
+from torchrefl.report.uncertainty import relative_maps, uncertainty_summary, write_uncertainty_maps
 from torchrefl.version import __version__
 
 MESH = "mesh.obj"  # the mesh the maps lie on, in the run folder when torchrefl made its atlas
@@ -97,7 +98,22 @@ def write_params(path: Path, cfg: Config, cap: Capture, res: FitResult, mesh: st
             minnaert_k=np.array(res.diffuse.k),
             **({"mesh": np.array(mesh)} if mesh is not None else {}),
             **({"grid_faces": faces} if faces is not None else {}),
+            **uncertainty_arrays(surface, res),
         )
+
+
+def uncertainty_arrays(surface, res: FitResult) -> dict:
+    """params.npz's pd_std, ps_std, sigma_std and lobe_measured on the texel grid (none without an uncertainty)."""
+    u = res.uncertainty
+    if u is None:
+        return {}
+    grid = lambda x: surface.to_grid(x.float(), fill=0.0)
+    return {
+        "pd_std": grid(u.pd_std),
+        "ps_std": grid(u.ps_std),
+        "sigma_std": grid(u.sigma_std),
+        "lobe_measured": surface.to_grid((u.lobe_measured & res.estimated).numpy(), fill=False),
+    }
 
 
 def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionResult | None, device: str) -> dict:
@@ -141,6 +157,8 @@ def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionRe
     if cap.truth is not None:
         spec2 = res.counts["T_spec"] >= 2
         metrics["ground_truth"] = ground_truth_errors(res.pd, res.ps, res.sigma, cap.truth, res.estimated, spec2)
+    if res.uncertainty is not None:
+        metrics["uncertainty"] = uncertainty_summary(res.ps, res.sigma, res.uncertainty, res.estimated)
     if selection is not None:
         metrics["selection"] = selection.table()
     return metrics
@@ -171,9 +189,13 @@ def write_outputs(
         estimate = (grid(res.pd.double().numpy()), grid(res.ps.double().numpy()), grid(res.sigma.double().numpy()))
         coverage = grid(res.coverage.numpy())
         metrics["maps"] = write_parameter_maps(maps, mask, *estimate, coverage, cfg.reflectance.sigma_max)
+        stds = uncertainty_arrays(surface, res)
+        lobe = stds.pop("lobe_measured", None)
+        metrics["maps"].update(write_uncertainty_maps(maps, mask, stds))
         # the run folder's name: `out` is its staging folder
         title = f"{Path(cfg.output.dir).name}: model {res.level}, brdf {cfg.reflectance.brdf}"
-        write_figure(maps / "figure.png", *estimate, mask, coverage, cfg.reflectance.sigma_max, title)
+        relative = None if lobe is None else relative_maps(estimate[1], estimate[2], stds, lobe)
+        write_figure(maps / "figure.png", *estimate, mask, coverage, cfg.reflectance.sigma_max, title, relative)
         k = min(cfg.output.map_lights, obs.num_lights)
         for p in np.linspace(0, obs.num_lights - 1, k).round().astype(int) if k else []:
             shown = surface.to_grid(obs.valid[p].numpy(), fill=False)

@@ -62,7 +62,9 @@ class RunResult:
     diffuse, minnaert_k: the diffuse part (lambert, or minnaert with its exponent; 1 = Lambert);
     metrics: metrics.json; config: the resolved config.yaml as a dict; unrecorded: the folder's files that the
     run did not write (relative paths; ignored); mesh: params.npz's `mesh` (mesh_views: the mesh whose atlas the
-    maps are), None for the other kinds.
+    maps are), None for the other kinds; pd_std (H, W, 3), ps_std (H, W, C), sigma_std (H, W): the parameters' std,
+    lobe_measured (H, W) bool: Ps and sigma estimated from the texel's own observations (torchrefl.fit.uncertainty;
+    None in runs without them).
     """
 
     folder: Path
@@ -84,6 +86,10 @@ class RunResult:
     minnaert_k: float = 1.0
     unrecorded: tuple[str, ...] = ()
     mesh: str | None = None
+    pd_std: np.ndarray | None = None
+    ps_std: np.ndarray | None = None
+    sigma_std: np.ndarray | None = None
+    lobe_measured: np.ndarray | None = None
 
     @cached_property
     def scene(self):
@@ -193,18 +199,26 @@ class RunResult:
 
     def figure(self, sigma_max: float | None = None):
         """A matplotlib Figure (pyplot) with Pd (sRGB), Ps (mean over channels), sigma and the coverage map
-        (torchrefl.report.figure); sigma_max: the top of sigma's colour range, by default the run's
+        (torchrefl.report.figure), and where the run has them the relative std of Ps and sigma
+        (torchrefl.report.uncertainty); sigma_max: the top of sigma's colour range, by default the run's
         reflectance.sigma_max."""
         import matplotlib.pyplot as plt
 
         from torchrefl.report.figure import described_texels, draw_reflectance, figure_size
+        from torchrefl.report.uncertainty import relative_maps
 
         section = self.config.get("reflectance")
         top = sigma_max if sigma_max is not None else section.get("sigma_max") if isinstance(section, dict) else None
         top = top if isinstance(top, (int, float)) and not isinstance(top, bool) else None
-        fig = plt.figure(figsize=figure_size(described_texels(self.mask, self.coverage)), layout="constrained")
+        relative = None
+        if self.lobe_measured is not None:
+            stds = {"ps_std": self.ps_std, "sigma_std": self.sigma_std}
+            relative = relative_maps(self.ps, self.sigma, stds, self.lobe_measured & self.mask)
+        rows = 2 if relative is None else 3
+        size = figure_size(described_texels(self.mask, self.coverage), rows)
+        fig = plt.figure(figsize=size, layout="constrained")
         title = f"{self.folder.name}: model {self.metrics.get('model', '?')}, brdf {self.brdf}"
-        return draw_reflectance(fig, self.pd, self.ps, self.sigma, self.mask, self.coverage, top, title)
+        return draw_reflectance(fig, self.pd, self.ps, self.sigma, self.mask, self.coverage, top, title, relative)
 
 
 def _vector(name: str, value, allow_scalar: bool = False, unit: bool = False) -> torch.Tensor:
@@ -251,6 +265,29 @@ def _read_params(path: Path) -> dict:
     if not np.issubdtype(p["kappa"].dtype, np.number) or not (np.isfinite(p["kappa"]) & (p["kappa"] > 0)).all():
         raise RunFolderError(f"{path}: 'kappa' = {p['kappa'].tolist()}, expected 3 finite values > 0")
     return p
+
+
+UNCERTAINTY_KEYS = ("pd_std", "ps_std", "sigma_std", "lobe_measured")
+
+
+def _uncertainty(p: dict, path: Path) -> dict:
+    """The std arrays of params.npz (torchrefl.fit.uncertainty), checked: all four or none, the shapes of pd, ps,
+    sigma and mask, finite and >= 0 at estimated texels."""
+    present = [k for k in UNCERTAINTY_KEYS if k in p]
+    if not present:
+        return {}
+    if len(present) < len(UNCERTAINTY_KEYS):
+        missing = ", ".join(k for k in UNCERTAINTY_KEYS if k not in p)
+        raise RunFolderError(f"{path}: has {', '.join(present)} but not {missing} (expected all four or none)")
+    mask = p["mask"]
+    for key, of in (("pd_std", "pd"), ("ps_std", "ps"), ("sigma_std", "sigma"), ("lobe_measured", "mask")):
+        if p[key].shape != p[of].shape:
+            raise RunFolderError(f"{path}: '{key}' has shape {p[key].shape}, expected {p[of].shape} (as '{of}')")
+    for key in UNCERTAINTY_KEYS[:3]:
+        a = p[key]
+        if not np.issubdtype(a.dtype, np.number) or not (np.isfinite(a[mask]) & (a[mask] >= 0)).all():
+            raise RunFolderError(f"{path}: '{key}' expected finite values >= 0 inside 'mask'")
+    return {k: p[k] if k != "lobe_measured" else p[k].astype(bool) for k in UNCERTAINTY_KEYS}
 
 
 def _diffuse_part(p: dict, path: Path) -> tuple[str, float]:
@@ -321,6 +358,7 @@ def load_run(folder) -> RunResult:
         n_diffuse=optional("n_diffuse"),
         n_specular=optional("n_specular"),
         mesh=str(p["mesh"]) if "mesh" in p else None,
+        **_uncertainty(p, params_path),
         metrics=metrics,
         config=config,
         diffuse=diffuse,

@@ -389,7 +389,7 @@ class SyntheticScan:
         cfg = self.cfg
         head = np.asarray(head_position, dtype=np.float64)
         key = int.from_bytes(hashlib.sha256(np.round(head, 6).tobytes()).digest()[:8], "little")
-        rng = np.random.default_rng([self.seed, key])
+        rng = np.random.default_rng([self.seed if cfg.noise_seed is None else cfg.noise_seed, key])
         levels = 2**cfg.texture_bits - 1
         noisy = img * levels + rng.normal(0.0, cfg.noise_dn * levels / 255.0, size=img.shape)
         q = np.clip(np.round(noisy), 0, levels)

@@ -1,0 +1,142 @@
+"""Calibration of the per-texel uncertainty (torchrefl.fit.uncertainty) on synthetic captures re-drawn with
+independent sensor noise (synthetic.noise_seed; same scene, same lights).
+
+Each noise seed's capture is fitted; over the well-determined texels (estimated, Ps and sigma measured from the
+texel's own observations and determined to 10 % relative std) the z-scores (estimate - truth) / std of every
+parameter are pooled over the seeds. Printed per parameter (Pd and Ps per channel pooled) and transport level:
+the z-scores' std (target [0.8, 1.25]) and the share of truths inside the nominal 95 % interval (target 90-98 %);
+and the calibration curve (the share inside the nominal interval against its nominal level) as a plot.
+
+    python scripts/uncertainty_calibration.py [--config configs/quick.yaml] [--seeds 8] [--out FOLDER]
+        [--plot docs/results/uncertainty_calibration.png] [dotted.key=value ...]
+    python scripts/uncertainty_calibration.py --tiny      # a 32 x 24 texel scan, 2 seeds (a check, not a result)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from statistics import NormalDist
+
+import numpy as np
+
+import torchrefl
+from torchrefl.report.uncertainty import RELATIVE_PRECISION, relative_std
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = [
+    "synthetic.columns=32",
+    "synthetic.rows=24",
+    "synthetic.angle_step_deg=11.25",
+    "synthetic.height_step_mm=7.5",
+    "synthetic.supersample=1",
+    "synthetic.mesh_subdivisions=3",
+    "selection.max_lights=4",
+    "fit.iterations=5",
+    "fit.sigma_search=4",
+    "output.map_lights=0",
+]
+#: nominal central interval levels of the calibration curve
+LEVELS = np.linspace(0.05, 0.99, 48)
+
+
+@dataclass
+class Calibration:
+    """The z-scores of one parameter at one transport level: their std, the share of truths inside the nominal 95 %
+    interval, how many (texel, channel, seed) values."""
+
+    parameter: str
+    level: str
+    z_std: float
+    coverage_95: float
+    count: int
+
+
+def z_scores(run) -> dict:
+    """{parameter: (N,) z-scores} over the run's well-determined texels (module docstring)."""
+    truth = np.load(run.folder / "capture" / "truth.npz")
+    ps_rel, sg_rel = relative_std(run.ps, run.sigma, run.ps_std, run.sigma_std)
+    good = run.mask & run.lobe_measured & (ps_rel <= RELATIVE_PRECISION) & (sg_rel <= RELATIVE_PRECISION)
+    out = {}
+    for name in ("pd", "ps", "sigma"):
+        est, std, true = getattr(run, name), getattr(run, f"{name}_std"), truth[name]
+        if name == "ps" and est.shape[-1] != true.shape[-1]:
+            true = true.mean(-1, keepdims=True)
+        out[name] = ((est[good] - true[good]) / std[good]).reshape(-1)
+    return out
+
+
+def covered(z: np.ndarray, levels: np.ndarray = LEVELS) -> np.ndarray:
+    """The share of |z| inside each nominal central interval level's normal quantile."""
+    q = np.array([NormalDist().inv_cdf(0.5 + a / 2.0) for a in levels])
+    return (np.abs(z)[None, :] <= q[:, None]).mean(1)
+
+
+def plot(curves: dict, path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.0, 4.6), layout="constrained")
+    ax = fig.subplots()
+    ax.plot([0, 1], [0, 1], color="0.5", lw=1, ls="--", label="ideal")
+    for label, share in curves.items():
+        ax.plot(LEVELS, share, lw=1.6, label=label)
+    ax.axhspan(0.90, 0.98, xmin=0.93, xmax=0.97, color="0.85")
+    ax.set_xlabel("nominal level of the central interval")
+    ax.set_ylabel("share of truths inside it")
+    ax.set_title("calibration of the per-texel std", fontsize=11)
+    ax.legend(fontsize=8)
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--config", default=str(ROOT / "configs" / "quick.yaml"))
+    ap.add_argument("--seeds", type=int, default=None, help="sensor-noise seeds (synthetic.noise_seed; default 8)")
+    ap.add_argument("--out", default=None, help="folder of the runs (default: a temporary folder)")
+    ap.add_argument("--plot", default=None, help="the calibration curve's PNG (default: OUT/calibration.png)")
+    ap.add_argument("--tiny", action="store_true", help="a 32 x 24 texel scan, 2 seeds: a check, not a result")
+    ap.add_argument("overrides", nargs="*", help="dotted.key=value config overrides")
+    args = ap.parse_args(argv)
+    out = Path(args.out or tempfile.mkdtemp(prefix="uncertainty_calibration_"))
+    seeds = args.seeds or (2 if args.tiny else 8)
+    overrides = (TINY if args.tiny else []) + list(args.overrides) + ["output.progress=false"]
+    pooled: dict = {}
+    for k in range(seeds):
+        seed = [f"synthetic.noise_seed={1000 + k}", f"output.dir={out / f'noise_{k}'}"]
+        run = torchrefl.fit(torchrefl.load_config(args.config, overrides + seed), overwrite=True)
+        if run.pd_std is None:
+            print(f"{run.folder}: the run has no uncertainty", file=sys.stderr)
+            return 1
+        level = run.metrics["model"]
+        for name, z in z_scores(run).items():
+            pooled.setdefault((name, level), []).append(z)
+        u = run.metrics["uncertainty"]
+        print(f"noise seed {k}: level {level}, noise {[round(x, 3) for x in u['noise_dn']]} DN ({u['noise_source']})")
+    rows, curves = [], {}
+    for (name, level), parts in pooled.items():
+        z = np.concatenate(parts)
+        z = z[np.isfinite(z)]
+        rows.append(
+            Calibration(
+                name, level, float(z.std()) if z.size else math.nan, float(covered(z, np.array([0.95]))[0]), z.size
+            )
+        )
+        curves[f"{name} ({level})"] = covered(z)
+    print(f"\n{seeds} noise seeds, config {args.config} {' '.join(overrides)}")
+    print("| parameter | level | z std (target 0.8-1.25) | 95 % interval covers (target 90-98 %) | values |")
+    print("|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r.parameter} | {r.level} | {r.z_std:.3f} | {100 * r.coverage_95:.1f} % | {r.count} |")
+    plot(curves, Path(args.plot) if args.plot else out / "calibration.png")
+    (out / "calibration.json").write_text(json.dumps([asdict(r) for r in rows], indent=2))
+    print(f"\nwritten {out / 'calibration.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
