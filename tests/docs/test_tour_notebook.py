@@ -95,7 +95,7 @@ def test_tour_runs_this_tree(executed):
 def test_tour_synthetic_section(executed):
     nb = executed
     # the reflectance / coverage maps, the selection curve, the held-out triple and the relit views are figures
-    for marker in ("show(run.figure())", "selection.json", "show_light(run.folder", "run.render("):
+    for marker in ("show(run.figure())", "selection.json", "show_light(run.folder", "run.render(light_position="):
         assert _images(_cell(nb, marker)) == 1, marker
     fitted = _text(_cell(nb, 'torchrefl.fit(ROOT / "configs" / "default.yaml"'))
     assert re.search(r"fitted in [\d.]+ s: 100 x 128 texels", fitted), fitted
@@ -106,7 +106,7 @@ def test_tour_synthetic_section(executed):
     pd_rmse = float(re.search(r"pd_rmse\s+([\d.eE+-]+)", table).group(1))
     sigma_rel = float(re.search(r"sigma_median_rel_err\s+([\d.eE+-]+)", table).group(1))
     assert pd_rmse < 0.03 and sigma_rel < 0.15, table
-    relit = _text(_cell(nb, "run.render("))
+    relit = _text(_cell(nb, "run.render(light_position="))
     lit = int(re.search(r"(\d+) lit texels", relit).group(1))
     assert lit > 1000, relit
 
