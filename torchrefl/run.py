@@ -20,6 +20,7 @@ import yaml
 from torchrefl.capture.base import Capture, loader_for
 from torchrefl.config import Config, load_config, resolve_path, to_dict
 from torchrefl.core.atomic_files import atomic_write_text
+from torchrefl.core.memory import reset_peak
 from torchrefl.core.progress import Stages
 from torchrefl.errors import ConfigError, TorchReflError
 from torchrefl.fit.pipeline import fit_capture
@@ -106,6 +107,7 @@ def run(cfg: Config, quiet: bool = False, overwrite: bool = False) -> dict:
     if cfg.capture.kind not in SYNTHETIC_KINDS:
         loader_for(cfg.capture.kind)  # an unknown kind is refused before the staging folder is made
     staged = StagedRunFolder(target, overwrite)
+    reset_peak()  # metrics.json's peak_memory_mb: this run's, not the process's earlier work
     log = RunLog(staged.path / "log.txt", quiet=quiet)
     stages = Stages(log)
     try:
