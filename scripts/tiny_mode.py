@@ -33,12 +33,30 @@ TINY_LEVELS = [
     "radiosity.solve_samples=8",
 ]
 TINY = TINY_SCAN + TINY_LEVELS
+#: a synthetic mesh_views capture (configs/mesh_views.yaml) at a 16 x 16 texel atlas, 4 views of 96 x 72 pixels
+TINY_VIEWS = [
+    "capture.texture_size=16",
+    "views.width=96",
+    "views.height=72",
+    "views.focal_px=160",
+    "views.camera_elevations_deg=[-20.0,30.0]",
+    "views.cameras_per_ring=2",
+    "views.lights_per_view=2",
+    "views.supersample=1",
+    "fit.holdout=[1]",
+    "fit.iterations=3",
+    "output.progress=false",
+    "output.map_lights=0",
+    "threads=1",
+]
 
 
-def tiny_fold_run(folder: Path, model: str = "photon", extra: tuple[str, ...] = ()) -> Path:
-    """Fit the tiny fold at `model` into folder (capture rendered there, folder/capture); returns folder."""
+def tiny_run(folder: Path, config: Path = FOLD, model: str = "photon", extra: tuple[str, ...] = ()) -> Path:
+    """Fit a bundled synthetic config, tiny (TINY, or TINY_VIEWS for a mesh_views one), at `model` into folder (its
+    capture rendered there, folder/capture); returns folder."""
     import torchrefl
 
-    cfg = torchrefl.load_config(FOLD, TINY + [f"output.dir={folder}", f"fit.model={model}", *extra])
+    tiny = TINY_VIEWS if "mesh_views" in Path(config).name else TINY
+    cfg = torchrefl.load_config(config, tiny + [f"output.dir={folder}", f"fit.model={model}", *extra])
     torchrefl.fit(cfg, overwrite=True)
     return folder

@@ -28,6 +28,7 @@ from torchrefl.fit.texel_lm import levenberg_marquardt
 from torchrefl.transport.levels.auto import choose, named_level, prepare
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
+from torchrefl.transport.memory_estimate import check_level_memory
 
 
 def held_out(holdout: list, num_lights: int) -> torch.Tensor:
@@ -253,6 +254,7 @@ def fit_capture(cfg: Config, capture: Capture, stages: Stages, log, device: torc
         if cfg.fit.model == "auto" and isinstance(level, RadiosityLevel):
             level = choose(level, init)
             if level.name == "photon":
+                check_level_memory(level)
                 level.prepare()
         init = level.start(init)
     log(init.note)
