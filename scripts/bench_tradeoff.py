@@ -22,7 +22,7 @@ and a plot of held-out error and pd_rmse against time with the Pareto front mark
     python scripts/bench_tradeoff.py [--out outputs/tradeoff] [--full] [--scenes object_e_setup2 concave]
 
 Default size 256 x 225 texels (1.4 deg, 1.12 mm) so the sweep takes minutes; --full uses the seed's 512 x 450;
---tiny (the test's mode) the tiny fold of scripts/tiny_mode.py at three points (local, radiosity and photon bases).
+--tiny (the test's mode) the tiny fold of scripts/tiny_mode.py at two points (local, the photon base).
 Times are only comparable within one run (shared, noisy machines).
 """
 
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="outputs/tradeoff")
     ap.add_argument("--full", action="store_true")
-    ap.add_argument("--tiny", action="store_true", help="the tiny fold at three points: seconds")
+    ap.add_argument("--tiny", action="store_true", help="the tiny fold at two points: seconds")
     ap.add_argument("--scenes", nargs="+", default=["object_e_setup2", "concave"])
     args = ap.parse_args(argv)
     out = Path(args.out).resolve()
@@ -133,7 +133,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.tiny:  # TINY after the bases: its photon and radiosity sizes win
         args.scenes, size = ["fold"], []
         points = [(level, knob, over + TINY) for level, knob, over in POINTS if knob in ("-", "photons=400k (base)")]
-        points.insert(1, ("radiosity", "base", RADIOSITY_BASE + TINY))
     rows = []
     for scene in args.scenes:
         config = ROOT / "configs" / f"{scene}.yaml"

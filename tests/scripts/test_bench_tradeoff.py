@@ -1,4 +1,4 @@
-"""scripts/bench_tradeoff.py: its tiny mode fits the tiny fold at three points and writes the table and plot."""
+"""scripts/bench_tradeoff.py: its tiny mode fits the tiny fold at two points and writes the table and plot."""
 
 import json
 
@@ -14,7 +14,6 @@ def test_pareto_front():
 def test_tiny_mode_writes_the_table(tmp_path):
     assert trade.main(["--tiny", "--out", str(tmp_path)]) == 0
     rows = json.loads((tmp_path / "tradeoff.json").read_text())
-    assert [r["level"] for r in rows] == ["local", "radiosity", "photon"]
-    assert [r["model"] for r in rows] == ["local", "radiosity", "photon"]
+    assert [(r["level"], r["model"]) for r in rows] == [("local", "local"), ("photon", "photon")]
     assert all(r["time_s"] > 0 and r["pd_rmse"] is not None for r in rows)
     assert (tmp_path / "tradeoff.png").stat().st_size > 0
