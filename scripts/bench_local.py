@@ -7,6 +7,7 @@ thread, and bare calls split over the same number of threads torchrefl uses. Spe
 ever compared within one run (the machines are shared and noisy).
 
     python scripts/bench_local.py [--threads 2] [--out /tmp/bench_local]
+    python scripts/bench_local.py --tiny      # the default scene at 32 x 24 texels, 4 lights (the test's mode)
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -28,6 +30,18 @@ from torchrefl.planning import select_for_scan
 from torchrefl.synthetic import SyntheticScan
 
 ROOT = Path(__file__).resolve().parents[1]
+#: --tiny: the default scene shrunk to seconds
+TINY = [
+    "synthetic.columns=32",
+    "synthetic.rows=24",
+    "synthetic.angle_step_deg=11.25",
+    "synthetic.height_step_mm=10.5",
+    "synthetic.supersample=1",
+    "synthetic.mesh_subdivisions=3",
+    "selection.num_lights=4",
+    "fit.iterations=3",
+    "output.map_lights=0",
+]
 
 
 def shadow_rays(geom, heads, offset):
@@ -64,16 +78,18 @@ def raw_rate(scene, O, D, F, threads: int) -> float:
     return len(O) / (time.perf_counter() - start)
 
 
-def main():
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default=None, help="output folder (default: a temporary folder)")
-    args = ap.parse_args()
+    ap.add_argument("--tiny", action="store_true", help="the default scene at 32 x 24 texels, 4 lights: seconds")
+    args = ap.parse_args(argv)
     out = Path(args.out or tempfile.mkdtemp(prefix="bench_local_"))
     torch.set_num_threads(args.threads)
     cfg = torchrefl.load_config(
         ROOT / "configs" / "default.yaml",
-        [f"output.dir={out / 'run'}", "selection.num_lights=12", "output.progress=false", f"threads={args.threads}"],
+        [f"output.dir={out / 'run'}", "selection.num_lights=12", "output.progress=false", f"threads={args.threads}"]
+        + (TINY if args.tiny else []),
     )
     print(f"machine: {platform.processor() or platform.machine()}, threads {args.threads}, torch {torch.__version__}")
 
@@ -161,7 +177,8 @@ def main():
         )
     )
     print(f"\nwritten {out / 'bench_local.json'}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -21,7 +21,8 @@ and a plot of held-out error and pd_rmse against time with the Pareto front mark
 
     python scripts/bench_tradeoff.py [--out outputs/tradeoff] [--full] [--scenes object_e_setup2 concave]
 
-Default size 256 x 225 texels (1.4 deg, 1.12 mm) so the sweep takes minutes; --full uses the seed's 512 x 450.
+Default size 256 x 225 texels (1.4 deg, 1.12 mm) so the sweep takes minutes; --full uses the seed's 512 x 450;
+--tiny (the test's mode) the tiny fold of scripts/tiny_mode.py at two points (local, the photon base).
 Times are only comparable within one run (shared, noisy machines).
 """
 
@@ -30,13 +31,16 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys
 from pathlib import Path
 
 import numpy as np
 
 import torchrefl
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).parent))
+from tiny_mode import ROOT, TINY  # noqa: E402
+
 QUICK = [
     "synthetic.columns=256",
     "synthetic.rows=225",
@@ -115,23 +119,30 @@ def plot_tradeoff(rows: list[dict], scenes: list[str], path: Path) -> None:
     fig.savefig(path, dpi=100)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="outputs/tradeoff")
     ap.add_argument("--full", action="store_true")
+    ap.add_argument("--tiny", action="store_true", help="the tiny fold at two points: seconds")
     ap.add_argument("--scenes", nargs="+", default=["object_e_setup2", "concave"])
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     size = [] if args.full else QUICK
+    points = POINTS
+    if args.tiny:  # TINY after the bases: its photon and radiosity sizes win
+        args.scenes, size = ["fold"], []
+        points = [(level, knob, over + TINY) for level, knob, over in POINTS if knob in ("-", "photons=400k (base)")]
     rows = []
     for scene in args.scenes:
         config = ROOT / "configs" / f"{scene}.yaml"
         capture = out / scene / "capture_run"
-        first = torchrefl.load_config(config, size + COMMON + [f"output.dir={capture}", "fit.model=local"])
+        first = torchrefl.load_config(
+            config, size + COMMON + (TINY if args.tiny else []) + [f"output.dir={capture}", "fit.model=local"]
+        )
         print(f"{scene}: rendering the capture ...", flush=True)
         torchrefl.fit(first, overwrite=True)
-        for level, knob, over in POINTS:
+        for level, knob, over in points:
             name = f"{level}_{knob.split(' ')[0].replace('=', '')}"
             cfg = torchrefl.load_config(
                 config,
@@ -170,7 +181,8 @@ def main() -> None:
         f"{torch.get_num_threads()} threads"
     )
     lines = [
-        f"Machine: {machine}; size {'512 x 450' if args.full else '256 x 225'} texels; times are precompute + "
+        f"Machine: {machine}; size {'tiny' if args.tiny else '512 x 450' if args.full else '256 x 225'} texels; "
+        "times are precompute + "
         "initialise + fit.",
         "",
         "| scene | level | setting | time s | pd_rmse | Ps med rel | sigma med rel | held-out mean 8-bit | held-out "
@@ -195,7 +207,8 @@ def main() -> None:
     (out / "tradeoff.json").write_text(json.dumps(rows, indent=2))
     print("\n".join(lines))
     print(f"\nwritten {out / 'tradeoff.md'}, {out / 'tradeoff.png'}, {out / 'tradeoff.json'}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

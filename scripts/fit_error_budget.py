@@ -11,6 +11,7 @@ and the held-out images' mean |diff| (8-bit, as in metrics.json) for the run, fo
 indirect light and for the truth with the true one (the floor that sensor noise and quantisation leave).
 
     python scripts/fit_error_budget.py configs/fold.yaml <run>/capture <run>
+    python scripts/fit_error_budget.py --tiny      # a tiny fold fitted with the photon level first (the test's mode)
 
 Slow: two renders of the capture's lights (scripts/photon_noise_at_truth.py) and two photon caches.
 docs/results/fold.md ("Where the rest of the error comes from") has the fold's numbers.
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +38,7 @@ from torchrefl.transport.photon_cache import indirect_radiance
 
 sys.path.insert(0, str(Path(__file__).parent))
 from photon_noise_at_truth import renders  # noqa: E402
+from tiny_mode import FOLD, tiny_run  # noqa: E402
 
 
 def closed_form_pd(terms, target, mask, ps, sigma) -> torch.Tensor:
@@ -46,12 +49,18 @@ def closed_form_pd(terms, target, mask, ps, sigma) -> torch.Tensor:
     return (a * (target - spec)).sum(0) / (a * a).sum(0).clamp_min(1e-30)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("config", help="the synthetic config that wrote the capture")
-    ap.add_argument("capture", help="the capture folder (cylindrical_scan with truth.npz)")
-    ap.add_argument("run", help="a finished photon-level run on that capture (its params.npz and config.yaml)")
-    args = ap.parse_args()
+    ap.add_argument("config", nargs="?", help="the synthetic config that wrote the capture")
+    ap.add_argument("capture", nargs="?", help="the capture folder (cylindrical_scan with truth.npz)")
+    ap.add_argument("run", nargs="?", help="a finished photon-level run on that capture (its params.npz, config.yaml)")
+    ap.add_argument("--tiny", action="store_true", help="fit the tiny fold (scripts/tiny_mode.py) and analyse it")
+    args = ap.parse_args(argv)
+    if args.tiny and args.run is None:
+        run = tiny_run(Path(tempfile.mkdtemp(prefix="fit_error_budget_")) / "run")
+        args.config, args.capture, args.run = str(FOLD), str(run / "capture"), str(run)
+    if args.run is None:
+        ap.error("give CONFIG CAPTURE RUN, or --tiny")
     over = [
         "capture.kind=cylindrical_scan",
         f"capture.path={args.capture}",
@@ -124,7 +133,8 @@ def main() -> None:
             f"level's indirect {held_out_abs(direct['truth'] + at_truth):.3f}; truth with the true "
             f"indirect {held_out_abs(direct['truth'] + true_indirect):.3f}"
         )
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,6 +1,7 @@
 """SIGKILL a real `python -m torchrefl.train` at staged moments and check what load_run makes of the folder.
 
     python scripts/kill_runs.py [--work DIR]
+    python scripts/kill_runs.py --tiny      # one moment (the staging folder appears) on a fresh folder (the test's)
 
 Moments, found by polling the run's staging folder (.NAME.staging-PID beside the target): the staging folder
 appears; the synthetic capture's scan.yaml is written; the first texture is rendered; params.npz is written
@@ -92,21 +93,28 @@ def verdict(target: Path, earlier: str | None) -> tuple[bool, str]:
     return True, f"a whole new run (model {run.metrics['model']}, {run.metrics['lights']} lights)"
 
 
-def main() -> int:
+#: --tiny: the first moment on a fresh folder only (no reference run: one process, killed as it starts its work)
+TINY_MOMENT = "staging folder created"
+
+
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", default=None, help="scratch folder (default: a temporary one, removed at the end)")
-    args = ap.parse_args()
+    ap.add_argument("--tiny", action="store_true", help=f"the moment '{TINY_MOMENT}' on a fresh folder only: seconds")
+    args = ap.parse_args(argv)
     work = Path(args.work or tempfile.mkdtemp(prefix="kill_runs_"))
     work.mkdir(parents=True, exist_ok=True)
     config = work / "tiny.yaml"
     config.write_text(yaml.safe_dump(CONFIG))
-    earlier_run = work / "earlier"
-    if not earlier_run.is_dir():
-        assert train(config, earlier_run, False).wait() == 0, "the reference run failed"
-    earlier = digest(earlier_run)
+    earlier_run, earlier = work / "earlier", None
+    if not args.tiny:
+        if not earlier_run.is_dir():
+            assert train(config, earlier_run, False).wait() == 0, "the reference run failed"
+        earlier = digest(earlier_run)
     ok_all = True
-    for name, reached in MOMENTS.items():
-        for with_earlier in (False, True):
+    moments = {TINY_MOMENT: MOMENTS[TINY_MOMENT]} if args.tiny else MOMENTS
+    for name, reached in moments.items():
+        for with_earlier in (False,) if args.tiny else (False, True):
             target = work / f"t_{len(os.listdir(work))}"
             if with_earlier:
                 shutil.copytree(earlier_run, target)

@@ -16,12 +16,18 @@ synthetic.indirect_samples, so their own Monte Carlo noise enters the "true" row
 and 3 x 3 sub-samples; on a 256 x 225 fold at 64 paths and 2 x 2 it lowers that row below the defaults' own).
 docs/results/fold.md ("Photon noise") has the fold's numbers. Slow: two renders of the capture's lights and two
 caches per setting.
+
+    python scripts/photon_noise_at_truth.py --tiny [configs/fold.yaml <tiny run>/capture]   # the test's mode
+--tiny renders and traces at scripts/tiny_mode.py's sizes, on a tiny fold it fits first when no capture is given.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -34,6 +40,9 @@ from torchrefl.fit.pipeline import level_inputs
 from torchrefl.synthetic.scan import SyntheticScan
 from torchrefl.transport.levels.auto import named_level, prepare
 from torchrefl.transport.photon_cache import indirect_radiance
+
+sys.path.insert(0, str(Path(__file__).parent))
+from tiny_mode import FOLD, TINY, tiny_run  # noqa: E402
 
 
 def renders(cfg, capture_path: str, surface, indirect: bool, seed: int) -> torch.Tensor:
@@ -67,13 +76,20 @@ def local_fit_within(inputs, target, truth, measured) -> float:
     return float((rel[measured].abs() < 0.02).double().mean())
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("config", help="the synthetic config that wrote the capture (its synthetic.* block)")
-    ap.add_argument("capture", help="the capture folder (cylindrical_scan with truth.npz)")
+    ap.add_argument("config", nargs="?", help="the synthetic config that wrote the capture (its synthetic.* block)")
+    ap.add_argument("capture", nargs="?", help="the capture folder (cylindrical_scan with truth.npz)")
     ap.add_argument("--setting", action="append", default=[], help="comma-separated overrides; repeatable")
-    args = ap.parse_args()
-    base = ["capture.kind=cylindrical_scan", f"capture.path={args.capture}", "fit.model=photon"]
+    ap.add_argument("--tiny", action="store_true", help="scripts/tiny_mode.py's sizes (a tiny fold if no capture)")
+    args = ap.parse_args(argv)
+    if args.tiny and args.capture is None:
+        run = tiny_run(Path(tempfile.mkdtemp(prefix="photon_noise_")) / "run", model="local")
+        args.config, args.capture = str(FOLD), str(run / "capture")
+    if args.capture is None:
+        ap.error("give CONFIG CAPTURE, or --tiny")
+    base = (TINY if args.tiny else []) + ["capture.kind=cylindrical_scan", f"capture.path={args.capture}"]
+    base += ["fit.model=photon"]
     base.append("output.progress=false")
     cfg = load_config(args.config, base)
     cap = loader_for(cfg.capture.kind).load(args.capture, cfg, lambda m: None)
@@ -108,7 +124,8 @@ def main() -> None:
         e = "-" if err is None else f"{err:.2f}"
         n = "-" if noise is None else f"{noise:.2f}"
         print(f"{name} | {e} | {n} | {share:.1%}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

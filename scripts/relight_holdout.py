@@ -1,6 +1,7 @@
 """Held-out photographs reproduced by relighting (torchrefl.report.relight), against the fit's own held-out error.
 
     python scripts/relight_holdout.py RUN_DIR [RUN_DIR ...]
+    python scripts/relight_holdout.py --tiny      # a tiny mesh_views fit with a held-out image (the test's mode)
 
 For each run (its config's fit.holdout lights):
 - photometric stereo (the DiLiGenT ball): each held-out light rendered through the photographs' orthographic camera
@@ -18,6 +19,7 @@ Prints the mean |relit - photo| in 8-bit DN beside metrics.json's holdout mean_a
 from __future__ import annotations
 
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +31,9 @@ from torchrefl.config import load_config
 from torchrefl.report.relight import Light, photographs_camera
 from torchrefl.report.relight_camera import one_camera
 from torchrefl.report.run_result import load_run
+
+sys.path.insert(0, str(Path(__file__).parent))
+from tiny_mode import ROOT, tiny_run  # noqa: E402
 
 
 def photometric_stereo(run, cfg) -> dict:
@@ -78,6 +83,9 @@ def mesh_views(run, cfg) -> dict:
 
 
 def main(argv) -> int:
+    if argv == ["--tiny"]:
+        folder = Path(tempfile.mkdtemp(prefix="relight_holdout_")) / "run"
+        argv = [str(tiny_run(folder, ROOT / "configs" / "mesh_views.yaml", "local"))]
     for folder in argv:
         run = load_run(folder)
         cfg = load_config(str(Path(folder) / "config.yaml"))

@@ -27,12 +27,14 @@ per-texel columns against it.
 --set photon.diffuse_paths=radiosity.
 
 --quick renders a 256 x 225 grid with fewer paths (about 2-3 minutes instead of 16, the capture floor included).
+--tiny (the test's mode) renders setup 2 at scripts/tiny_mode.py's sizes, without the capture floor: seconds.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +43,9 @@ import torchrefl
 from torchrefl.capture import read_images, read_scan_yaml
 from torchrefl.synthetic import make_object
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).parent))
+from tiny_mode import ROOT, TINY  # noqa: E402
+
 METHODS = [("I", "local"), ("II", "radiosity"), ("III", "photon")]
 QUICK = [
     "synthetic.columns=256",
@@ -158,11 +162,12 @@ def deviations(c, est, tru, width: float, near_mm: float = 10.0, edge_mm: float 
     return top(near), top(~near), top(inner)
 
 
-def main():
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="outputs/object_e")
     ap.add_argument("--setups", nargs="+", type=int, default=[1, 2])
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--tiny", action="store_true", help="setup 2 at a few hundred texels, no capture floor: seconds")
     ap.add_argument(
         "--no-floor",
         action="store_true",
@@ -175,9 +180,11 @@ def main():
         metavar="KEY=VALUE",
         help="config overrides for every method's run (dotted keys)",
     )
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     out = Path(args.out).resolve()
     extra = (QUICK if args.quick else []) + list(args.set)
+    if args.tiny:
+        extra, args.setups, args.no_floor = TINY + list(args.set), [2], True
     rows, floors = [], {}
     import matplotlib
 
@@ -275,7 +282,8 @@ def main():
             f"within 10 mm of the fold, {fl['floor_rel_std_elsewhere']:.4f} elsewhere"
         )
     print(f"\nwritten {out / 'pd_profiles.png'} and {out / 'object_e.json'}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -10,15 +10,21 @@ is the middle of the range, its flanks at +-35 mm), and the script prints the me
 
 --capture names the capture folder when a run fitted an existing one (capture.kind=cylindrical_scan); by
 default a run's own RUN/capture is used.
+
+    python scripts/vase_profile.py --tiny      # a tiny vase fitted with Method I, then its profile (the test's mode)
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from tiny_mode import ROOT, tiny_run  # noqa: E402
 
 NECK_MM = 35.0
 
@@ -55,12 +61,20 @@ def profile(run: Path, capture: Path, bin_mm: float) -> dict:
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("runs", nargs="*", type=Path)
     ap.add_argument("--capture", type=Path, default=None)
     ap.add_argument("--bin-mm", type=float, default=4.0)
-    args = ap.parse_args()
+    ap.add_argument("--tiny", action="store_true", help="fit a tiny vase (Method I) and profile it: seconds")
+    args = ap.parse_args(argv)
+    if args.tiny:
+        run = tiny_run(
+            Path(tempfile.mkdtemp(prefix="vase_profile_")) / "run", ROOT / "configs" / "concave.yaml", "local"
+        )
+        args.runs, args.bin_mm = [run], 20.0
+    if not args.runs:
+        ap.error("give run folders, or --tiny")
     for run in args.runs:
         pr = profile(run, args.capture or run / "capture", args.bin_mm)
         print(
@@ -69,7 +83,8 @@ def main() -> None:
         )
         print("  height mm: " + " ".join(f"{c:+.0f}" for c in pr["centres"]))
         print("  median %:  " + " ".join(f"{100 * m:+.1f}" for m in pr["median_rel"]))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

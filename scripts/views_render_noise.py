@@ -7,11 +7,13 @@ sqrt 2), in 8-bit digital numbers, with the CPU time of one render. --max-bounce
 starts. Results: docs/results/mesh_views.md (the concave bowl).
 
     python scripts/views_render_noise.py --paths 64
+    python scripts/views_render_noise.py --tiny      # 2 paths, 40 pixels (the test's mode)
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from functools import partialmethod
 
@@ -23,13 +25,17 @@ from torchrefl.synthetic.mesh_views import build_scene
 from torchrefl.synthetic.views_render import ViewsRenderer
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--paths", type=int, default=64, help="interreflection paths per sub-pixel ray")
     ap.add_argument("--pixels", type=int, default=6000, help="covered pixels sampled from camera 0")
     ap.add_argument("--max-bounces", type=int, default=32)
     ap.add_argument("--min-bounces", type=int, default=2)
-    a = ap.parse_args()
+    ap.add_argument("--tiny", action="store_true", help="2 paths, 40 pixels, 4 bounces: seconds")
+    a = ap.parse_args(argv)
+    if a.tiny:
+        a.paths, a.pixels, a.max_bounces = 2, 40, 4
+    plain_init = path_tracer.IndirectRenderer.__init__
     path_tracer.IndirectRenderer.__init__ = partialmethod(
         path_tracer.IndirectRenderer.__init__, min_bounces=min(a.min_bounces, a.max_bounces), max_bounces=a.max_bounces
     )
@@ -54,7 +60,9 @@ def main() -> None:
         f"CPU {t:.1f} s per render; interreflected light {indirect.mean():.2f} DN; noise {noise:.3f} DN per pixel; "
         f"noise x sqrt(CPU s) {noise * np.sqrt(t):.3f}"
     )
+    path_tracer.IndirectRenderer.__init__ = plain_init
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

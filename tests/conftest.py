@@ -205,6 +205,25 @@ def write_json(tmp_path):
     return write
 
 
+def load_script(name: str):
+    """scripts/NAME.py imported as a module (registered in sys.modules: dataclasses look their module up there)."""
+    import importlib.util
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location(name, root / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="session")
+def tiny_fold_run(tmp_path_factory):
+    """The tiny glossy fold of scripts/tiny_mode.py fitted with the photon level: the run folder (its capture in
+    capture/), shared by the scripts' tests that analyse a finished run."""
+    return load_script("tiny_mode").tiny_run(tmp_path_factory.mktemp("tiny_fold") / "run")
+
+
 #: the doc-command test (tests/docs/test_doc_commands.py) whose skipped blocks are listed at the end of a run
 DOC_TEST = "test_doc_block_runs_as_written"
 

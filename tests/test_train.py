@@ -1,6 +1,7 @@
 """End to end: python -m torchrefl.train on small configs; the outputs contract; CLI errors."""
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +65,10 @@ def test_outputs_contract(small_run):
     for key in ("pd_rmse", "ps_rmse", "sigma_rmse", "ps_median_rel_err", "sigma_median_rel_err"):
         assert key in m["ground_truth"]
     assert m["timing_s"]["total"] > 0
+    # CPU seconds per stage beside the wall's; the run's peak resident memory: at least torch and the capture's
+    # images (100 MiB), under what the whole machine has
+    assert set(m["cpu_s"]) == set(m["timing_s"]) and m["cpu_s"]["fit"] > 0
+    assert 100 < m["peak_memory_mb"] < os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**20
     # silhouette texels are untrusted geometry: coverage code 4, no estimate, counted
     assert m["coverage"]["untrusted_geometry"] == int((p["coverage"] == 4).sum()) > 0
     assert not (p["mask"] & (p["coverage"] == 4)).any()

@@ -38,6 +38,10 @@ class FitError(TorchReflError):
     """The fit cannot proceed (nothing to fit, diverged)."""
 
 
+class MemoryLimitError(TorchReflError):
+    """A run would need more memory than the machine has free; the message names the setting that brings it down."""
+
+
 class RigError(TorchReflError):
     """The capture rig (serial port, GRBL controller, camera) failed or refused a command."""
 

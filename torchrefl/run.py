@@ -21,6 +21,7 @@ from torchrefl.capture.base import Capture, loader_for
 from torchrefl.config import Config, load_config, resolve_path, to_dict
 from torchrefl.core.atomic_files import atomic_write_text
 from torchrefl.core.checkpoints import Checkpoints
+from torchrefl.core.memory import reset_peak
 from torchrefl.core.progress import Stages
 from torchrefl.errors import ConfigError, TorchReflError
 from torchrefl.fit.pipeline import fit_capture
@@ -113,6 +114,7 @@ def run(cfg: Config, quiet: bool = False, overwrite: bool = False, resume: bool 
     config_text = yaml.safe_dump(to_dict(cfg), sort_keys=False)
     resumable = resumable_run(target, config_text) if resume else Resumable(None, "")
     staged = StagedRunFolder(target, overwrite, resumable.folder)
+    reset_peak()  # metrics.json's peak_memory_mb: this run's, not the process's earlier work
     log = RunLog(staged.path / "log.txt", quiet=quiet, append=resumable.folder is not None)
     stages = Stages(log)
     checkpoints = Checkpoints(staged.path, log)

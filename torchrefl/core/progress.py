@@ -15,17 +15,18 @@ from tqdm import tqdm
 
 
 class Stages:
-    """Collects wall-clock seconds per stage, in order."""
+    """Collects wall-clock seconds per stage, in order, and the process's CPU seconds (all its threads) per stage."""
 
     def __init__(self, log=None):
         self.timing: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
         self.log = log
         self.failed: str | None = None  # the stage an exception or an interruption left
         self.completed: list[str] = []  # the stages that finished, in order
 
     @contextmanager
     def stage(self, name: str):
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         if self.log:
             self.log(f"[{name}] ...")
         outcome = "done"
@@ -38,6 +39,7 @@ class Stages:
             raise
         finally:
             self.timing[name] = self.timing.get(name, 0.0) + time.perf_counter() - start
+            self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - cpu
             if self.log:
                 self.log(f"[{name}] {outcome} {'in' if outcome == 'done' else 'after'} {self.timing[name]:.2f} s")
 

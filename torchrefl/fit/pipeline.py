@@ -32,6 +32,7 @@ from torchrefl.fit.uncertainty import fit_uncertainty
 from torchrefl.transport.levels.auto import choose, named_level, prepare
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
+from torchrefl.transport.memory_estimate import check_level_memory
 
 
 def held_out(holdout: list, num_lights: int) -> torch.Tensor:
@@ -291,6 +292,7 @@ def fit_capture(
         if cfg.fit.model == "auto" and isinstance(level, RadiosityLevel):
             level = choose(level, first)
             if level.name == "photon":
+                check_level_memory(level)
                 level.prepare()
         if saved is None:
             init = level.start(first)

@@ -10,6 +10,7 @@ import torch
 from torchrefl.capture.base import Capture
 from torchrefl.config import Config
 from torchrefl.core.atomic_files import atomic_file, atomic_write_text
+from torchrefl.core.memory import peak_device_mb, peak_resident_mb
 from torchrefl.core.progress import Stages
 from torchrefl.fit.initialise import COVER_UNTRUSTED
 from torchrefl.fit.result import FitResult
@@ -211,5 +212,11 @@ def write_outputs(
             export_estimate(export_input(cap, res, cfg.reflectance.brdf), out / EXPORT, option="output.export")
     metrics["timing_s"] = {k: round(v, 3) for k, v in stages.timing.items()}
     metrics["timing_s"]["total"] = round(stages.total(), 3)
+    metrics["cpu_s"] = {k: round(v, 3) for k, v in stages.cpu.items()}
+    metrics["cpu_s"]["total"] = round(sum(stages.cpu.values()), 3)
+    metrics["peak_memory_mb"] = round(peak_resident_mb(), 1)
+    gpu = peak_device_mb(torch.device(device))
+    if gpu is not None:
+        metrics["peak_gpu_memory_mb"] = round(gpu, 1)
     atomic_write_text(out / "metrics.json", strict_json(metrics))
     return metrics

@@ -42,6 +42,8 @@ def summary_table(metrics: dict) -> str:
     lines.append(
         f"  texels {metrics['texels']}, lights {metrics['lights']}, model {metrics['model']}, brdf {metrics['brdf']}"
     )
+    if isinstance(metrics.get("peak_memory_mb"), (int, float)):
+        lines.append(f"  peak resident memory {metrics['peak_memory_mb']:.0f} MiB")
     section = lambda key: metrics[key] if isinstance(metrics.get(key), dict) else {}
     d = section("diffuse")
     if d.get("model", "lambert") != "lambert" and isinstance(d.get("k"), (int, float)):

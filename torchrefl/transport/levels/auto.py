@@ -12,6 +12,7 @@ from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.levels.local import LocalLevel
 from torchrefl.transport.levels.photon import PhotonLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
+from torchrefl.transport.memory_estimate import check_level_memory
 from torchrefl.transport.select import choose_level, predicted_interreflection_dn
 
 
@@ -50,7 +51,8 @@ def named_level(inputs: LevelInputs) -> TransportLevel:
 
 
 def prepare(level: TransportLevel) -> None:
-    """Precompute a level and the radiosity level it composes."""
+    """Precompute a level and the radiosity level it composes, once its memory estimate fits (MemoryLimitError)."""
+    check_level_memory(level)
     if isinstance(level, PhotonLevel):
         level.radiosity.prepare()
     level.prepare()

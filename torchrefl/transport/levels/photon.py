@@ -16,6 +16,7 @@ comes from its solution at each refresh, the photons carry only the paths with a
 from __future__ import annotations
 
 import math
+import time
 
 import torch
 
@@ -68,6 +69,7 @@ class PhotonLevel(TransportLevel):
         self._local = inputs.local_predict()
         self.emitter_source = None
         self.scores: list[float] = []
+        self.refresh_at: list[float] = []  # seconds from the start of refresh 0 to the end of each refresh
         self.cache = None
         self._last_trace = None  # the latest refresh's own trace (the cache may average two)
         self.refresher: PhotonRefresh | None = None
@@ -231,6 +233,8 @@ class PhotonLevel(TransportLevel):
     def refresh(self, params, k: int) -> None:
         """Damp Pd towards the Pd the last cache was traced with, trace the cache at the parameters, score them."""
         inp, pc = self.inputs, self.inputs.cfg.photon
+        if k == 0:
+            self._clock = time.perf_counter()
         if k > 0 and pc.damping > 0:  # Pd only: Ps and sigma keep their refit values exactly
             with torch.no_grad():
                 params.raw_pd.copy_(inverse_softplus_b(pc.damping * self._traced_pd + (1.0 - pc.damping) * params.pd()))
@@ -247,6 +251,7 @@ class PhotonLevel(TransportLevel):
             intensity = inp.obs.intensity.to(inp.device)
             score = image_score(self.predict(*values), intensity, inp.fit_mask.to(inp.device))
         self.scores.append(score)
+        self.refresh_at.append(round(time.perf_counter() - self._clock, 2))
         stats = self.cache.stats
         inp.log(
             f"photon refresh {k}: {stats['photons_emitted']} photons over the images "
@@ -315,6 +320,7 @@ class PhotonLevel(TransportLevel):
     def report(self) -> dict:
         return {
             "image_difference_per_refresh": self.scores,
+            "refresh_at_s": self.refresh_at,
             "kept_refresh": self._best[1],
             "smoothing_texels": self.smoothing,
             "specular_smoothing_texels": self.specular_smoothing,

@@ -1,0 +1,29 @@
+"""torchrefl.core.memory: the peak resident size follows an allocation and its reset, the machine's free memory."""
+
+import sys
+
+import numpy as np
+import pytest
+
+from torchrefl.core.memory import available_mb, peak_resident_mb, reset_peak, resident_mb
+
+linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the peak is reset through /proc")
+
+
+@linux
+def test_the_peak_follows_an_allocation_and_its_reset():
+    assert reset_peak()
+    before = peak_resident_mb()
+    assert abs(before - resident_mb()) < 20  # just reset: the peak is what is resident now
+    block = np.ones(200 * 2**20 // 8)  # 200 MiB, touched
+    with_block = peak_resident_mb()
+    del block
+    assert with_block - before > 180
+    assert reset_peak()
+    assert peak_resident_mb() < with_block - 150  # the block is gone and the reset forgot it
+
+
+@linux
+def test_the_machine_has_memory_available():
+    free = available_mb()
+    assert free is not None and 0 < free < 2**24  # some memory, and under 16 TiB

@@ -1,0 +1,63 @@
+"""The process's memory: its peak resident size since a reset, the device's peak, and what the machine has free.
+
+Linux keeps the peak resident set (VmHWM, what `resource.getrusage` reports as ru_maxrss) per process; writing 5 to
+/proc/self/clear_refs resets it, so that a run reports its own peak even in a process that ran others before
+(scripts, tests). Elsewhere the peak is ru_maxrss since the process started.
+"""
+
+from __future__ import annotations
+
+import resource
+import sys
+from pathlib import Path
+
+import torch
+
+_MB = 2.0**20
+
+
+def reset_peak() -> bool:
+    """Reset the peak resident size to the current one (Linux) and torch's CUDA peaks; returns whether the resident
+    peak was reset."""
+    if torch.cuda.is_available():
+        torch.cuda.reset_peak_memory_stats()
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        return False
+    return True
+
+
+def peak_resident_mb() -> float:
+    """The process's peak resident memory in MiB (since the last reset_peak on Linux, since the start elsewhere)."""
+    kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return kib / _MB if sys.platform == "darwin" else kib / 1024.0  # macOS reports bytes, Linux KiB
+
+
+def resident_mb() -> float:
+    """The process's resident memory now, in MiB (Linux; the peak elsewhere)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return peak_resident_mb()
+
+
+def available_mb() -> float | None:
+    """Memory the machine can give new allocations now (MemAvailable of /proc/meminfo), in MiB; None where unknown."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return None
+
+
+def peak_device_mb(device: torch.device) -> float | None:
+    """The peak memory torch allocated on a CUDA device since the last reset_peak (None off CUDA), in MiB."""
+    if device.type != "cuda":
+        return None
+    return torch.cuda.max_memory_allocated(device) / _MB

@@ -1,0 +1,148 @@
+"""Up-front memory estimate of the interreflection levels from the capture's size, and the refusal of a run that would
+not fit in the memory the machine has free.
+
+The estimate adds, to what the process holds already (the capture, the observations), the largest arrays each level
+builds, from the capture's size: texels T, images P, distinct lights traced, photons per light, patches Q, emitter
+maps K. Each term is its arrays' bytes times the copies alive at once (COPIES_*), the constants measured on the
+fold (docs/results/performance.md, "Memory"). The check refuses a run whose estimate exceeds the free memory with a
+MemoryLimitError naming the setting of the largest term and the value that would fit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from torchrefl.config import Config
+from torchrefl.core.memory import available_mb
+from torchrefl.errors import MemoryLimitError
+
+_MB = 2.0**20
+#: bytes per (image, texel) of the fit beyond the capture: predictions, residuals, the level's indirect terms, the LM
+#: Jacobian columns (7 parameters x 3 channels) and the re-estimation's sigma-search profiles, float32/float64 mixed
+FIT_BYTES_PER_OBSERVATION = 400
+#: bytes per form-factor ray: the (source, target) patch indices and the weight before merging, kept while sorting
+FORM_FACTOR_BYTES_PER_RAY = 48
+#: bytes per (image, emitter map, texel): the maps' irradiance, the per-map indirect irradiance and radiance of one
+#: radiosity solve (3 float64 channels each)
+EMITTER_BYTES = 3 * 3 * 8
+#: stored photon hits per photon emitted (second and later bounces; photons leaving the object store none): 0.13 on
+#: the tiny fold (scripts/tiny_mode.py), see docs/results/performance.md for the full fold
+HITS_PER_PHOTON = 0.15
+#: peak bytes per stored hit while a refresh traces and reduces, its own cache included (the hits' arrays, their
+#: concatenation, the per-image copies, the reduction's temporaries; 265-300 measured on the tiny fold at 0.1-1 M
+#: photons per light)
+HIT_PEAK_BYTES = 250
+#: bytes per stored hit a finished cache keeps (the entries its Pd-linear terms and specular bins hold; 97 measured)
+HIT_KEPT_BYTES = 100
+#: caches alive at once during the fit: the current trace, the previous one (averaged with it), the best kept
+CACHES_ALIVE = 3
+
+
+@dataclass(frozen=True)
+class MemoryEstimate:
+    """Estimated MiB a run adds to what the process holds: per named term, each with the config key that lowers it."""
+
+    terms: dict[str, float] = field(default_factory=dict)  # term -> MiB
+    settings: dict[str, str] = field(default_factory=dict)  # term -> the config key that brings it down
+
+    @property
+    def total_mb(self) -> float:
+        return float(sum(self.terms.values()))
+
+    def largest(self) -> str:
+        return max(self.terms, key=self.terms.get)
+
+
+def estimate_memory(
+    cfg: Config,
+    texels: int,
+    images: int,
+    level: str,
+    lights_traced: int | None = None,
+    maps_per_light: int = 1,
+    patches: int | None = None,
+) -> MemoryEstimate:
+    """The MiB the fit at `level` ('local', 'radiosity', 'photon') adds for a capture of `texels` texels and `images`
+    images (lights_traced: distinct lights the photons are traced for, default `images`; maps_per_light: emitter and
+    photon maps per light for lights that move with the scan; patches: radiosity patches, default texels /
+    patch_size^2)."""
+    terms = {"fit": images * texels * FIT_BYTES_PER_OBSERVATION / _MB}
+    settings = {"fit": "selection.num_lights (fewer images) or the scan's texels (synthetic.columns, rows)"}
+    if level in ("radiosity", "photon"):
+        rc = cfg.radiosity
+        q = patches if patches is not None else math.ceil(texels / rc.patch_size**2)
+        rays = q * (rc.hemisphere_samples + (rc.solve_samples or 0))
+        terms["form factors"] = rays * FORM_FACTOR_BYTES_PER_RAY / _MB
+        settings["form factors"] = "radiosity.hemisphere_samples"
+        k = min(maps_per_light, rc.light_maps)
+        if k > 1:
+            terms["emitter maps"] = images * k * texels * EMITTER_BYTES / _MB
+            settings["emitter maps"] = "radiosity.light_maps"
+    if level == "photon":
+        traced = images if lights_traced is None else lights_traced
+        hits = cfg.photon.photons_per_light * traced * HITS_PER_PHOTON
+        irradiance = images * texels * 3 * 4
+        kept = (CACHES_ALIVE - 1) * HIT_KEPT_BYTES
+        terms["photons"] = (hits * (HIT_PEAK_BYTES + kept) + CACHES_ALIVE * irradiance) / _MB
+        settings["photons"] = "photon.photons_per_light"
+    return MemoryEstimate(terms, settings)
+
+
+def cgroup_free_mb() -> float | None:
+    """What the process's cgroup (v2) still allows, in MiB; None without a limit."""
+    root = Path("/sys/fs/cgroup")
+    try:
+        limit = (root / "memory.max").read_text().strip()
+        if limit == "max":
+            return None
+        return (int(limit) - int((root / "memory.current").read_text())) / _MB
+    except (OSError, ValueError):
+        return None
+
+
+def free_mb() -> float | None:
+    """The memory a run can still take: the machine's available memory, within the cgroup's limit; None unknown."""
+    known = [v for v in (available_mb(), cgroup_free_mb()) if v is not None]
+    return min(known) if known else None
+
+
+def check_memory(estimate: MemoryEstimate, free: float | None, what: str) -> None:
+    """Refuse (MemoryLimitError) an estimate above the free MiB (None: unknown, not checked), naming the largest term's
+    setting and the share of it that would fit. what: the run, for the message."""
+    if free is None or estimate.total_mb <= free:
+        return
+    big = estimate.largest()
+    others = estimate.total_mb - estimate.terms[big]
+    share = max(0.0, (free - others) / estimate.terms[big])
+    parts = ", ".join(f"{name} {mb:.0f}" for name, mb in sorted(estimate.terms.items(), key=lambda t: -t[1]))
+    raise MemoryLimitError(
+        f"{what} would need about {estimate.total_mb:.0f} MiB more ({parts} MiB) and the machine has {free:.0f} MiB "
+        f"free: lower {estimate.settings[big]} "
+        + (f"to about {share:.0%} of its value" if share > 0 else "(the other terms alone exceed the free memory)")
+        + " or free memory"
+    )
+
+
+def check_level_memory(level) -> MemoryEstimate:
+    """Estimate the memory a prepared-to-be TransportLevel will add for its capture, log it, and refuse the run
+    (MemoryLimitError) when it exceeds the free memory."""
+    from torchrefl.transport.photon_cache import light_sources
+    from torchrefl.transport.photon_refresh import distinct_lights
+
+    inp = level.inputs
+    cfg, surface, obs = inp.cfg, inp.surface, inp.obs
+    maps, traced = 1, obs.num_lights
+    if level.name in ("radiosity", "photon") and surface.has_mesh:
+        sources = light_sources(surface, obs, max(cfg.radiosity.light_maps, cfg.photon.light_maps))
+        maps, traced = sources.num_maps, len(distinct_lights(sources)[0])
+    estimate = estimate_memory(cfg, surface.num_texels, obs.num_lights, level.name, traced, maps)
+    free = free_mb()
+    parts = ", ".join(f"{name} {mb:.0f}" for name, mb in estimate.terms.items())
+    inp.log(
+        f"memory: the {level.name} level's fit estimated at {estimate.total_mb:.0f} MiB more ({parts} MiB); "
+        + (f"{free:.0f} MiB free" if free is not None else "free memory unknown")
+    )
+    check_memory(estimate, free, f"fit.model {cfg.fit.model} (the {level.name} level) on {surface.num_texels} texels")
+    return estimate
