@@ -70,6 +70,7 @@ class PhotonLevel(TransportLevel):
         self.emitter_source = None
         self.scores: list[float] = []
         self.refresh_at: list[float] = []  # seconds from the start of refresh 0 to the end of each refresh
+        self._clock = time.perf_counter()  # reset at refresh 0; a resumed fit counts from the level's creation
         self.cache = None
         self._last_trace = None  # the latest refresh's own trace (the cache may average two)
         self.refresher: PhotonRefresh | None = None
