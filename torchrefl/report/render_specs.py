@@ -71,12 +71,18 @@ def parse_camera(spec: str, run, scene: RelightScene, width: int = 512, height: 
     if spec.endswith(".json") or ".json:" in spec:
         path, name = _file_entry(spec, "--camera")
         cams = read_cameras_json(path)
-        if name is None and len(cams) != 1:
-            raise CaptureError(f"--camera {spec}: {path} holds {len(cams)} cameras; name one as {path}:NAME")
-        if name is not None and name not in cams.names:
-            raise CaptureError(f"--camera {spec}: {path} has no camera '{name}' (it has {', '.join(cams.names)})")
-        return one_camera(cams, 0 if name is None else cams.index(name))
+        return one_camera(cams, _entry_index(spec, "--camera", path, name, cams.names, "camera"))
     raise CaptureError(f"--camera {spec!r}: expected {CAMERA_FORMS}")
+
+
+def _entry_index(spec: str, flag: str, path, name, names, what: str) -> int:
+    """The index of entry `name` among a file's `names` (the only one when name is None); CaptureError naming the
+    flag, the file and the entries otherwise."""
+    if name is None and len(names) != 1:
+        raise CaptureError(f"{flag} {spec}: {path} holds {len(names)} {what}s; name one as {path}:NAME")
+    if name is not None and name not in names:
+        raise CaptureError(f"{flag} {spec}: {path} has no {what} '{name}' (it has {', '.join(names)})")
+    return 0 if name is None else list(names).index(name)
 
 
 def parse_light(spec: str, run, scene: RelightScene, intensity=None) -> Light:
@@ -96,11 +102,7 @@ def parse_light(spec: str, run, scene: RelightScene, intensity=None) -> Light:
     elif spec.endswith(".json") or ".json:" in spec:
         path, name = _file_entry(spec, "--light")
         lights = read_lights_json(path)
-        if name is None and len(lights) != 1:
-            raise CaptureError(f"--light {spec}: {path} holds {len(lights)} lights; name one as {path}:NAME")
-        if name is not None and name not in lights.names:
-            raise CaptureError(f"--light {spec}: {path} has no light '{name}' (it has {', '.join(lights.names)})")
-        k = 0 if name is None else lights.index(name)
+        k = _entry_index(spec, "--light", path, name, lights.names, "light")
         position, towards = (lights.position[k], None) if lights.point[k] else (None, lights.direction[k])
         file_intensity = lights.intensity[k]
     else:
