@@ -1,5 +1,7 @@
 """python -m torchrefl.render: a relit PNG and a turntable from a run folder, and its named errors (exit status 2)."""
 
+import json
+
 import numpy as np
 import pytest
 from conftest import write_grid_run
@@ -48,11 +50,16 @@ def test_a_relit_png_and_a_turntable(tmp_path, capsys):
         ("{tmp}/relit.png", ["--light", "point 1 2"], "expected 3 finite numbers"),
         ("{tmp}/relit.png", ["--light", "dir 0 0 1", "--intensity", "-1"], "intensity"),
         ("{tmp}/relit.png", ["--camera", "photographs"], "not photometric stereo"),
+        ("{tmp}/relit.png", ["--light", "{tmp}/lights.json"], "holds 2 lights; name one"),
+        ("{tmp}/relit.png", ["--light", "{tmp}/lights.json:c"], "has no light 'c' (it has a, b)"),
     ],
 )
 def test_bad_arguments_are_named_errors(tmp_path, capsys, out, extra, match):
     run = _cap_run(tmp_path / "run")
     (tmp_path / "file.txt").write_text("a file")
+    lights = {k: {"position": [0, 0, 500 + i], "intensity": [1, 1, 1]} for i, k in enumerate("ab")}
+    (tmp_path / "lights.json").write_text(json.dumps(lights))
+    extra = [e.format(tmp=tmp_path) for e in extra]
     assert render.main([str(run), "--out", out.format(tmp=tmp_path), "--size", "8x8", "--quiet", *extra]) == 2
     assert match in capsys.readouterr().err
 
