@@ -15,9 +15,13 @@ def test_the_peak_follows_an_allocation_and_its_reset():
     assert reset_peak()
     before = peak_resident_mb()
     assert abs(before - resident_mb()) < 20  # just reset: the peak is what is resident now
+    resident_before = resident_mb()
     block = np.ones(200 * 2**20 // 8)  # 200 MiB, touched
     with_block = peak_resident_mb()
+    rise = resident_mb() - resident_before
     del block
+    if rise < 180:  # the kernel kept the pages out of this process's resident set (swap, a tight cgroup)
+        pytest.skip(f"a touched 200 MiB block raised the resident size by {rise:.0f} MiB only: no peak to follow")
     assert with_block - before > 180
     assert reset_peak()
     assert peak_resident_mb() < with_block - 150  # the block is gone and the reset forgot it

@@ -28,21 +28,32 @@ def reset_peak() -> bool:
     return True
 
 
+def _status_mb(key: str) -> float | None:
+    """A size line of /proc/self/status (VmRSS, VmHWM) in MiB; None where there is none."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return None
+
+
 def peak_resident_mb() -> float:
-    """The process's peak resident memory in MiB (since the last reset_peak on Linux, since the start elsewhere)."""
+    """The process's peak resident memory in MiB (since the last reset_peak on Linux, since the start elsewhere).
+
+    The largest of ru_maxrss, VmHWM and VmRSS: some kernels and sandboxes update the first two lazily, and the peak
+    is never below what is resident now."""
     kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return kib / _MB if sys.platform == "darwin" else kib / 1024.0  # macOS reports bytes, Linux KiB
+    rusage_mb = kib / _MB if sys.platform == "darwin" else kib / 1024.0  # macOS reports bytes, Linux KiB
+    status = [v for v in (_status_mb("VmHWM"), _status_mb("VmRSS")) if v is not None]
+    return max([rusage_mb, *status])
 
 
 def resident_mb() -> float:
     """The process's resident memory now, in MiB (Linux; the peak elsewhere)."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return peak_resident_mb()
+    now = _status_mb("VmRSS")
+    return peak_resident_mb() if now is None else now
 
 
 def available_mb() -> float | None:
