@@ -43,6 +43,9 @@ from torchrefl.transport.specular_gather import SpecularGather
 BACK_HIT_WARNING = 0.03
 #: independent photon traces whose predictions the final images average (the kept cache and fresh ones)
 FINAL_TRACES = 4
+#: the outer loop stops once a refresh beats the best image difference so far by less than this share of what the
+#: first refit gained and the rms change of Pd since the previous refresh is below this share of the first refit's
+CONVERGED_SHARE = 0.02
 #: from this refresh on the cache averages the new trace with the previous one (the first refits move the
 #: parameters far, so refresh 1's trace would mix in the start's light)
 AVERAGE_FROM = 2
@@ -70,6 +73,7 @@ class PhotonLevel(TransportLevel):
         self.emitter_source = None
         self.scores: list[float] = []
         self.refresh_at: list[float] = []  # seconds from the start of refresh 0 to the end of each refresh
+        self.pd_change: list[float] = []  # rms change of Pd since the previous refresh, per refresh from 1 on
         self.cache = None
         self._last_trace = None  # the latest refresh's own trace (the cache may average two)
         self.refresher: PhotonRefresh | None = None
@@ -240,6 +244,8 @@ class PhotonLevel(TransportLevel):
                 params.raw_pd.copy_(inverse_softplus_b(pc.damping * self._traced_pd + (1.0 - pc.damping) * params.pd()))
         with torch.no_grad():
             values = params.values()
+            if k > 0:
+                self.pd_change.append(float((values[0] - self._traced_pd).double().square().mean().sqrt()))
             self._traced_pd = values[0]
             trace = self.refresher.cache(*values, refresh=k, progress=inp.cfg.output.progress)
             if k >= AVERAGE_FROM:
@@ -280,6 +286,22 @@ class PhotonLevel(TransportLevel):
         if score < self._best[0]:
             self._best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, self.cache)
 
+    def converged(self, k: int) -> str | None:
+        """After refresh k >= 2: the image difference and Pd have settled when the refresh beat the best image
+        difference of the earlier ones by less than CONVERGED_SHARE of what refit 1 gained, and Pd moved by less than
+        CONVERGED_SHARE of what refit 1 moved it (rms); the photon noise of the image difference is what is left."""
+        s, moved = self.scores, self.pd_change
+        if k < 2 or len(s) <= k or len(moved) < k:
+            return None
+        gain = s[0] - s[1]
+        better = min(s[:k]) - s[k]
+        if gain <= 0 or better >= CONVERGED_SHARE * gain or moved[k - 1] >= CONVERGED_SHARE * moved[0]:
+            return None
+        return (
+            f"refresh {k} beat the best image difference by {better:.4f} DN (refit 1 gained {gain:.4f}) and moved Pd "
+            f"by {moved[k - 1]:.2e} rms (refit 1: {moved[0]:.2e})"
+        )
+
     def finish(self, params) -> None:
         """Keep the parameters (and the cache) of the best-scored refresh."""
         score, k_best, state, cache = self._best
@@ -307,6 +329,7 @@ class PhotonLevel(TransportLevel):
         return {
             "image_difference_per_refresh": self.scores,
             "refresh_at_s": self.refresh_at,
+            "pd_change_per_refresh": self.pd_change,
             "kept_refresh": self._best[1],
             "smoothing_texels": self.smoothing,
             "specular_smoothing_texels": self.specular_smoothing,
