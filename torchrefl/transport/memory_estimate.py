@@ -36,8 +36,8 @@ HITS_PER_PHOTON = 0.15
 HIT_PEAK_BYTES = 250
 #: bytes per stored hit a finished cache keeps (the entries its Pd-linear terms and specular bins hold; 97 measured)
 HIT_KEPT_BYTES = 100
-#: caches alive at once during the fit: the current trace, the previous one (averaged with it), the best kept
-CACHES_ALIVE = 3
+#: caches alive at once during the fit: the current trace, the previous one, their average, the best kept
+CACHES_ALIVE = 4
 
 
 @dataclass(frozen=True)
