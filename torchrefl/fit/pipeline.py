@@ -157,10 +157,6 @@ def refit(level: TransportLevel, params: TexelParams, make_objective: ObjectiveF
                         params, objective, optimizer, step.iterations, fc.learning_rate, progress=pb, train=train
                     )
         level.refresh(params, k + 1)
-        why = level.converged(k + 1)
-        if why is not None:
-            level.inputs.log(f"{level.name} level: outer loop stops after refit {k + 1} of {level.refits}: {why}")
-            break
     level.finish(params)
     if not history:  # no refit (e.g. photon.outer_iterations 0): the start's loss
         with torch.no_grad():

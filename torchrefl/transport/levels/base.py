@@ -135,10 +135,6 @@ class TransportLevel(ABC):
     def refresh(self, params, k: int) -> None:
         """Update the level's state for the parameters after k refits (default: nothing to refresh)."""
 
-    def converged(self, k: int) -> str | None:
-        """After refresh k: why the outer loop can stop before `refits` (None: go on; default: never stops early)."""
-        return None
-
     def finish(self, params) -> None:
         """Called after the last refit (default: nothing)."""
 

@@ -43,9 +43,6 @@ from torchrefl.transport.specular_gather import SpecularGather
 BACK_HIT_WARNING = 0.03
 #: independent photon traces whose predictions the final images average (the kept cache and fresh ones)
 FINAL_TRACES = 4
-#: the outer loop stops once a refresh beats the best image difference so far by less than this share of what the
-#: first refit gained and the rms change of Pd since the previous refresh is below this share of the first refit's
-CONVERGED_SHARE = 0.02
 #: from this refresh on the cache averages the new trace with the previous one (the first refits move the
 #: parameters far, so refresh 1's trace would mix in the start's light)
 AVERAGE_FROM = 2
@@ -285,22 +282,6 @@ class PhotonLevel(TransportLevel):
             )
         if score < self._best[0]:
             self._best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, self.cache)
-
-    def converged(self, k: int) -> str | None:
-        """After refresh k >= 2: the image difference and Pd have settled when the refresh beat the best image
-        difference of the earlier ones by less than CONVERGED_SHARE of what refit 1 gained, and Pd moved by less than
-        CONVERGED_SHARE of what refit 1 moved it (rms); the photon noise of the image difference is what is left."""
-        s, moved = self.scores, self.pd_change
-        if k < 2 or len(s) <= k or len(moved) < k:
-            return None
-        gain = s[0] - s[1]
-        better = min(s[:k]) - s[k]
-        if gain <= 0 or better >= CONVERGED_SHARE * gain or moved[k - 1] >= CONVERGED_SHARE * moved[0]:
-            return None
-        return (
-            f"refresh {k} beat the best image difference by {better:.4f} DN (refit 1 gained {gain:.4f}) and moved Pd "
-            f"by {moved[k - 1]:.2e} rms (refit 1: {moved[0]:.2e})"
-        )
 
     def finish(self, params) -> None:
         """Keep the parameters (and the cache) of the best-scored refresh."""
