@@ -12,9 +12,11 @@ import torchrefl
 import torchrefl.transport.memory_estimate as me
 from torchrefl.capture.base import loader_for
 from torchrefl.core.memory import peak_resident_mb, reset_peak, resident_mb
+from torchrefl.core.params import TexelParams
 from torchrefl.errors import MemoryLimitError
 from torchrefl.fit.pipeline import level_inputs
 from torchrefl.transport.levels.auto import named_level, prepare
+from torchrefl.transport.levels.photon import AVERAGE_FROM
 
 tiny = load_script("tiny_mode")
 
@@ -31,8 +33,9 @@ def test_terms_grow_with_what_they_hold():
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the peak is reset through /proc")
 def test_the_photon_estimate_is_within_a_factor_of_a_measured_refresh(tiny_fold_run):
     """The tiny fold's photon level at 300 000 photons per light (the photons' term dominates): the peak resident
-    memory that preparing the level and two refreshes add (the second traced while the first is held, as the fit
-    holds the previous trace) is within a factor 2.5 of the estimate (which allows for a third cache)."""
+    memory that preparing the level and three refreshes add (the third averaged with the second, the best kept: the
+    caches the fit holds) is within a factor 2.5 of the estimate (2.0-2.2 measured: 0.13 stored hits per photon here
+    against the 0.15 assumed, and fewer specular entries than on the full fold, where it is within 1.05)."""
     photons = 300_000
     cfg = torchrefl.load_config(
         tiny.FOLD,
@@ -48,10 +51,12 @@ def test_the_photon_estimate_is_within_a_factor_of_a_measured_refresh(tiny_fold_
     estimate = me.check_level_memory(level)
     prepare(level)
     T = cap.surface.num_texels
-    pd, ps, sigma = torch.full((T, 3), 0.5), torch.full((T, 3), 0.3), torch.full((T,), 0.15)
-    caches = [level.refresher.cache(pd, ps, sigma, refresh=k) for k in (0, 1)]
+    params = TexelParams(torch.full((T, 3), 0.5), torch.full((T, 3), 0.3), torch.full((T,), 0.15), 0.01, 0.6)
+    for k in range(AVERAGE_FROM + 1):
+        level.refresh(params, k)
     added = peak_resident_mb() - before
-    assert caches[1].stats["photons_emitted"] == photons * cap.obs.num_lights
+    assert level.cache.stats["averaged_traces"] == 2
+    assert level.cache.stats["photons_emitted"] == photons * cap.obs.num_lights
     assert estimate.largest() == "photons"
     assert estimate.total_mb / 2.5 < added < 2.5 * estimate.total_mb, (added, estimate)
 

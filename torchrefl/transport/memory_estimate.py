@@ -36,8 +36,13 @@ HITS_PER_PHOTON = 0.15
 HIT_PEAK_BYTES = 250
 #: bytes per stored hit a finished cache keeps (the entries its Pd-linear terms and specular bins hold; 97 measured)
 HIT_KEPT_BYTES = 100
-#: caches alive at once during the fit: the current trace, the previous one (averaged with it), the best kept
-CACHES_ALIVE = 3
+#: specular entries: about 2 per stored hit (the photons' and the gather's), at most 16 per (image, texel) once
+#: merged into half-angle bins (the fold: 11 M entries for 5.7 M hits and 20 x 34 449 observations; the tiny fold
+#: 0.02 per hit), and the peak bytes per entry when two caches are averaged (the merge's sort and temporaries; the
+#: fold's peak, 7.6 GB, came there)
+ENTRIES_PER_HIT, ENTRIES_PER_OBSERVATION, ENTRY_PEAK_BYTES = 2, 16, 250
+#: caches alive at once during the fit: the current trace, the previous one, their average, the best kept
+CACHES_ALIVE = 4
 
 
 @dataclass(frozen=True)
@@ -85,7 +90,10 @@ def estimate_memory(
         hits = cfg.photon.photons_per_light * traced * HITS_PER_PHOTON
         irradiance = images * texels * 3 * 4
         kept = (CACHES_ALIVE - 1) * HIT_KEPT_BYTES
-        terms["photons"] = (hits * (HIT_PEAK_BYTES + kept) + CACHES_ALIVE * irradiance) / _MB
+        entries = min(hits * ENTRIES_PER_HIT, images * texels * ENTRIES_PER_OBSERVATION)
+        terms["photons"] = (
+            hits * (HIT_PEAK_BYTES + kept) + entries * ENTRY_PEAK_BYTES + CACHES_ALIVE * irradiance
+        ) / _MB
         settings["photons"] = "photon.photons_per_light"
     return MemoryEstimate(terms, settings)
 

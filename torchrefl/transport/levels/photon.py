@@ -71,6 +71,7 @@ class PhotonLevel(TransportLevel):
         self.scores: list[float] = []
         self.refresh_at: list[float] = []  # seconds from the start of refresh 0 to the end of each refresh
         self._clock = time.perf_counter()  # reset at refresh 0; a resumed fit counts from the level's creation
+        self.pd_change: list[float] = []  # rms change of Pd since the previous refresh, per refresh from 1 on
         self.cache = None
         self._last_trace = None  # the latest refresh's own trace (the cache may average two)
         self.refresher: PhotonRefresh | None = None
@@ -241,6 +242,8 @@ class PhotonLevel(TransportLevel):
                 params.raw_pd.copy_(inverse_softplus_b(pc.damping * self._traced_pd + (1.0 - pc.damping) * params.pd()))
         with torch.no_grad():
             values = params.values()
+            if k > 0:
+                self.pd_change.append(float((values[0] - self._traced_pd).double().square().mean().sqrt()))
             self._traced_pd = values[0]
             trace = self.refresher.cache(*values, refresh=k, progress=inp.cfg.output.progress)
             if k >= AVERAGE_FROM:
@@ -284,6 +287,7 @@ class PhotonLevel(TransportLevel):
     def state(self) -> dict:
         return {
             "scores": list(self.scores),
+            "pd_change": list(self.pd_change),
             "cache": self.cache,
             "last_trace": self._last_trace,
             "traced_pd": self._traced_pd,
@@ -291,7 +295,7 @@ class PhotonLevel(TransportLevel):
         }
 
     def restore(self, state: dict) -> None:
-        self.scores = list(state["scores"])
+        self.scores, self.pd_change = list(state["scores"]), list(state["pd_change"])
         self.cache, self._last_trace = state["cache"], state["last_trace"]
         self._traced_pd, self._best = state["traced_pd"], state["best"]
 
@@ -322,6 +326,7 @@ class PhotonLevel(TransportLevel):
         return {
             "image_difference_per_refresh": self.scores,
             "refresh_at_s": self.refresh_at,
+            "pd_change_per_refresh": self.pd_change,
             "kept_refresh": self._best[1],
             "smoothing_texels": self.smoothing,
             "specular_smoothing_texels": self.specular_smoothing,
