@@ -118,6 +118,7 @@ def indirect_model(run, mesh) -> IndirectModel:
         cfg = load_config(Path(path))
     except Exception as exc:  # a ConfigError naming the key, or an unreadable file
         raise RunFolderError(f"{path}: the run's config cannot be read for its {level} level ({exc})") from None
+    cfg.output.progress = False  # the frame's own progress bar counts the rays
     surface = run_surface(run, mesh)
     idx = surface.texel_index.numpy()
     at = lambda a: torch.from_numpy(np.asarray(a, np.float64).reshape(len(run.mask.ravel()), -1)[idx]).to(DTYPE)
