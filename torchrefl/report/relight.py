@@ -91,7 +91,7 @@ class Light:
                     a = a / np.linalg.norm(a)
                 object.__setattr__(self, name, a)
         y = np.asarray(self.intensity, dtype=np.float64)
-        y = np.full(3, float(y)) if y.ndim == 0 else y
+        y = np.full(3, float(y.ravel()[0])) if y.size == 1 else y  # one number (also --intensity Y): grey
         if y.shape != (3,) or not (np.isfinite(y) & (y > 0)).all():
             raise CaptureError(f"render light: intensity={self.intensity!r}, expected one or three finite values > 0")
         object.__setattr__(self, "intensity", y)
