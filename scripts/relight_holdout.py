@@ -110,9 +110,9 @@ def footprint_error(run, cfg, folder: Path, relit: dict) -> float:
     sub = copy.deepcopy(cfg)
     sub.capture.light_subset = holdout
     photo = load_views_observations(meta, geom, tracer, sub, lambda m: None)[0]
-    rendered = copy.copy(meta)
-    rendered.read_image = lambda i: relit[i][0]
-    rendered.read_mask = lambda i: relit[i][1]
+    rendered = copy.copy(meta)  # the photographs' folder reading the relit images (a frozen dataclass)
+    object.__setattr__(rendered, "read_image", lambda i: relit[i][0])
+    object.__setattr__(rendered, "read_mask", lambda i: relit[i][1])
     image = load_views_observations(rendered, geom, tracer, sub, lambda m: None)[0]
     terms = local_terms(cfg.reflectance.brdf, geom.surface.normals, photo)
     rc = cfg.reflectance
