@@ -10,11 +10,13 @@ For each run (its config's fit.holdout lights):
 - mesh_views: each held-out image rendered from its own camera under its own point light, with cast shadows (2 x 2
   rays per pixel), times the image's exposure, compared with the photograph at the pixels wholly on estimated
   surface (the pixel and its 4 neighbours covered: silhouettes left out, as the loader leaves them out) and not
-  saturated; with the interreflection of a radiosity or photon run's level (relight's default) and, for those
-  runs, without it; also without shadows, to show what the shadow rays buy, and as 3 x 3 pixel means of both images (the
-  photograph's per-pixel sensor noise, which the fit's footprint-averaged observations largely average out,
-  divided by 3); and the way the fit measures its held-out error: both images sampled by the loader's own texel
-  footprints (the relit image passed through capture.mesh_views.load_views_observations in the photograph's place).
+  saturated; bilinear over the texels (relight's default) and with each hit's nearest texel (the fit's one
+  reflectance per texel: a material border stays where the texel's is); with the interreflection of a radiosity or
+  photon run's level (relight's default) and, for those runs, without it; also without shadows, to show what the
+  shadow rays buy, and as 3 x 3 pixel means of both images (the photograph's per-pixel sensor noise, which the fit's
+  footprint-averaged observations largely average out, divided by 3); and the way the fit measures its held-out
+  error: both images sampled by the loader's own texel footprints (the relit image passed through
+  capture.mesh_views.load_views_observations in the photograph's place).
 Prints the mean |relit - photo| in 8-bit DN beside metrics.json's holdout mean_abs_diff_8bit, and the ratio.
 """
 
@@ -70,11 +72,13 @@ def mesh_views(run, cfg) -> dict:
     folder = Path(cfg.capture.path) if cfg.capture.path else run.folder / "capture"
     meta = read_view_folder(folder)
     saturation = meta.views.saturation_level or cfg.capture.saturation_level
-    variants = [("relit", True, None), ("relit_no_shadows", False, None)]
+    # (key, shadows, interreflection, interpolation)
+    variants = [("relit", True, None, "bilinear"), ("relit_nearest", True, None, "nearest")]
+    variants.append(("relit_no_shadows", False, None, "bilinear"))
     if run_level(run) in INTERREFLECTION_LEVELS:
-        variants.append(("relit_no_interreflection", True, False))
-    out = {key: [] for key, _, _ in variants}
-    relit = {}
+        variants.append(("relit_no_interreflection", True, False, "bilinear"))
+    out = {key: [] for key, *_ in variants}
+    relit = {"relit": {}, "relit_nearest": {}}
     for i in cfg.fit.holdout:
         cam = one_camera(meta.cameras, int(meta.camera_index[i]))
         k = int(meta.light_index[i])
@@ -83,19 +87,28 @@ def mesh_views(run, cfg) -> dict:
         light = light or Light(lights.intensity[k], direction=lights.direction[k])
         photo = meta.read_image(i).astype(np.float64)
         exposure = meta.views.images[i].exposure
-        for key, shadows, interreflection in variants:
-            im = run.render(camera=cam, light=light, supersample=2, shadows=shadows, interreflection=interreflection)
+        for key, shadows, interreflection, interpolation in variants:
+            im = run.render(
+                camera=cam,
+                light=light,
+                supersample=2,
+                shadows=shadows,
+                interreflection=interreflection,
+                interpolation=interpolation,
+            )
             use = inner(im.covered) & im.estimated & (photo < saturation).all(-1)
             out[key].append(np.abs(im.image[use] * exposure - photo[use]).ravel() * 255)
-            if key == "relit":
-                relit[i] = (np.asarray(im.image * exposure, np.float32), im.filled & im.estimated)
+            if key in relit:
+                relit[key][i] = (np.asarray(im.image * exposure, np.float32), im.filled & im.estimated)
             if key == "relit":  # 3 x 3 means of both images where all 9 pixels are used: the sensor noise / 3
                 box = lambda a: uniform_filter(a, size=(3, 3, 1), mode="constant")
                 whole = uniform_filter(use.astype(float), size=3, mode="constant") > 1 - 1e-9
                 diff = box(im.image * exposure) - box(photo)
                 out.setdefault("relit_3x3_means", []).append(np.abs(diff[whole]).ravel() * 255)
     result = {key: float(np.concatenate(v).mean()) for key, v in out.items() if v}
-    return {**result, "relit_texel_footprints": footprint_error(run, cfg, folder, relit)}
+    for key, images in relit.items():
+        result[f"{key}_texel_footprints"] = footprint_error(run, cfg, folder, images)
+    return result
 
 
 def footprint_error(run, cfg, folder: Path, relit: dict) -> float:
