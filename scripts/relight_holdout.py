@@ -130,8 +130,10 @@ def footprint_error(run, cfg, folder: Path, relit: dict) -> float:
     terms = local_terms(cfg.reflectance.brdf, geom.surface.normals, photo)
     rc = cfg.reflectance
     estimated = torch.from_numpy(run.mask.reshape(-1)[geom.surface.texel_index.numpy()])
-    use = photo.valid & image.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light) & estimated
+    fitted_way = photo.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light) & estimated
+    use = fitted_way & image.valid
     diff = (image.intensity.double() - photo.intensity.double()).abs()[use]
+    print(f"  texel footprints: {int(use.sum())} observations compared of the photographs' {int(fitted_way.sum())}")
     return float(diff.mean() * 255)
 
 
