@@ -139,6 +139,9 @@ def test_interreflection_brings_the_relit_fold_to_the_reference(tmp_path, photon
     # the fold's interreflection is several DN here: without it the frame is visibly too dark
     assert diffs[False] > 5.0, diffs
     assert diffs[None] < MARGIN * diffs[False], diffs
+    values = run.scene.indirect.last[1]  # another sampling of the same light and camera reuses the level's values
+    run.render(camera=cam, light=light, interpolation="nearest", supersample=2)
+    assert run.scene.indirect.last[1] is values
 
 
 def test_interreflection_follows_the_run_level(tmp_path, photon_fold):
