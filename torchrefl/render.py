@@ -1,8 +1,9 @@
 """python -m torchrefl.render RUN_DIR [--camera SPEC] [--light SPEC] [--intensity Y [Y Y]] --out FILE.png | FOLDER
 
-The fitted object of a finished run (torchrefl.load_run) seen by a camera under a light, with cast shadows
-(torchrefl.report.relight), written as a PNG; with --turntable N, N frames of the object turning under the fixed
-light and an animated GIF (torchrefl.report.turntable). Camera and light specifications:
+The fitted object of a finished run (torchrefl.load_run) seen by a camera under a light, with cast shadows and, for
+a radiosity or photon run, the interreflection its level computes (torchrefl.report.relight), written as a PNG; with
+--turntable N, N frames of the object turning under the fixed light and an animated GIF
+(torchrefl.report.turntable). Camera and light specifications:
 torchrefl.report.render_specs. Exit status: 0 done, 2 a named error, 130 interrupted.
 """
 
@@ -50,7 +51,8 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m torchrefl.render",
         description="Relight a finished run: the image of the fitted object from a camera under a point or "
-        "directional light, with cast shadows (local transport), in the fit's units; or a turntable.",
+        "directional light, with cast shadows and the interreflection of the run's level, in the fit's units; or a "
+        "turntable.",
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -80,6 +82,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--supersample", type=int, default=2, help="K x K rays per pixel (default 2)")
     p.add_argument("--no-shadows", action="store_true", help="no shadow rays (every light reaches every point)")
     p.add_argument("--nearest", action="store_true", help="the nearest texel's estimate instead of bilinear")
+    p.add_argument(
+        "--no-interreflection",
+        action="store_true",
+        help="direct light and cast shadows only (default: a radiosity or photon run adds the interreflection its "
+        "level computes for the light)",
+    )
     p.add_argument("--encoding", choices=ENCODINGS, default="srgb8", help="8-bit sRGB (default) or 16-bit linear")
     p.add_argument("--exposure", type=float, default=1.0, help="multiply the values before encoding (default 1)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for Embree and torch (default 2)")
@@ -109,6 +117,7 @@ def main(argv=None) -> int:
             supersample=args.supersample,
             shadows=not args.no_shadows,
             interpolation="nearest" if args.nearest else "bilinear",
+            interreflection=False if args.no_interreflection else None,
             progress=not args.quiet,
         )
         if args.turntable is None:

@@ -200,22 +200,33 @@ class TexelImage:
     ps_channels: int
 
 
+def value_table(values: np.ndarray, mask, *, dtype=torch.float32) -> torch.Tensor:
+    """(H * W, C + 1) per-texel values (H, W, C) times the mask (H, W), and the mask, row-major: a table for
+    sample_table."""
+    m = np.asarray(mask, dtype=np.float64)[..., None]
+    stack = np.concatenate([np.asarray(values, dtype=np.float64) * m, m], axis=-1)
+    return torch.from_numpy(np.ascontiguousarray(stack.reshape(-1, stack.shape[-1]))).to(dtype)
+
+
 def texel_image(pd, ps, sigma, mask, *, dtype=torch.float32) -> TexelImage:
     """The TexelImage of an estimate: pd (H, W, 3), ps (H, W, C), sigma (H, W), mask (H, W)."""
-    m = np.asarray(mask, dtype=np.float64)[..., None]
-    stack = np.concatenate([pd * m, ps * m, sigma[..., None] * m, m], axis=-1)
-    table = torch.from_numpy(np.ascontiguousarray(stack.reshape(-1, stack.shape[-1]))).to(dtype)
-    return TexelImage(table, int(ps.shape[-1]))
+    stack = np.concatenate([pd, ps, np.asarray(sigma)[..., None]], axis=-1)
+    return TexelImage(value_table(stack, mask, dtype=dtype), int(ps.shape[-1]))
+
+
+def sample_table(table: torch.Tensor, weights: TexelWeights) -> tuple[torch.Tensor, torch.Tensor]:
+    """(values (N, C), estimated (N,) bool) of a value_table (H * W, C + 1) read with weights (in the table's
+    dtype): the weighted mean over the masked texels among each hit's (module doc); 0 where none counts."""
+    w = torch.from_numpy(weights.weight).to(table.dtype)
+    out = (w[..., None] * table[torch.from_numpy(weights.index)]).sum(1)  # (N, C + 1)
+    weight = out[:, -1]
+    estimated = weight > MIN_WEIGHT
+    return out[:, :-1] / weight.clamp_min(MIN_WEIGHT)[:, None] * estimated[:, None], estimated
 
 
 def sample_texels(texels: TexelImage, weights: TexelWeights) -> TexelSamples:
     """The estimate read with weights (in texels' dtype): the weighted mean over the estimated texels among each
     hit's (module doc)."""
-    t = texels.table
-    w = torch.from_numpy(weights.weight).to(t.dtype)
-    out = (w[..., None] * t[torch.from_numpy(weights.index)]).sum(1)  # (N, C + 5)
+    values, estimated = sample_table(texels.table, weights)
     C = texels.ps_channels
-    weight = out[:, -1]
-    estimated = weight > MIN_WEIGHT
-    values = out[:, :-1] / weight.clamp_min(MIN_WEIGHT)[:, None] * estimated[:, None]
     return TexelSamples(values[:, :3], values[:, 3 : 3 + C], values[:, 3 + C], estimated)

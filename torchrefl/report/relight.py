@@ -10,8 +10,10 @@ transport.local.render_reference (i = kappa Y falloff g(n, l, v), core.brdf), wi
 and kappa. The pixel is the mean over its samples (a miss, a back-facing sample or one without an estimate
 counts 0). Values are sensor fractions of full range at exposure 1, like the capture's.
 
-Transport is local (direct light and cast shadows): the interreflection of the radiosity and photon levels is not
-added (a relit frame of a concave object is darker than a photograph in its concavities by that amount).
+Interreflection (`interreflection`, default: the run's level): a radiosity or photon run adds the indirect light
+its level computes for the new light from the fitted parameters (report.relight_indirect: each texel's indirect
+sensor value, sampled at the hit with the weights of its parameters and added to the direct light, cast shadows
+included); a local run, or interreflection=False, gives direct light and cast shadows only.
 
 Photometric stereo has no depth: it is relit on its own grid through the camera of its photographs
 (`photographs_camera`, orthographic), without cast shadows; another camera is refused.
@@ -39,10 +41,19 @@ from torchrefl.report.hit_texels import (
     atlas_texel_mesh,
     geometry_mask,
     grid_texel_mesh,
+    sample_table,
     sample_texels,
     texel_image,
+    value_table,
 )
 from torchrefl.report.relight_camera import OrthographicCamera, camera_rays, image_size
+from torchrefl.report.relight_indirect import (
+    INTERREFLECTION_LEVELS,
+    IndirectModel,
+    indirect_grid,
+    indirect_model,
+    run_level,
+)
 from torchrefl.transport.local import render_reference
 
 #: rays per block (one progress-bar step)
@@ -80,7 +91,7 @@ class Light:
                     a = a / np.linalg.norm(a)
                 object.__setattr__(self, name, a)
         y = np.asarray(self.intensity, dtype=np.float64)
-        y = np.full(3, float(y)) if y.ndim == 0 else y
+        y = np.full(3, float(y.ravel()[0])) if y.size == 1 else y  # one number (also --intensity Y): grey
         if y.shape != (3,) or not (np.isfinite(y) & (y > 0)).all():
             raise CaptureError(f"render light: intensity={self.intensity!r}, expected one or three finite values > 0")
         object.__setattr__(self, "intensity", y)
@@ -102,14 +113,16 @@ class RelitImage:
 @dataclass
 class RelightScene:
     """What a run is relit on: its texel mesh and Embree scene (None for photometric stereo: no depth), the
-    estimate's centre and radius (the bounding sphere of its texels, for presets and default lights) and the
-    estimate as a TexelImage (in SHADE_DTYPE) for sampling."""
+    estimate's centre and radius (the bounding sphere of its texels, for presets and default lights), the
+    estimate as a TexelImage (in SHADE_DTYPE) for sampling, and what the interreflection of a radiosity or photon
+    run is computed from (report.relight_indirect.IndirectModel, built on the first frame that needs it)."""
 
     mesh: TexelMesh | None
     tracer: RayTracer | None
     centre: np.ndarray
     radius: float
     texels: TexelImage | None = None
+    indirect: IndirectModel | None = None
 
 
 def run_mesh(run) -> TexelMesh | None:
@@ -214,25 +227,37 @@ def relight(
     interpolation: str = "bilinear",
     scene: RelightScene | None = None,
     progress: bool = False,
+    interreflection: bool | None = None,
 ) -> RelitImage:
     """The RelitImage of a RunResult seen by camera (Cameras: camera `index`; OrthographicCamera) under light
-    (module doc). scene: the run's RelightScene (built when None; pass it to render many frames)."""
+    (module doc). scene: the run's RelightScene (built when None; pass it to render many frames);
+    interreflection: add the indirect light of the run's radiosity or photon level (None: when the run's level has
+    it; True for a local run is a CaptureError)."""
     if int(supersample) < 1:
         raise CaptureError(f"render supersample={supersample!r}, expected an integer >= 1")
     scene = relight_scene(run) if scene is None else scene
+    with_indirect = _uses_interreflection(run, scene, interreflection)
     if scene.mesh is None:
         return _relight_grid(run, camera, light)
     check_light_outside(scene, light)
     H, W = image_size(camera, index)
+    offset = _shadow_offset(run)
+    indirect = None
+    if with_indirect:
+        if scene.indirect is None:
+            scene.indirect = indirect_model(run, scene.mesh)
+        values = indirect_grid(scene.indirect, light, camera, index, scene.tracer, offset)
+        indirect = value_table(values.reshape(run.grid_shape + (3,)), run.mask, dtype=SHADE_DTYPE)
     origins, dirs, pixel = camera_rays(camera, index, supersample)
     total = np.zeros((H * W, 3))
     hit_count = np.zeros(H * W)
     done_count = np.zeros(H * W)
-    offset = _shadow_offset(run)
     with bar(len(origins), "render", enabled=progress, unit="ray") as pbar:
         for start in range(0, len(origins), BLOCK_RAYS):
             sl = slice(start, min(start + BLOCK_RAYS, len(origins)))
-            values, hit, done = _trace_block(run, scene, light, origins[sl], dirs[sl], offset, shadows, interpolation)
+            values, hit, done = _trace_block(
+                run, scene, light, origins[sl], dirs[sl], offset, shadows, interpolation, indirect
+            )
             px = pixel[sl]
             for c in range(3):
                 total[:, c] += np.bincount(px, weights=values[:, c], minlength=H * W)
@@ -249,14 +274,28 @@ def relight(
     )
 
 
+def _uses_interreflection(run, scene: RelightScene, interreflection: bool | None) -> bool:
+    """Whether a frame adds the run's interreflection (relight's `interreflection`)."""
+    level = run_level(run)
+    if interreflection is None:
+        return level in INTERREFLECTION_LEVELS and scene.mesh is not None
+    if interreflection and level not in INTERREFLECTION_LEVELS:
+        raise CaptureError(
+            f"render interreflection=True: the run {run.folder} was fitted at the {level} level (metrics.json "
+            f"'model'), which models no interreflection (expected one of {', '.join(INTERREFLECTION_LEVELS)})"
+        )
+    return bool(interreflection)
+
+
 def _shadow_offset(run) -> float:
     section = run.config.get("geometry") if isinstance(run.config, dict) else None
     value = section.get("shadow_offset_mm") if isinstance(section, dict) else None
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else SHADOW_OFFSET
 
 
-def _trace_block(run, scene: RelightScene, light: Light, o, d, offset, shadows, interpolation):
-    """(values (N, 3), hit (N,) float, estimated (N,) float) of one block of rays."""
+def _trace_block(run, scene: RelightScene, light: Light, o, d, offset, shadows, interpolation, indirect=None):
+    """(values (N, 3), hit (N,) float, estimated (N,) float) of one block of rays; indirect: a value_table of the
+    texels' indirect sensor values (H * W, 4) added at every front-facing hit, or None."""
     values = np.zeros((len(o), 3))
     hits = scene.tracer.closest_hit(o, d)
     idx = np.flatnonzero(hits.hit)
@@ -266,7 +305,8 @@ def _trace_block(run, scene: RelightScene, light: Light, o, d, offset, shadows, 
         return values, hit, done
     x = o[idx] + hits.distance[idx, None] * d[idx]
     tri, bary = hits.triangle[idx], hits.barycentric[idx]
-    s = sample_texels(scene.texels, scene.mesh.texel_weights(tri, bary, interpolation))
+    weights = scene.mesh.texel_weights(tri, bary, interpolation)
+    s = sample_texels(scene.texels, weights)
     done[idx] = s.estimated.numpy()
     n = scene.mesh.normals(tri, bary)
     front = s.estimated.numpy() & (np.einsum("ni,ni->n", n, d[idx]) < 0)
@@ -287,6 +327,8 @@ def _trace_block(run, scene: RelightScene, light: Light, o, d, offset, shadows, 
             run, t(n), t(lit.direction), t(lit.falloff), t(-d[idx]), light.intensity, s.pd[k], s.ps[k], s.sigma[k]
         )
         values[idx[keep]] = out.numpy()
+    if indirect is not None:
+        values[idx[front]] += sample_table(indirect, weights)[0].numpy()[front]
     return values, hit, done
 
 

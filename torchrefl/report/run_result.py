@@ -20,7 +20,8 @@ Maps are on the texel grid (H, W); texels outside `mask` (no estimate) are 0 in 
 blank in the figure.
 
 `render(camera=CAMERA, light=LIGHT)` is the image of the fitted object from a pinhole (capture.cameras.Cameras) or
-orthographic camera under a point or directional light, with cast shadows (torchrefl.report.relight). Without
+orthographic camera under a point or directional light, with cast shadows and the interreflection the run's level
+models (radiosity, photon; `interreflection=False` for direct light only) (torchrefl.report.relight). Without
 `light`, `render(light_position=..., camera=(x, y, z))` shades the estimated texels on the texel grid under one new
 light with the fitted BRDF, through the fitter's own observation model (torchrefl.transport.local.render_reference:
 i = kappa * Y * falloff * g(n, l, v)): local transport only (no cast shadows, no interreflection), a preview of the
@@ -126,8 +127,9 @@ class RunResult:
         **options,
     ):
         """With `light` (torchrefl.report.relight.Light): the RelitImage of the object seen by `camera` (a
-        capture.cameras.Cameras, its camera `index=`, or a relight_camera.OrthographicCamera), with cast shadows;
-        options: relight.relight's (supersample, shadows, interpolation, progress, index).
+        capture.cameras.Cameras, its camera `index=`, or a relight_camera.OrthographicCamera), with cast shadows and,
+        for a radiosity or photon run, its level's interreflection; options: relight.relight's (supersample, shadows,
+        interpolation, progress, index, interreflection: False for direct light only).
 
         Without `light`: (H, W, 3) predicted sensor values (fractions of full range) of the estimated texels under
         one light, on the texel grid.

@@ -8,12 +8,13 @@ difference in the camera's own pixels (a held-out image as a picture; the notebo
 
 The re-render is the relighting renderer's (torchrefl.report.relight: supersample x supersample rays per pixel with
 the camera's distortion undone, Embree's first hit on the run's mesh, the normal blended from its corner normals,
-the image's light with a cast-shadow ray, the fitted BRDF through the fitter's observation model, local transport:
-no interreflection) through the image's camera under its light (the capture's cameras.json and lights.json, scaled
-from scene.yaml's units to mm like the mesh), times the image's exposure. By default a hit reads the texel under
-it (interpolation "nearest": the fit's own model, one reflectance per texel, so a texel's border shows where the
-photograph's does; "bilinear" blends the hit chart's four nearest texels, smoother and blurred across material
-borders). A pixel is shown when every sub-sample meets the object and lands on estimated texels (silhouettes and
+the image's light with a cast-shadow ray, the fitted BRDF through the fitter's observation model, and the
+interreflection of a radiosity or photon run unless interreflection=False) through the image's camera under its
+light (the capture's cameras.json and lights.json, scaled from scene.yaml's units to mm like the mesh), times the
+image's exposure. By default a hit reads the texel under it (interpolation "nearest": the fit's own model, one
+reflectance per texel, so a texel's border shows where the photograph's does; "bilinear" blends the hit chart's four
+nearest texels, smoother and blurred across material borders).
+A pixel is shown when every sub-sample meets the object and lands on estimated texels (silhouettes and
 texels without an estimate are left out).
 """
 
@@ -68,11 +69,17 @@ def capture_folder(run: RunResult, capture=None) -> Path:
 
 
 def render_view(
-    run: RunResult, image: int, capture=None, supersample: int = 2, threads: int = 2, interpolation: str = "nearest"
+    run: RunResult,
+    image: int,
+    capture=None,
+    supersample: int = 2,
+    threads: int = 2,
+    interpolation: str = "nearest",
+    interreflection: bool | None = None,
 ) -> ViewRender:
     """Photograph `image` (images.json's index) of the run's capture and the estimate re-rendered in its camera
     (module doc). capture: the capture folder (default: capture_folder); threads: Embree's; interpolation:
-    "nearest" or "bilinear" (module doc)."""
+    "nearest" or "bilinear" (module doc); interreflection: relight's (None: the run's level)."""
     folder = capture_folder(run, capture)
     meta = read_view_folder(folder)
     if not 0 <= image < len(meta.paths):
@@ -92,6 +99,7 @@ def render_view(
         shadows=True,
         interpolation=interpolation,
         scene=relight_scene(run, threads),
+        interreflection=interreflection,
     )
     shown = relit.filled & relit.estimated
     rendered = np.where(shown[..., None], relit.image * meta.views.images[image].exposure, 0.0)

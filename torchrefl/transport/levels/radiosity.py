@@ -9,6 +9,7 @@ through the linear solve.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import torch
@@ -142,6 +143,17 @@ class RadiosityLevel(TransportLevel):
             SPLIT_ANGLE_DEG,
         )
         return "; texel irradiance from a plane through the neighbouring patches' (radiosity.reconstruction)"
+
+    def for_observations(self, inputs: LevelInputs) -> RadiosityLevel:
+        """This prepared level on other observations of the same surface (relighting under a light the capture did
+        not have, report.relight_indirect): the patches, form factors and reconstruction are the surface's and are
+        shared; the emitter maps belong to the capture's moving lights and are dropped (one static light needs
+        none)."""
+        level = copy.copy(self)
+        level.inputs = inputs
+        level._local = inputs.local_predict()
+        level.maps = None
+        return level
 
     def use_emitters(self, source: torch.Tensor) -> None:
         self.emitter_source = source
