@@ -20,7 +20,8 @@ are continuous, texel (row, col)'s centre at integer (row, col):
   texel always.
 
 `sample_texels` reads the estimate with those weights; texels outside the run's mask (no estimate) get weight 0 and
-the rest are renormalised, so chart borders and gutters do not darken the image. Photometric stereo has no depth,
+the rest are renormalised, so chart borders and gutters do not darken the image; `sample_table` reads any per-texel
+values so (a `value_table`: the relighting's indirect light). Photometric stereo has no depth,
 hence no mesh (relit on its own grid).
 """
 
