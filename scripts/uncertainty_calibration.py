@@ -7,6 +7,11 @@ parameter are pooled over the seeds. Printed per parameter (Pd and Ps per channe
 the z-scores' std (target [0.8, 1.25]) and the share of truths inside the nominal 95 % interval (target 90-98 %);
 and the calibration curve (the share inside the nominal interval against its nominal level) as a plot.
 
+The noiseless images are rendered once (the first seed's run) and reused by the other seeds: the scene, the lights
+and the interreflection paths do not depend on synthetic.noise_seed, only the sensor noise drawn after them does
+(SyntheticScan._sensor), so each seed's capture is the same radiance with its own noise, and a path-traced scene
+costs one rendering instead of one per seed.
+
     python scripts/uncertainty_calibration.py [--config configs/quick.yaml] [--seeds 8] [--out FOLDER]
         [--plot docs/results/uncertainty_calibration.png] [dotted.key=value ...]
     python scripts/uncertainty_calibration.py --tiny      # a 32 x 24 texel scan, 2 seeds (a check, not a result)
@@ -19,7 +24,7 @@ import json
 import math
 import sys
 import tempfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from statistics import NormalDist
 
@@ -27,6 +32,7 @@ import numpy as np
 
 import torchrefl
 from torchrefl.report.uncertainty import RELATIVE_PRECISION, relative_std
+from torchrefl.synthetic.scan import SyntheticScan
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [
@@ -55,6 +61,23 @@ class Calibration:
     z_std: float
     coverage_95: float
     count: int
+
+
+def render_once() -> dict:
+    """Memoise SyntheticScan.radiance_images in this process (module docstring): keyed by the scan's config without
+    its noise seed, its seed and the head positions. Returns the memo (its size is the number of renderings)."""
+    memo: dict = {}
+    render = SyntheticScan.radiance_images
+
+    def radiance_images(scan, head_positions, progress=None):
+        positions = np.asarray(head_positions, dtype=np.float64)
+        key = (repr(replace(scan.cfg, noise_seed=None)), scan.seed, positions.tobytes())
+        if key not in memo:
+            memo[key] = render(scan, positions, progress=progress)
+        return memo[key]
+
+    SyntheticScan.radiance_images = radiance_images
+    return memo
 
 
 def z_scores(run) -> dict:
@@ -106,6 +129,7 @@ def main(argv=None) -> int:
     seeds = args.seeds or (2 if args.tiny else 8)
     overrides = (TINY if args.tiny else []) + list(args.overrides) + ["output.progress=false"]
     pooled: dict = {}
+    render_once()
     for k in range(seeds):
         seed = [f"synthetic.noise_seed={1000 + k}", f"output.dir={out / f'noise_{k}'}"]
         run = torchrefl.fit(torchrefl.load_config(args.config, overrides + seed), overwrite=True)
@@ -113,10 +137,16 @@ def main(argv=None) -> int:
             print(f"{run.folder}: the run has no uncertainty", file=sys.stderr)
             return 1
         level = run.metrics["model"]
-        for name, z in z_scores(run).items():
+        zs = z_scores(run)
+        for name, z in zs.items():
             pooled.setdefault((name, level), []).append(z)
-        u = run.metrics["uncertainty"]
-        print(f"noise seed {k}: level {level}, noise {[round(x, 3) for x in u['noise_dn']]} DN ({u['noise_source']})")
+        u, t = run.metrics["uncertainty"], run.metrics["timing_s"]
+        spread = ", ".join(f"{name} {np.nanstd(z):.3f}" for name, z in zs.items())
+        print(
+            f"noise seed {k}: level {level}, noise {[round(x, 3) for x in u['noise_dn']]} DN ({u['noise_source']}), "
+            f"{zs['sigma'].size} determined texels, z std {spread}; fit {t['fit']:.0f} s, "
+            f"uncertainty {t['uncertainty']:.1f} s, total {t['total']:.0f} s"
+        )
     rows, curves = [], {}
     for (name, level), parts in pooled.items():
         z = np.concatenate(parts)
