@@ -14,6 +14,7 @@ costs one rendering instead of one per seed.
 
     python scripts/uncertainty_calibration.py [--config configs/quick.yaml] [--seeds 8] [--out FOLDER]
         [--plot docs/results/uncertainty_calibration.png] [dotted.key=value ...]
+    python scripts/uncertainty_calibration.py --runs RUN_DIR [RUN_DIR ...]   # pool finished synthetic runs instead
     python scripts/uncertainty_calibration.py --tiny      # a 32 x 24 texel scan, 2 seeds (a check, not a result)
 """
 
@@ -54,13 +55,14 @@ LEVELS = np.linspace(0.05, 0.99, 48)
 @dataclass
 class Calibration:
     """The z-scores of one parameter at one transport level: their std, the share of truths inside the nominal 95 %
-    interval, how many (texel, channel, seed) values."""
+    interval, how many (texel, channel, seed) values, their mean (a bias the std does not describe)."""
 
     parameter: str
     level: str
     z_std: float
     coverage_95: float
     count: int
+    z_mean: float
 
 
 def render_once() -> dict:
@@ -116,6 +118,14 @@ def plot(curves: dict, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+def fitted(config: str, overrides: list, seeds: int, out: Path):
+    """The runs of config fitted for noise seeds 1000, 1001, ... (synthetic.noise_seed), rendered once."""
+    render_once()
+    for k in range(seeds):
+        seed = [f"synthetic.noise_seed={1000 + k}", f"output.dir={out / f'noise_{k}'}"]
+        yield torchrefl.fit(torchrefl.load_config(config, overrides + seed), overwrite=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", default=str(ROOT / "configs" / "quick.yaml"))
@@ -123,16 +133,21 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="folder of the runs (default: a temporary folder)")
     ap.add_argument("--plot", default=None, help="the calibration curve's PNG (default: OUT/calibration.png)")
     ap.add_argument("--tiny", action="store_true", help="a 32 x 24 texel scan, 2 seeds: a check, not a result")
+    ap.add_argument("--runs", nargs="+", default=None, help="pool these finished synthetic runs (no fit)")
     ap.add_argument("overrides", nargs="*", help="dotted.key=value config overrides")
     args = ap.parse_args(argv)
     out = Path(args.out or tempfile.mkdtemp(prefix="uncertainty_calibration_"))
+    out.mkdir(parents=True, exist_ok=True)
     seeds = args.seeds or (2 if args.tiny else 8)
     overrides = (TINY if args.tiny else []) + list(args.overrides) + ["output.progress=false"]
     pooled: dict = {}
-    render_once()
-    for k in range(seeds):
-        seed = [f"synthetic.noise_seed={1000 + k}", f"output.dir={out / f'noise_{k}'}"]
-        run = torchrefl.fit(torchrefl.load_config(args.config, overrides + seed), overwrite=True)
+    if args.runs:
+        runs = (torchrefl.load_run(folder) for folder in args.runs)
+        seeds, what = len(args.runs), f"runs {' '.join(args.runs)}"
+    else:
+        runs = fitted(args.config, overrides, seeds, out)
+        what = f"config {args.config} {' '.join(overrides)}"
+    for k, run in enumerate(runs):
         if run.pd_std is None:
             print(f"{run.folder}: the run has no uncertainty", file=sys.stderr)
             return 1
@@ -143,7 +158,7 @@ def main(argv=None) -> int:
         u, t = run.metrics["uncertainty"], run.metrics["timing_s"]
         spread = ", ".join(f"{name} {np.nanstd(z):.3f}" for name, z in zs.items())
         print(
-            f"noise seed {k}: level {level}, noise {[round(x, 3) for x in u['noise_dn']]} DN ({u['noise_source']}), "
+            f"run {k}: level {level}, noise {[round(x, 3) for x in u['noise_dn']]} DN ({u['noise_source']}), "
             f"{zs['sigma'].size} determined texels, z std {spread}; fit {t['fit']:.0f} s, "
             f"uncertainty {t['uncertainty']:.1f} s, total {t['total']:.0f} s"
         )
@@ -153,15 +168,22 @@ def main(argv=None) -> int:
         z = z[np.isfinite(z)]
         rows.append(
             Calibration(
-                name, level, float(z.std()) if z.size else math.nan, float(covered(z, np.array([0.95]))[0]), z.size
+                name,
+                level,
+                float(z.std()) if z.size else math.nan,
+                float(covered(z, np.array([0.95]))[0]),
+                z.size,
+                float(z.mean()) if z.size else math.nan,
             )
         )
         curves[f"{name} ({level})"] = covered(z)
-    print(f"\n{seeds} noise seeds, config {args.config} {' '.join(overrides)}")
-    print("| parameter | level | z std (target 0.8-1.25) | 95 % interval covers (target 90-98 %) | values |")
-    print("|---|---|---|---|---|")
+    print(f"\n{seeds} noise seeds, {what}")
+    print("| parameter | level | z std (target 0.8-1.25) | 95 % interval covers (target 90-98 %) | values | z mean |")
+    print("|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r.parameter} | {r.level} | {r.z_std:.3f} | {100 * r.coverage_95:.1f} % | {r.count} |")
+        print(
+            f"| {r.parameter} | {r.level} | {r.z_std:.3f} | {100 * r.coverage_95:.1f} % | {r.count} | {r.z_mean:+.3f} |"
+        )
     plot(curves, Path(args.plot) if args.plot else out / "calibration.png")
     (out / "calibration.json").write_text(json.dumps([asdict(r) for r in rows], indent=2))
     print(f"\nwritten {out / 'calibration.json'}")

@@ -1,5 +1,5 @@
 """scripts/uncertainty_calibration.py: the interval shares against the normal distribution's, and its tiny mode
-fits a re-drawn capture and prints the calibration table."""
+fits a re-drawn capture and prints the calibration table; --runs pools finished runs to the same table."""
 
 import importlib.util
 import json
@@ -32,3 +32,7 @@ def test_tiny_mode_prints_the_table(tmp_path, capsys):
     assert {r["parameter"] for r in rows} == {"pd", "ps", "sigma"}
     assert all(r["count"] > 0 and 0.0 <= r["coverage_95"] <= 1.0 for r in rows)
     assert (out / "calibration.png").stat().st_size > 0
+    # the finished run pooled again, without a fit: the same z-scores
+    again = tmp_path / "again"
+    assert calibration.main(["--runs", str(out / "noise_0"), "--out", str(again)]) == 0
+    assert json.loads((again / "calibration.json").read_text()) == rows
