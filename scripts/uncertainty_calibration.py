@@ -15,6 +15,7 @@ costs one rendering instead of one per seed.
     python scripts/uncertainty_calibration.py [--config configs/quick.yaml] [--seeds 8] [--out FOLDER]
         [--plot docs/results/uncertainty_calibration.png] [dotted.key=value ...]
     python scripts/uncertainty_calibration.py --runs RUN_DIR [RUN_DIR ...]   # pool finished synthetic runs instead
+        [--by-profile]    # and their concave and convex texels apart (the rows' profile curvature's sign)
     python scripts/uncertainty_calibration.py --tiny      # a 32 x 24 texel scan, 2 seeds (a check, not a result)
 """
 
@@ -82,11 +83,25 @@ def render_once() -> dict:
     return memo
 
 
-def z_scores(run) -> dict:
-    """{parameter: (N,) z-scores} over the run's well-determined texels (module docstring)."""
+def profile_curvature(run) -> np.ndarray:
+    """(H, W) the sign-carrying curvature of the texel grid along its rows (a cylindrical scan's profile):
+    (n[i+1] - n[i-1]) . (p[i+1] - p[i-1]) / |p[i+1] - p[i-1]|^2 in 1 / length, < 0 concave, > 0 convex; 0 on the
+    first and last rows."""
+    n, p = run.normals, run.positions
+    out = np.zeros(n.shape[:2])
+    dp, dn = p[2:] - p[:-2], n[2:] - n[:-2]
+    out[1:-1] = (dn * dp).sum(-1) / np.maximum((dp * dp).sum(-1), 1e-12)
+    return out
+
+
+def z_scores(run, where: np.ndarray | None = None) -> dict:
+    """{parameter: (N,) z-scores} over the run's well-determined texels (module docstring), those of where (H, W)
+    bool only when given."""
     truth = np.load(run.folder / "capture" / "truth.npz")
     ps_rel, sg_rel = relative_std(run.ps, run.sigma, run.ps_std, run.sigma_std)
     good = run.mask & run.lobe_measured & (ps_rel <= RELATIVE_PRECISION) & (sg_rel <= RELATIVE_PRECISION)
+    if where is not None:
+        good = good & where
     out = {}
     for name in ("pd", "ps", "sigma"):
         est, std, true = getattr(run, name), getattr(run, f"{name}_std"), truth[name]
@@ -134,6 +149,9 @@ def main(argv=None) -> int:
     ap.add_argument("--plot", default=None, help="the calibration curve's PNG (default: OUT/calibration.png)")
     ap.add_argument("--tiny", action="store_true", help="a 32 x 24 texel scan, 2 seeds: a check, not a result")
     ap.add_argument("--runs", nargs="+", default=None, help="pool these finished synthetic runs (no fit)")
+    ap.add_argument(
+        "--by-profile", action="store_true", help="rows for the concave and the convex texels of the profile too"
+    )
     ap.add_argument("overrides", nargs="*", help="dotted.key=value config overrides")
     args = ap.parse_args(argv)
     out = Path(args.out or tempfile.mkdtemp(prefix="uncertainty_calibration_"))
@@ -155,6 +173,11 @@ def main(argv=None) -> int:
         zs = z_scores(run)
         for name, z in zs.items():
             pooled.setdefault((name, level), []).append(z)
+        if args.by_profile:
+            k_profile = profile_curvature(run)
+            for part, where in (("concave", k_profile < 0), ("convex", k_profile > 0)):
+                for name, z in z_scores(run, where).items():
+                    pooled.setdefault((name, f"{level}, {part}"), []).append(z)
         u, t = run.metrics["uncertainty"], run.metrics["timing_s"]
         spread = ", ".join(f"{name} {np.nanstd(z):.3f}" for name, z in zs.items())
         print(

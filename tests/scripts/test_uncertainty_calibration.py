@@ -36,3 +36,16 @@ def test_tiny_mode_prints_the_table(tmp_path, capsys):
     again = tmp_path / "again"
     assert calibration.main(["--runs", str(out / "noise_0"), "--out", str(again)]) == 0
     assert json.loads((again / "calibration.json").read_text()) == rows
+
+
+def test_profile_curvature_of_a_circular_profile():
+    # rows along an arc of radius 20: outward normals are convex (+1/20), inward ones concave (-1/20)
+    from types import SimpleNamespace
+
+    t = np.linspace(0.0, 1.0, 9)[:, None].repeat(4, 1)
+    n = np.stack([np.sin(t), np.cos(t), np.zeros_like(t)], -1)
+    run = SimpleNamespace(positions=20.0 * n, normals=n)
+    k = calibration.profile_curvature(run)
+    assert np.allclose(k[1:-1], 1 / 20) and np.all(k[[0, -1]] == 0)
+    run.normals = -n
+    assert np.allclose(calibration.profile_curvature(run)[1:-1], -1 / 20)
