@@ -176,6 +176,8 @@ def main(argv=None) -> int:
         if args.by_profile:
             k_profile = profile_curvature(run)
             for part, where in (("concave", k_profile < 0), ("convex", k_profile > 0)):
+                if not (where & run.mask).any():  # no such texel (a convex object has no concave part)
+                    continue
                 for name, z in z_scores(run, where).items():
                     pooled.setdefault((name, f"{level}, {part}"), []).append(z)
         u, t = run.metrics["uncertainty"], run.metrics["timing_s"]
