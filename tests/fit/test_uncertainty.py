@@ -10,6 +10,7 @@ from conftest import dome_scene, point_light_observations
 from conftest import noisy_glossy_scene as glossy_scene
 
 from torchrefl.core.params import TexelParams
+from torchrefl.fit import uncertainty
 from torchrefl.fit.refine import Objective
 from torchrefl.fit.texel_lm import levenberg_marquardt
 from torchrefl.fit.uncertainty import (
@@ -130,6 +131,18 @@ def test_z_scores_are_calibrated_and_the_noise_is_recovered(fitted_from_truth):
     known = texel_uncertainty(model_of(terms), *est, obs.intensity, obs.valid, measured, RANGES, noise_dn=0.577)
     assert known.noise_source == "capture.noise_dn"
     assert torch.allclose(known.sigma_std, u.sigma_std, rtol=0.15)
+
+
+def test_noise_from_a_stride_of_the_texels_matches_all_of_them(fitted_from_truth, monkeypatch):
+    obs, terms, est, _ = fitted_from_truth
+    measured = torch.ones(len(est[2]), dtype=torch.bool)
+    every = texel_uncertainty(model_of(terms), *est, obs.intensity, obs.valid, measured, RANGES)
+    monkeypatch.setattr(uncertainty, "NOISE_TEXELS", 50)  # every 4th of the 200 texels
+    some = texel_uncertainty(model_of(terms), *est, obs.intensity, obs.valid, measured, RANGES)
+    assert not torch.equal(some.noise_dn, every.noise_dn)
+    assert torch.allclose(some.noise_dn, torch.full((3,), math.sqrt(0.25 + 1 / 12), dtype=torch.float64), rtol=0.1)
+    assert torch.allclose(some.noise_dn, every.noise_dn, rtol=0.05)
+    assert torch.allclose(some.sigma_std, every.sigma_std, rtol=0.05)
 
 
 def test_lobe_not_measured_gets_the_range_std_and_a_conditional_pd(fitted_from_truth):

@@ -1,5 +1,5 @@
 """scripts/uncertainty_calibration.py: the interval shares against the normal distribution's, and its tiny mode
-fits a re-drawn capture and prints the calibration table."""
+fits a re-drawn capture and prints the calibration table; --runs pools finished runs to the same table."""
 
 import importlib.util
 import json
@@ -32,3 +32,20 @@ def test_tiny_mode_prints_the_table(tmp_path, capsys):
     assert {r["parameter"] for r in rows} == {"pd", "ps", "sigma"}
     assert all(r["count"] > 0 and 0.0 <= r["coverage_95"] <= 1.0 for r in rows)
     assert (out / "calibration.png").stat().st_size > 0
+    # the finished run pooled again, without a fit: the same z-scores
+    again = tmp_path / "again"
+    assert calibration.main(["--runs", str(out / "noise_0"), "--out", str(again)]) == 0
+    assert json.loads((again / "calibration.json").read_text()) == rows
+
+
+def test_profile_curvature_of_a_circular_profile():
+    # rows along an arc of radius 20: outward normals are convex (+1/20), inward ones concave (-1/20)
+    from types import SimpleNamespace
+
+    t = np.linspace(0.0, 1.0, 9)[:, None].repeat(4, 1)
+    n = np.stack([np.sin(t), np.cos(t), np.zeros_like(t)], -1)
+    run = SimpleNamespace(positions=20.0 * n, normals=n)
+    k = calibration.profile_curvature(run)
+    assert np.allclose(k[1:-1], 1 / 20) and np.all(k[[0, -1]] == 0)
+    run.normals = -n
+    assert np.allclose(calibration.profile_curvature(run)[1:-1], -1 / 20)

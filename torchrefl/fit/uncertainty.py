@@ -15,7 +15,8 @@ larger) and keeps an undetermined one (sigma of a texel without a highlight) fin
 
 Noise: capture.noise_dn when given; else per channel from the fit's residuals, robustly and with the
 degrees of freedom accounted for: each residual is divided by sqrt(1 - h) (h its leverage, the hat matrix's
-diagonal w / s_c^2 J^T Cov J, at the raw residuals' MAD) and s_c = 1.4826 MAD of those.
+diagonal w / s_c^2 J^T Cov J, at the raw residuals' MAD) and s_c = 1.4826 MAD of those (over an even stride of
+at most NOISE_TEXELS texels).
 
 Texels whose Ps and sigma the fit did not estimate from their own observations (coverage other than "measured":
 the lobe of their colour, their neighbours' or the object's) have Ps, sigma std at the range's std, marked not
@@ -45,6 +46,9 @@ from torchrefl.transport.levels.base import TransportLevel
 MAD_SCALE = 1.4826
 #: leverages are capped here (an observation that alone fixes a parameter has h -> 1 and no residual)
 MAX_LEVERAGE = 0.9
+#: the noise is estimated from at most this many texels' residuals (an even stride over the texels): some 10^5
+#: residuals per channel, whose MAD is within about 0.5 % of all texels'; their leverages cost a covariance each
+NOISE_TEXELS = 32768
 
 
 @dataclass
@@ -103,9 +107,10 @@ def jacobian(model: Callable, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.T
 
 def channel_information(J: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """(3, T, K, K) float64 per channel c: sum over p of weight J J^T (the information at unit noise).
-    J (P, T, 3, K) in DN per parameter unit; weight (P, T, 3) the observations' weights (0 = not fitted)."""
-    Jd = J.double()
-    return torch.einsum("ptck,ptc,ptcl->ctkl", Jd, weight.double(), Jd)
+    J (P, T, 3, K) in DN per parameter unit; weight (P, T, 3) the observations' weights (0 = not fitted).
+    The products are summed in J's dtype (float32 by default: J itself is no more precise, and float64 sums took
+    3 times as long at paper size); the inverses that follow are float64."""
+    return torch.einsum("ptck,ptc,ptcl->ctkl", J, weight.to(J.dtype), J).double()
 
 
 def information(J: torch.Tensor, weight: torch.Tensor, noise_dn: torch.Tensor) -> torch.Tensor:
@@ -127,9 +132,9 @@ def covariance(info: torch.Tensor, prior_var: torch.Tensor) -> torch.Tensor:
 
 
 def leverage(J: torch.Tensor, weight: torch.Tensor, noise_dn: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
-    """(P, T, 3) each observation's leverage h = weight / s_c^2 J^T cov J (the hat matrix's diagonal)."""
-    Jd = J.double()
-    h = torch.einsum("ptck,tkl,ptcl->ptc", Jd, cov, Jd)
+    """(P, T, 3) each observation's leverage h = weight / s_c^2 J^T cov J (the hat matrix's diagonal), float64;
+    the quadratic forms in J's dtype (channel_information)."""
+    h = torch.einsum("ptck,tkl,ptcl->ptc", J, cov.to(J.dtype), J).double()
     return h * weight.double() / noise_dn.double().square()
 
 
@@ -144,7 +149,12 @@ def mad_noise(r: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 
 def residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured) -> torch.Tensor:
     """(3,) per-channel noise in DN from the fit's residuals r (P, T, 3), leverage-corrected (module docstring):
-    the leverages at the raw residuals' MAD (they depend on the noise only through the broad prior's share)."""
+    the leverages at the raw residuals' MAD (they depend on the noise only through the broad prior's share); over
+    every k-th texel where there are more than NOISE_TEXELS."""
+    step = -(-r.shape[1] // NOISE_TEXELS)
+    if step > 1:
+        r, J, weight, mask = r[:, ::step], J[:, ::step], weight[:, ::step], mask[:, ::step]
+        per_channel, lobe_measured = per_channel[:, ::step], lobe_measured[::step]
     s = mad_noise(r, mask).clamp_min(1e-3)
     cov = texel_covariance(scaled(per_channel, s), prior_var, lobe_measured)
     h = leverage(J, weight, s, cov).clamp(0.0, MAX_LEVERAGE)
@@ -154,12 +164,13 @@ def residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured) ->
 def texel_covariance(info: torch.Tensor, prior_var: torch.Tensor, lobe_measured: torch.Tensor) -> torch.Tensor:
     """(T, K, K) the covariance of each texel: the whole block where its lobe was measured; elsewhere the Pd block
     alone (the lobe held at its value) and the lobe at the broad prior's variance, uncorrelated."""
-    full = covariance(info, prior_var)
-    pd_only = covariance(info[:, :3, :3], prior_var[:3])
-    held = torch.zeros_like(full)
-    held[:, :3, :3] = pd_only
-    held[:, 3:, 3:] = torch.diag(prior_var[3:].to(full))
-    return torch.where(lobe_measured[:, None, None], full, held)
+    cov = covariance(info, prior_var)
+    held = ~lobe_measured
+    block = torch.zeros_like(cov[held])
+    block[:, :3, :3] = covariance(info[held][:, :3, :3], prior_var[:3])
+    block[:, 3:, 3:] = torch.diag(prior_var[3:].to(cov))
+    cov[held] = block
+    return cov
 
 
 def shared_lobe_covariance(info: torch.Tensor, prior_var: torch.Tensor, estimated: torch.Tensor) -> torch.Tensor:
@@ -204,9 +215,9 @@ def texel_uncertainty(
     lobe_measured = lobe_measured.to(pd.device)
     with torch.no_grad():
         r = (model(pd, ps, sigma) - intensity) * 255.0
-    J = jacobian(model, pd, ps, sigma).double()
+    J = jacobian(model, pd, ps, sigma)
     mask = fit_mask.to(pd.device)
-    weight = (irls_weight(r, loss, loss_scale_8bit) * mask[..., None].to(r.dtype)).double()
+    weight = irls_weight(r, loss, loss_scale_8bit) * mask[..., None].to(r.dtype)
     prior_var = ranges.prior_var(ps.shape[1])
     per_channel = channel_information(J, weight)
     if noise_dn is None:
