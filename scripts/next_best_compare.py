@@ -11,7 +11,7 @@ with at most 70 % of the lights.
 
     python scripts/next_best_compare.py [--config configs/quick.yaml] [--seeds 1 2 3] [--greedy 3 4 5 6 7 8 9]
         [--start 3] [--plan 4] [--reference 9] [--out FOLDER] [--plot FILE.png] [dotted.key=value ...]
-    python scripts/next_best_compare.py --tiny     # a 32 x 24 texel scan, one seed (a check, not a result)
+    python scripts/next_best_compare.py --tiny     # a 24 x 16 texel scan, one seed (a check, not a result)
 """
 
 from __future__ import annotations
@@ -31,15 +31,16 @@ from torchrefl.planning.run_scene import load_run_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [
-    "synthetic.columns=32",
-    "synthetic.rows=24",
-    "synthetic.angle_step_deg=11.25",
-    "synthetic.height_step_mm=7.5",
+    "synthetic.columns=24",
+    "synthetic.rows=16",
+    "synthetic.angle_step_deg=15",
+    "synthetic.height_step_mm=10",
     "synthetic.supersample=1",
     "synthetic.mesh_subdivisions=3",
-    "fit.iterations=5",
+    "fit.iterations=2",
     "fit.sigma_search=4",
     "output.map_lights=0",
+    "threads=1",
 ]
 #: the largest share of the reference count of lights the planner may use (the issue's target)
 TARGET_SHARE = 0.7
@@ -156,7 +157,7 @@ def main(argv=None) -> int:
     parser.add_argument("--reference", type=int, default=9, help="coverage-greedy's usual count (the target's)")
     parser.add_argument("--out", default=None, help="folder for the runs and results.json (default: a temporary one)")
     parser.add_argument("--plot", default=None, help="PNG of the curves (default: OUT/next_best.png)")
-    parser.add_argument("--tiny", action="store_true", help="a 32 x 24 texel scan: checks that the script runs")
+    parser.add_argument("--tiny", action="store_true", help="a 24 x 16 texel scan: checks that the script runs")
     parser.add_argument("overrides", nargs="*", help="dotted.key=value overrides of the config")
     args = parser.parse_args(argv)
     if args.tiny:
