@@ -11,6 +11,7 @@ with at most 70 % of the lights.
 
     python scripts/next_best_compare.py [--config configs/quick.yaml] [--seeds 1 2 3] [--greedy 3 4 5 6 7 8 9]
         [--start 3] [--plan 4] [--reference 9] [--out FOLDER] [--plot FILE.png] [dotted.key=value ...]
+    python scripts/next_best_compare.py --tabulate --out FOLDER   # the tables of the runs a call left in FOLDER
     python scripts/next_best_compare.py --tiny     # a 24 x 16 texel scan, one seed (a check, not a result)
 """
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import tempfile
 from dataclasses import asdict, dataclass
@@ -28,6 +30,7 @@ import numpy as np
 import torchrefl
 from torchrefl.planning.next_best import next_best_lights
 from torchrefl.planning.run_scene import load_run_scene
+from torchrefl.report.run_result import load_run
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [
@@ -48,23 +51,46 @@ TARGET_SHARE = 0.7
 
 @dataclass
 class Row:
-    """One fit: the selector ('coverage' or 'planner'), the noise seed, its number of lights and its errors."""
+    """One fit: the selector ('coverage' or 'planner'), the noise seed, its number of lights and its errors: the
+    median relative errors of metrics.json (over the texels with two strong-specular observations, a set that
+    differs between runs) and over every estimated texel whose truth is glossy (Ps > 1e-3; a lobe filled from the
+    neighbours counts too), the same texels for every run of a seed."""
 
     selector: str
     seed: int
     lights: int
     ps_median_rel_err: float
     sigma_median_rel_err: float
+    ps_all: float
+    sigma_all: float
+    measured: int
 
 
-def fit(config: str, overrides: list[str], folder: Path) -> dict:
-    """Fit config with overrides into folder; its ground-truth errors (metrics.json `ground_truth`)."""
+def fit(config: str, overrides: list[str], folder: Path) -> Path:
+    """Fit config with overrides into folder (its capture, with the truth, in folder/capture)."""
     cfg = torchrefl.load_config(config, [*overrides, f"output.dir={folder}", "output.progress=false"])
-    return torchrefl.fit(cfg, quiet=True, overwrite=True).metrics["ground_truth"]
+    torchrefl.fit(cfg, quiet=True, overwrite=True)
+    return folder
 
 
-def row(selector: str, seed: int, lights: int, truth: dict) -> Row:
-    return Row(selector, seed, lights, truth["ps_median_rel_err"], truth["sigma_median_rel_err"])
+def row(selector: str, seed: int, folder: Path) -> Row:
+    """The Row of a finished synthetic run (module docstring)."""
+    run = load_run(folder)
+    truth = run.metrics["ground_truth"]
+    with np.load(folder / "capture" / "truth.npz") as t:
+        tps, tsg = t["ps"].mean(-1), t["sigma"]
+    glossy = run.mask & (tps > 1e-3)
+    rel = lambda a, b: float(np.median(np.abs(a[glossy] - b[glossy]) / b[glossy]))
+    return Row(
+        selector,
+        seed,
+        int(run.metrics["lights"]),
+        truth["ps_median_rel_err"],
+        truth["sigma_median_rel_err"],
+        rel(run.ps.mean(-1), tps),
+        rel(run.sigma, tsg),
+        int(truth["texels_spec_observed_twice"]),
+    )
 
 
 def compare_seed(args, seed: int, out: Path, log) -> list[Row]:
@@ -72,8 +98,9 @@ def compare_seed(args, seed: int, out: Path, log) -> list[Row]:
     base = [*args.overrides, f"synthetic.noise_seed={seed}"]
     rows = []
     for n in sorted(set(args.greedy) | {args.start}):
-        truth = fit(args.config, [*base, f"selection.num_lights={n}"], out / f"coverage_{n}")
-        rows.append(row("coverage", seed, n, truth))
+        rows.append(
+            row("coverage", seed, fit(args.config, [*base, f"selection.num_lights={n}"], out / f"coverage_{n}"))
+        )
         log(f"seed {seed}: coverage-greedy {n} lights: {rows[-1]}")
     start_dir = out / f"coverage_{args.start}"
     start = json.loads((start_dir / "selection" / "selection.json").read_text())["chosen"]
@@ -83,17 +110,26 @@ def compare_seed(args, seed: int, out: Path, log) -> list[Row]:
         subset = [*start, *plan.chosen[:j]]
         lights = ",".join(str(i) for i in subset)
         folder = out / f"planner_{len(subset)}"
-        truth = fit(args.config, [*base, "selection.enabled=false", f"capture.light_subset=[{lights}]"], folder)
-        rows.append(row("planner", seed, len(subset), truth))
+        fit(args.config, [*base, "selection.enabled=false", f"capture.light_subset=[{lights}]"], folder)
+        rows.append(row("planner", seed, folder))
         log(f"seed {seed}: planner {len(subset)} lights: {rows[-1]}")
     return rows
 
 
-def mean_curves(rows: list[Row]) -> dict:
-    """{selector: {lights: (mean Ps error, mean sigma error, seeds)}} averaged over the seeds."""
+#: the two error sets (Row fields of Ps and sigma) and how the table and plot name them
+ERRORS = {
+    "measured": (("ps_median_rel_err", "sigma_median_rel_err"), "metrics.json (texels with two highlights)"),
+    "all": (("ps_all", "sigma_all"), "every estimated glossy texel"),
+}
+
+
+def mean_curves(rows: list[Row], errors: str = "measured") -> dict:
+    """{selector: {lights: (mean Ps error, mean sigma error, seeds)}} averaged over the seeds; errors: a key of
+    ERRORS."""
+    fields = ERRORS[errors][0]
     out: dict = {}
     for r in rows:
-        out.setdefault(r.selector, {}).setdefault(r.lights, []).append((r.ps_median_rel_err, r.sigma_median_rel_err))
+        out.setdefault(r.selector, {}).setdefault(r.lights, []).append([getattr(r, f) for f in fields])
     return {s: {n: (*np.mean(v, axis=0).tolist(), len(v)) for n, v in sorted(by_n.items())} for s, by_n in out.items()}
 
 
@@ -125,26 +161,59 @@ def table(curves: dict) -> str:
     return "\n".join(lines)
 
 
-def plot(curves: dict, reference: int, path: Path) -> None:
-    """Ps and sigma mean median relative errors against the number of lights, both selectors (a PNG)."""
+def plot(rows: list[Row], reference: int, path: Path) -> None:
+    """Ps and sigma mean median relative errors against the number of lights, both selectors, both error sets
+    (a PNG)."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(9, 3.6), layout="constrained")
-    axes = fig.subplots(1, 2, sharex=True)
+    fig = Figure(figsize=(9, 6.4), layout="constrained")
+    axes = fig.subplots(2, 2, sharex=True)
     style = {"coverage": ("o-", "coverage-greedy (seed, Ch. 2)"), "planner": ("^-", "next-best planner")}
-    for ax, k, name in ((axes[0], 0, "Ps"), (axes[1], 1, "sigma")):
-        for s, by_n in curves.items():
-            n = list(by_n)
-            ax.plot(n, [100 * by_n[i][k] for i in n], style[s][0], label=style[s][1])
-        ref = curves.get("coverage", {}).get(reference)
-        if ref is not None:
-            ax.axhline(100 * ref[k], color="0.5", ls="--", lw=1)
-            ax.axvline(TARGET_SHARE * reference, color="0.7", ls=":", lw=1)
+    for row_axes, (errors, (_, title)) in zip(axes, ERRORS.items()):
+        curves = mean_curves(rows, errors)
+        for ax, k, name in ((row_axes[0], 0, "Ps"), (row_axes[1], 1, "sigma")):
+            for s, by_n in curves.items():
+                n = list(by_n)
+                ax.plot(n, [100 * by_n[i][k] for i in n], style[s][0], label=style[s][1])
+            ref = curves.get("coverage", {}).get(reference)
+            if ref is not None:
+                ax.axhline(100 * ref[k], color="0.5", ls="--", lw=1)
+                ax.axvline(TARGET_SHARE * reference, color="0.7", ls=":", lw=1)
+            ax.set_ylabel(f"{name} median rel. error [%]")
+            ax.set_title(title, fontsize=10)
+            ax.grid(alpha=0.3)
+    for ax in axes[1]:
         ax.set_xlabel("number of lights")
-        ax.set_ylabel(f"{name} median relative error [%]")
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=9)
+    axes[0, 0].legend(fontsize=9)
     fig.savefig(path, dpi=100)
+
+
+def saved_rows(out: Path) -> list[Row]:
+    """The Rows of the runs a previous call left in out (seed_S/coverage_N, seed_S/planner_N), without fitting."""
+    rows = []
+    for seed_dir in sorted(out.glob("seed_*")):
+        seed = int(seed_dir.name.removeprefix("seed_"))
+        runs = [f for f in seed_dir.iterdir() if re.fullmatch(r"(coverage|planner)_\d+", f.name)]
+        for folder in sorted(runs, key=lambda f: (f.name.split("_")[0], int(f.name.split("_")[1]))):
+            if (folder / "run_complete.json").is_file():
+                rows.append(row(folder.name.split("_")[0], seed, folder))
+    return rows
+
+
+def summary(rows: list[Row], reference: int, seeds: int) -> str:
+    """Both tables and the target's reading for each error set."""
+    parts = []
+    for errors, (_, title) in ERRORS.items():
+        curves = mean_curves(rows, errors)
+        parts += [f"median relative errors over {title}, mean of {seeds} noise seed(s):", table(curves)]
+        reached, ref = planner_reach(curves, reference)
+        if ref is not None:
+            where = f"{reached} lights ({reached / reference:.0%})" if reached else "not within the planned lights"
+            parts.append(
+                f"coverage-greedy at {reference} lights: Ps {ref[0]:.2%}, sigma {ref[1]:.2%}; the planner reaches "
+                f"both at {where} (target: <= {TARGET_SHARE:.0%})\n"
+            )
+    return "\n".join(parts)
 
 
 def main(argv=None) -> int:
@@ -157,6 +226,7 @@ def main(argv=None) -> int:
     parser.add_argument("--reference", type=int, default=9, help="coverage-greedy's usual count (the target's)")
     parser.add_argument("--out", default=None, help="folder for the runs and results.json (default: a temporary one)")
     parser.add_argument("--plot", default=None, help="PNG of the curves (default: OUT/next_best.png)")
+    parser.add_argument("--tabulate", action="store_true", help="no fit: the tables of the runs already in --out")
     parser.add_argument("--tiny", action="store_true", help="a 24 x 16 texel scan: checks that the script runs")
     parser.add_argument("overrides", nargs="*", help="dotted.key=value overrides of the config")
     args = parser.parse_args(argv)
@@ -167,20 +237,12 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="next-best-") as tmp:
         out = Path(args.out) if args.out else Path(tmp)
         out.mkdir(parents=True, exist_ok=True)
-        rows = []
-        for seed in args.seeds:
+        rows = saved_rows(out) if args.tabulate else []
+        for seed in [] if args.tabulate else args.seeds:
             rows += compare_seed(args, seed, out / f"seed_{seed}", log)
             (out / "results.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
-        curves = mean_curves(rows)
-        plot(curves, args.reference, Path(args.plot) if args.plot else out / "next_best.png")
-    print(table(curves))
-    reached, ref = planner_reach(curves, args.reference)
-    if ref is not None:
-        where = f"{reached} lights ({reached / args.reference:.0%})" if reached else "not within the planned lights"
-        print(
-            f"coverage-greedy at {args.reference} lights: Ps {ref[0]:.2%}, sigma {ref[1]:.2%}; the planner reaches "
-            f"both at {where} (target: <= {TARGET_SHARE:.0%}), mean of {len(args.seeds)} noise seed(s)"
-        )
+        plot(rows, args.reference, Path(args.plot) if args.plot else out / "next_best.png")
+    print(summary(rows, args.reference, len({r.seed for r in rows})))
     return 0
 
 
