@@ -104,9 +104,10 @@ def test_greedy_never_takes_a_light_twice_even_when_it_stays_the_best():
 def test_saturated_observations_add_nothing_and_gains_stay_finite():
     # 100 x brighter: every lit observation of the patch reads far above full range
     scene = captured_scene(intensity=1.0e7)
-    info = light_information(scene, np.stack([UP, MIRROR]))
+    shift = np.array([5.0, 0.0, 0.0])
+    info = light_information(scene, np.stack([UP + shift, MIRROR + shift]))
     assert all(len(t) == 0 for t in info.texels)
-    result = choose(scene, np.stack([UP, MIRROR, BELOW]), 3)
+    result = choose(scene, np.stack([UP + shift, MIRROR + shift, BELOW]), 3)
     assert np.isfinite(result.gain).all() and (result.gain == 0.0).all()
     assert all(np.isfinite(result.sigma_known))
 
@@ -115,3 +116,10 @@ def test_texels_without_any_highlight_give_finite_gains():
     scene = FlatScene(np.array([[1000.0, 0.0, 200.0]]), torch.zeros(8, dtype=torch.long), torch.zeros(8) > 0)
     result = choose(scene, np.stack([UP, MIRROR]), 2)
     assert np.isfinite(result.gain).all() and sorted(result.chosen) == [0, 1]
+
+
+def test_a_light_the_run_already_has_is_not_planned_again():
+    scene = captured_scene()
+    # the tilted group's own light again would give its second highlight, but the capture has that image
+    result = choose(scene, np.stack([MIRROR, UP + [5.0, 0.0, 0.0]]), 1)
+    assert result.chosen == [1]

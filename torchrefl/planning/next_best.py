@@ -23,7 +23,9 @@ not what the median relative error needs) and, unlike the trace of relative vari
 few texels with Ps near 0 or without a lobe (whose relative variances are huge).
 
 Greedy: each round scores every remaining candidate against the texels' information so far and takes the best; its
-information and T_spec counts are added before the next round (a light is chosen at most once).
+information and T_spec counts are added before the next round (a light is chosen at most once). A candidate at the
+position of one of the run's own lights is never chosen: its image would repeat one the capture has (a capture
+holds each light once).
 """
 
 from __future__ import annotations
@@ -203,9 +205,14 @@ def choose(scene: RunScene, candidates: np.ndarray, k: int) -> NextBest:
     candidates = check_candidates(candidates, "candidates")
     if int(k) < 1 or int(k) > len(candidates):
         raise ConfigError(f"--lights {k}: expected a number of lights between 1 and the {len(candidates)} candidates")
+    available = ~taken(candidates, scene.lights)
+    if int(k) > int(available.sum()):
+        raise ConfigError(
+            f"--lights {k}: only {int(available.sum())} of the {len(candidates)} candidates are not already lights of "
+            "the run"
+        )
     state = TexelState(scene, current_information(scene))
     light = state.relevant(light_information(scene, candidates))
-    available = np.ones(len(candidates), dtype=bool)
     chosen, gains = [], []
     s, b = state.known_shares()
     sigma_known, both_known = [s], [b]
@@ -220,6 +227,14 @@ def choose(scene: RunScene, candidates: np.ndarray, k: int) -> NextBest:
         sigma_known.append(s)
         both_known.append(b)
     return NextBest(chosen, np.array(gains), candidates, sigma_known, both_known)
+
+
+def taken(candidates: np.ndarray, lights: np.ndarray, tolerance_mm: float = 1e-3) -> np.ndarray:
+    """(M,) bool: the candidates (M, 3) within tolerance_mm of one of the run's lights (P, 3)."""
+    if not len(lights):
+        return np.zeros(len(candidates), dtype=bool)
+    d = np.linalg.norm(candidates[:, None] - np.asarray(lights, dtype=np.float64)[None], axis=-1)
+    return d.min(1) <= tolerance_mm
 
 
 def check_candidates(candidates, where: str) -> np.ndarray:
