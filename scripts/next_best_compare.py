@@ -124,13 +124,16 @@ ERRORS = {
 
 
 def mean_curves(rows: list[Row], errors: str = "measured") -> dict:
-    """{selector: {lights: (mean Ps error, mean sigma error, seeds)}} averaged over the seeds; errors: a key of
-    ERRORS."""
+    """{selector: {lights: (mean Ps error, mean sigma error, seeds)}} averaged over the seeds (a run without a
+    measured texel has no metrics.json error and is left out of its mean; NaN where no seed has one); errors: a key
+    of ERRORS."""
     fields = ERRORS[errors][0]
     out: dict = {}
     for r in rows:
-        out.setdefault(r.selector, {}).setdefault(r.lights, []).append([getattr(r, f) for f in fields])
-    return {s: {n: (*np.mean(v, axis=0).tolist(), len(v)) for n, v in sorted(by_n.items())} for s, by_n in out.items()}
+        values = [np.nan if getattr(r, f) is None else getattr(r, f) for f in fields]  # None: no texel measured
+        out.setdefault(r.selector, {}).setdefault(r.lights, []).append(values)
+    mean = lambda v: np.nanmean(v, axis=0).tolist() if np.isfinite(v).any() else [np.nan, np.nan]
+    return {s: {n: (*mean(np.array(v)), len(v)) for n, v in sorted(by_n.items())} for s, by_n in out.items()}
 
 
 def planner_reach(curves: dict, reference: int) -> tuple[int | None, tuple[float, float] | None]:
@@ -156,7 +159,7 @@ def table(curves: dict) -> str:
         cells = []
         for s in ("coverage", "planner"):
             v = curves.get(s, {}).get(n)
-            cells += [f"{v[0]:.2%}", f"{v[1]:.2%}"] if v else ["", ""]
+            cells += [f"{x:.2%}" if np.isfinite(x) else "-" for x in v[:2]] if v else ["", ""]
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -12,14 +12,14 @@ compare = load_script("next_best_compare")
 def rows():
     R = compare.Row
     return [
-        R("coverage", 1, 3, 0.20, 0.10),
-        R("coverage", 2, 3, 0.10, 0.30),
-        R("coverage", 1, 9, 0.02, 0.02),
-        R("coverage", 2, 9, 0.04, 0.02),
-        R("planner", 1, 5, 0.04, 0.01),
-        R("planner", 2, 5, 0.04, 0.05),  # mean sigma 3 % > coverage's 2 %
-        R("planner", 1, 6, 0.01, 0.02),
-        R("planner", 2, 6, 0.03, 0.02),
+        R("coverage", 1, 3, 0.20, 0.10, 0.3, 0.2, 5),
+        R("coverage", 2, 3, 0.10, 0.30, 0.3, 0.2, 5),
+        R("coverage", 1, 9, 0.02, 0.02, 0.1, 0.1, 9),
+        R("coverage", 2, 9, 0.04, 0.02, 0.1, 0.1, 9),
+        R("planner", 1, 5, 0.04, 0.01, 0.1, 0.1, 7),
+        R("planner", 2, 5, 0.04, 0.05, 0.1, 0.1, 7),  # mean sigma 3 % > coverage's 2 %
+        R("planner", 1, 6, 0.01, 0.02, 0.1, 0.1, 8),
+        R("planner", 2, 6, 0.03, 0.02, 0.1, 0.1, 8),
     ]
 
 
@@ -28,6 +28,13 @@ def test_curves_average_over_seeds():
     assert curves["coverage"][3] == pytest.approx((0.15, 0.2, 2))
     ps, sigma, seeds = curves["planner"][5]
     assert abs(ps - 0.04) < 1e-12 and abs(sigma - 0.03) < 1e-12 and seeds == 2
+
+
+def test_a_run_without_measured_texels_is_left_out_of_the_mean():
+    R = compare.Row
+    none = [R("coverage", 1, 3, None, None, 0.9, 1.1, 0), R("coverage", 2, 3, 0.1, 0.2, 0.5, 0.6, 10)]
+    assert compare.mean_curves(none)["coverage"][3] == pytest.approx((0.1, 0.2, 2))
+    assert "| 3 | - | - |" in compare.table(compare.mean_curves(none[:1]))
 
 
 def test_the_planner_reaches_the_reference_where_both_errors_are_at_most_its():
