@@ -125,3 +125,59 @@ def test_a_mesh_views_plan_pairs_lights_with_cameras_and_the_rig_reads_it(tmp_pa
     cfg = load_config("mesh_views", [*VIEWS_SMALL, "capture.kind=mesh_views", f"capture.path={tmp_path / 'folder'}"])
     views = _plan_views(cfg, plan_files(tmp_path / "folder.json"), Stages(lambda m: None), lambda m: None).views
     assert views.to_json() == doc
+
+
+def test_a_run_folder_gets_its_next_best_lights_as_a_plan_the_rig_reads(tiny_fold_run, tmp_path, capsys):
+    out = tmp_path / "next"
+    assert main([str(tiny_fold_run), "--lights", "2", "--out", str(out)]) == 0
+    doc = json.loads((out / "selection.json").read_text())
+    assert doc["planner"] == "next_best" and len(doc["chosen"]) == 2 == len(set(doc["chosen"]))
+    grid = load_config(tiny_fold_run / "config.yaml").selection.grid
+    assert doc["candidates"] == grid.columns * grid.rows
+    assert len(load_plan(out / "selection.json", RigModel(RigSettings()))) == 2
+    report = (out / "next_best.txt").read_text()
+    assert report in capsys.readouterr().out and "sigma known to 10 %" in report
+
+
+def test_a_run_folder_takes_its_candidates_from_a_file(tiny_fold_run, tmp_path):
+    positions = [[0.0, 0.0, 300.0], [-100.0, 50.0, 300.0], [100.0, -50.0, 300.0]]
+    (tmp_path / "c.json").write_text(json.dumps({"positions_mm": positions}))
+    out = tmp_path / "p.json"
+    assert main([str(tiny_fold_run), "--lights", "3", "--candidates", str(tmp_path / "c.json"), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert sorted(doc["chosen"]) == [0, 1, 2] and sorted(map(tuple, doc["positions_mm"])) == sorted(
+        map(tuple, positions)
+    )
+    assert (tmp_path / "p_report.txt").is_file()
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["{empty}", "--lights", "2"], "params.npz: missing"),
+        (["{incomplete}", "--lights", "2"], "run_complete"),
+        (["{missing}", "--lights", "2"], "no such run folder"),
+        (["{incomplete}"], "give --lights K"),
+        (["{run}", "--lights", "0"], "--lights 0: expected a number of lights >= 1"),
+        (["{run}", "--lights", "2", "--candidates", "{bad}"], "expected (M, 3) light positions"),
+        (["{run}", "--lights", "2", "--candidates", "{short}"], "shape (2, 2), expected (M, 3)"),
+        (["{run}", "--lights", "2", "--candidates", "{nofile}"], "no such file"),
+    ],
+)
+def test_next_best_errors_are_named(tmp_path, capsys, argv, expected):
+    from conftest import write_grid_run
+
+    (tmp_path / "empty").mkdir()
+    grid = np.zeros((2, 2, 3))
+    grid[..., 2] = 1.0
+    write_grid_run(tmp_path / "run", grid, grid)
+    write_grid_run(tmp_path / "incomplete", grid, grid)
+    (tmp_path / "incomplete" / "run_complete.json").unlink()
+    (tmp_path / "bad.json").write_text("{not json")
+    (tmp_path / "short.txt").write_text("1, 2\n3, 4\n")
+    names = dict(empty="empty", incomplete="incomplete", missing="missing", run="run", bad="bad.json")
+    names.update(short="short.txt", nofile="none.npy")
+    args = [a.format(**{k: str(tmp_path / v) for k, v in names.items()}) for a in argv]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 2
+    assert expected in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -1,7 +1,12 @@
 """python -m torchrefl.plan CONFIG [dotted.key=value ...] [--out FILE.json | FOLDER] [--overwrite] [--quiet]
+python -m torchrefl.plan RUN_DIR --lights K [--candidates FILE] [--out FILE.json | FOLDER] [--overwrite]
 
 Light selection without a fit, and the capture plan the rig runs (`python -m torchrefl.rig capture --plan FILE`)
 written with its coverage figure. CONFIG is a YAML file or the name of a bundled config.
+
+With a folder instead (RUN_DIR: a finished run of a scan, torchrefl.train's output.dir), the K next-best lights for
+that fit (planning.next_best: the candidates whose predicted images would reduce its Ps and sigma uncertainty most)
+among the config's light grid or the positions in FILE (planning.next_best_plan), written as a plan and a report.
 
 - synthetic_cylindrical: the config's object is scanned (its synthetic stand-in: range image only, no texture is
   rendered) and the lights of `selection` are chosen on the light grid `selection.grid` exactly as a synthetic run
@@ -24,9 +29,10 @@ from pathlib import Path
 
 from torchrefl.config import Config, load_config, resolve_path
 from torchrefl.core.progress import Stages
-from torchrefl.errors import ConfigError, OutputError, command_status
+from torchrefl.errors import ConfigError, OutputError, RunFolderError, command_status
 from torchrefl.planning.capture_plan import FIGURE_FILE, PLAN_FILE, PlanFiles, choose_lights, selection_line, write_plan
 from torchrefl.planning.light_selection import SelectionResult
+from torchrefl.planning.next_best_plan import plan_next_best
 from torchrefl.planning.views_inputs import read_plan_inputs
 from torchrefl.planning.views_selection import ViewsSelection, select_for_views
 from torchrefl.planning.world_candidates import world_candidates
@@ -110,7 +116,9 @@ def main(argv=None) -> int:
         description="Choose the light positions for CONFIG's object (no rendering, no fit) and write the capture "
         "plan the rig runs, with its coverage figure.",
     )
-    parser.add_argument("config", help="YAML config file or the name of a bundled config (e.g. default)")
+    parser.add_argument(
+        "config", help="YAML config file or the name of a bundled config (e.g. default); or a finished run's folder"
+    )
     parser.add_argument("overrides", nargs="*", help="dotted.key=value overrides, e.g. selection.max_lights=12")
     parser.add_argument(
         "--out",
@@ -119,10 +127,18 @@ def main(argv=None) -> int:
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing plan file")
     parser.add_argument("--quiet", action="store_true", help="no log lines on stderr (the summary is still printed)")
+    parser.add_argument("--lights", type=int, default=None, help="RUN_DIR: the number of next-best lights to plan")
+    parser.add_argument(
+        "--candidates",
+        default=None,
+        help="RUN_DIR: candidate head-frame positions in mm (.npy, .json or text; default: the run's selection.grid)",
+    )
     args = parser.parse_intermixed_args(argv)
     log = (lambda message: None) if args.quiet else (lambda message: print(message, file=sys.stderr))
 
     def work() -> int:
+        if Path(args.config).is_dir() or args.lights is not None or args.candidates is not None:
+            return next_best_command(args)
         result = plan_capture(load_config(args.config, args.overrides), args.out, args.overwrite, log)
         files = result.files
         print(selection_line(result.selection))
@@ -132,6 +148,27 @@ def main(argv=None) -> int:
         return 0
 
     return command_status(work)
+
+
+def next_best_command(args) -> int:
+    """RUN_DIR --lights K: the next-best plan (planning.next_best_plan); ConfigError for a CONFIG with --lights or
+    --candidates, a RUN_DIR without --lights, overrides with a RUN_DIR."""
+    if Path(args.config).is_file():
+        raise ConfigError(
+            f"{args.config}: --lights and --candidates plan the next lights of a finished run: give its folder "
+            "(torchrefl.train's output.dir), not a config"
+        )
+    if not Path(args.config).is_dir():
+        raise RunFolderError(f"{args.config}: no such run folder (expected the output.dir of a torchrefl.train run)")
+    if args.lights is None:
+        raise ConfigError(f"{args.config}: a run folder: give --lights K, the number of next-best lights to plan")
+    if args.overrides:
+        raise ConfigError(f"{args.config}: a run folder takes no config overrides (got {' '.join(args.overrides)})")
+    done = plan_next_best(args.config, args.lights, args.candidates, args.out, args.overwrite)
+    print(done.report.read_text(), end="")
+    print(f"plan: {done.plan} ({len(done.result.chosen)} lights); report: {done.report}")
+    print(f"capture it: python -m torchrefl.rig capture --plan {done.plan} --out CAPTURE_FOLDER")
+    return 0
 
 
 if __name__ == "__main__":

@@ -25,10 +25,10 @@ FIGURE_FILE = "coverage.png"
 
 @dataclass(frozen=True)
 class PlanFiles:
-    """Where a plan was written: the plan file (JSON) and its coverage figure (PNG)."""
+    """Where a plan was written: the plan file (JSON) and its coverage figure (PNG; None: none written)."""
 
     plan: Path
-    figure: Path
+    figure: Path | None
 
 
 def choose_lights(cfg: Config, geometry, candidates: np.ndarray) -> SelectionResult:
@@ -36,15 +36,20 @@ def choose_lights(cfg: Config, geometry, candidates: np.ndarray) -> SelectionRes
     return select_for_scan(geometry, candidates, cfg.selection, cfg.reflectance, cfg.geometry.shadow_offset_mm)
 
 
-def write_plan(selection: SelectionResult, plan: Path, figure: Path, doc: dict | None = None) -> PlanFiles:
+def write_plan(
+    selection: SelectionResult | None, plan: Path, figure: Path | None, doc: dict | None = None
+) -> PlanFiles:
     """Write the selection as a plan file (whole or not at all) and its coverage figure; the folders are made.
-    doc: the plan file's document (default: selection.to_json(); a mesh_views plan's ViewsSelection.to_json())."""
-    plan, figure = Path(plan), Path(figure)
+    doc: the plan file's document (default: selection.to_json(); a mesh_views plan's ViewsSelection.to_json(), the
+    next-best planner's NextBest.to_json()); figure None (and selection None, with doc): no coverage figure."""
+    plan = Path(plan)
     plan.parent.mkdir(parents=True, exist_ok=True)
-    figure.parent.mkdir(parents=True, exist_ok=True)
     with atomic_file(plan) as fh:
         fh.write(json.dumps(selection.to_json() if doc is None else doc, indent=2).encode("utf-8"))
-    plot_coverage(selection, figure)
+    if figure is not None:
+        figure = Path(figure)
+        figure.parent.mkdir(parents=True, exist_ok=True)
+        plot_coverage(selection, figure)
     return PlanFiles(plan, figure)
 
 
