@@ -7,7 +7,7 @@ import pytest
 
 from torchrefl.errors import RigError
 from torchrefl.rig.__main__ import main
-from torchrefl.rig.adaptive import AdaptiveSettings, CoverageOrder, run_adaptive
+from torchrefl.rig.adaptive import AdaptiveSettings, CoverageOrder, Ranking, run_adaptive
 from torchrefl.train import main as train
 
 #: a 4 x 2 grid of candidates (head frame, mm)
@@ -29,13 +29,13 @@ class Recorder:
         return {"uncertainty": {"determined_share": self.shares[len(self.starts) - 1]}}
 
 
-def loop(tmp_path, shares, **settings):
+def loop(tmp_path, shares, reachable=1.0, **settings):
     rec = Recorder(shares)
     lines = []
     report = run_adaptive(
         tmp_path,
         GRID,
-        GRID[::-1],
+        Ranking(GRID[::-1], reachable),
         rec.capture,
         rec.fit,
         AdaptiveSettings(**settings),
@@ -46,7 +46,7 @@ def loop(tmp_path, shares, **settings):
 
 
 def test_the_loop_stops_by_its_rule_when_the_share_is_reached(tmp_path):
-    report, rec, lines = loop(tmp_path, [0.2, 0.5, 0.7, 0.9], start=2, per_round=2, max_lights=8, target_share=0.6)
+    report, rec, lines = loop(tmp_path, [0.2, 0.5, 0.7, 0.9], start=2, per_round=2, max_lights=8, target=0.6)
     assert report.stopped_by == "rule" and [r.lights for r in report.rounds] == [2, 4, 6]
     # the start set is the first of start_order; then the chooser's order (CoverageOrder(GRID): GRID's order)
     np.testing.assert_array_equal(rec.captured[0], GRID[[7, 6]])
@@ -55,18 +55,26 @@ def test_the_loop_stops_by_its_rule_when_the_share_is_reached(tmp_path):
     assert rec.starts == [("round_01", None), ("round_02", "round_01"), ("round_03", "round_02")]
     doc = json.loads((tmp_path / "adaptive.json").read_text())
     assert doc["stopped_by"] == "rule" and [r["determined_share"] for r in doc["rounds"]] == [0.2, 0.5, 0.7]
-    assert "adaptive round 3: 6 lights (+2: [50, -50], [150, -50]); determined_share 0.700 (target 0.6)" in lines[2]
+    assert (
+        "adaptive round 3: 6 lights (+2: [50, -50], [150, -50]); determined_share 0.700 (0.70 of the reachable, "
+        "target 0.6)" in lines[2]
+    )
     assert lines[-1] == "adaptive capture stopped by the rule after 6 lights"
 
 
+def test_the_rule_is_relative_to_the_reachable_share(tmp_path):
+    report, _, _ = loop(tmp_path, [0.3, 0.46, 0.5], reachable=0.5, start=2, per_round=2, max_lights=8, target=0.9)
+    assert report.stopped_by == "rule" and [r.statistic for r in report.rounds] == [0.6, 0.92]
+
+
 def test_the_loop_stops_by_the_budget_otherwise(tmp_path):
-    report, rec, _ = loop(tmp_path, [0.1, 0.2, 0.3], start=3, per_round=2, max_lights=6, target_share=0.6)
+    report, rec, _ = loop(tmp_path, [0.1, 0.2, 0.3], start=3, per_round=2, max_lights=6, target=0.6)
     assert report.stopped_by == "budget" and [r.lights for r in report.rounds] == [3, 5, 6]  # the last round: 1 light
     assert len(rec.captured[-1]) == 6 and len({tuple(p) for p in rec.captured[-1]}) == 6
 
 
 def test_the_loop_stops_when_no_candidate_is_left(tmp_path):
-    report, _, _ = loop(tmp_path, [0.1, 0.2, 0.3], start=4, per_round=4, max_lights=20, target_share=0.9)
+    report, _, _ = loop(tmp_path, [0.1, 0.2, 0.3], start=4, per_round=4, max_lights=20, target=0.9)
     assert report.stopped_by == "candidates" and report.rounds[-1].lights == len(GRID)
 
 
@@ -75,7 +83,7 @@ def test_the_loop_stops_when_no_candidate_is_left(tmp_path):
     [
         (dict(start=6, max_lights=4), r"--max-lights 4 is below --start 6"),
         (dict(start=9, max_lights=12), r"--start 9: the light grid has only 8 positions"),
-        (dict(target_share=1.5), r"--target-share 1.5: expected a share in \(0, 1\]"),
+        (dict(target=1.5), r"--target 1.5: expected a fraction in \(0, 1\]"),
     ],
 )
 def test_bad_settings_are_named_errors(tmp_path, settings, message):
@@ -87,7 +95,13 @@ def test_a_bad_choice_is_a_named_error(tmp_path):
     rec = Recorder([0.0, 0.0])
     with pytest.raises(RigError, match=r"the chooser returned \[3, 3\], expected 1 to 2 distinct indices into the 6"):
         run_adaptive(
-            tmp_path, GRID, GRID, rec.capture, rec.fit, AdaptiveSettings(start=2, per_round=2), lambda r, c, k: [3, 3]
+            tmp_path,
+            GRID,
+            Ranking(GRID, 1.0),
+            rec.capture,
+            rec.fit,
+            AdaptiveSettings(start=2, per_round=2),
+            lambda r, c, k: [3, 3],
         )
 
 

@@ -119,11 +119,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-lights", type=int, default=ad.max_lights, help=f"--adaptive: the light budget ({ad.max_lights})"
     )
     cap.add_argument(
-        "--target-share",
+        "--target",
         type=float,
-        default=ad.target_share,
-        help="--adaptive: stop when this share of the estimated texels has Ps and sigma known to 10 %% "
-        f"({ad.target_share})",
+        default=ad.target,
+        help="--adaptive: stop when the share of the texels with Ps and sigma known to 10 %% reaches this fraction of "
+        f"the share the light grid can reach ({ad.target})",
     )
     cap.add_argument(
         "--chooser",
@@ -250,7 +250,7 @@ def _adaptive(args, settings, model, client, scan, progress) -> int:
     from torchrefl.config import load_config
     from torchrefl.rig.adaptive import (
         CoverageOrder,
-        coverage_greedy_order,
+        coverage_greedy_ranking,
         next_best_chooser,
         round_config,
         run_adaptive,
@@ -268,23 +268,27 @@ def _adaptive(args, settings, model, client, scan, progress) -> int:
             f"capture --adaptive: {folder.manifest} already records {len(folder.entries)} images; the loop starts "
             "from an empty capture folder (give a new --out)"
         )
-    adaptive = AdaptiveSettings(args.start, args.per_round, args.max_lights, args.target_share, tuple(args.fit_set))
+    adaptive = AdaptiveSettings(args.start, args.per_round, args.max_lights, args.target, tuple(args.fit_set))
     prepare_folder(scan, out)
     candidates = scan.candidate_positions()
     progress("adaptive capture: ranking the light grid by the coverage-greedy selection for the start set")
-    order = coverage_greedy_order(load_config(args.scene, list(args.scene_set)), out, candidates)
+    ranking = coverage_greedy_ranking(load_config(args.scene, list(args.scene_set)), out, candidates)
+    progress(
+        f"adaptive capture: two highlights among all {len(candidates)} grid lights reach {ranking.reachable:.1%} of "
+        f"the texels; the loop stops when {adaptive.target:.0%} of that share has Ps and sigma known to 10 %"
+    )
     runner = CaptureRunner(client, model, simulated_camera(scan), folder, settings, progress=progress)
 
     def fit(run_dir, init_from):
         cfg = round_config(args.scene, args.scene_set, out, run_dir, init_from, adaptive.fit_set)
         return fit_run(cfg, quiet=True, overwrite=True)
 
-    chooser = CoverageOrder(order) if args.chooser == "coverage" else next_best_chooser
+    chooser = CoverageOrder(ranking.order) if args.chooser == "coverage" else next_best_chooser
     try:
         report = run_adaptive(
             out,
             candidates,
-            order,
+            ranking,
             lambda positions: runner.run(targets_from_positions(model, positions)),
             fit,
             adaptive,
@@ -294,10 +298,10 @@ def _adaptive(args, settings, model, client, scan, progress) -> int:
     finally:
         client.link.close()
     last = report.rounds[-1]
-    share = "none" if last.determined_share is None else f"{last.determined_share:.3f}"
+    share = "none" if last.determined_share is None else f"{last.determined_share:.3f} of {report.reachable:.3f}"
     print(
         f"adaptive capture complete: stopped by the {report.stopped_by} after {len(report.rounds)} rounds, "
-        f"{last.lights} images in {folder.manifest}; determined_share {share}; {report.wall_s:.0f} s; "
+        f"{last.lights} images in {folder.manifest}; determined_share {share} reachable; {report.wall_s:.0f} s; "
         f"rounds in {out / 'adaptive.json'}, the last fit in {out / last.run}"
     )
     return 0

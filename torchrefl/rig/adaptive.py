@@ -10,9 +10,13 @@ of lights, fit, choose the next lights from the fit, capture them, refit, until 
   the candidates in choice order; the default is the next-best-light planner (torchrefl.planning.next_best),
   `CoverageOrder` continues the coverage-greedy order instead.
 - Stopping rule: the share of the estimated texels whose Ps (every channel) and sigma have std / value at most 0.1
-  (metrics.json `uncertainty.determined_share`, torchrefl.report.uncertainty) reaches `target_share`; else the
-  budget `max_lights`, or no candidate left. One number that says how much of the object's lobe is known, from the
-  fit's own uncertainty: neither the truth nor the coverage count is needed, so the same rule works on a real object.
+  (metrics.json `uncertainty.determined_share`, torchrefl.report.uncertainty) reaches `target` (0.9) of the share the
+  light grid can reach (`reachable`: the seen texels that two strong-specular observations among all candidates
+  reach, the coverage-greedy selection's all-candidates specular coverage); else the budget `max_lights`, or no
+  candidate left. The statistic is the fit's own uncertainty (no truth needed, so it works on a real object); it is
+  taken relative to the reachable share because texels that no pair of candidate lights gives highlights are never
+  determined: an absolute share (say 90 %) is out of reach on the default object (all 60 grid lights reach 57 % of
+  its texels) and would always end by the budget, and a share that suits one object is lax or out of reach on another.
 - The rounds are logged in OUT/adaptive.json (rewritten whole after each round: AdaptiveReport) and one progress
   line per round.
 """
@@ -65,13 +69,13 @@ class CoverageOrder:
 @dataclass(frozen=True)
 class AdaptiveSettings:
     """start: lights of the first round; per_round: lights added per round; max_lights: the light budget;
-    target_share: the stopping rule's determined_share (module docstring); fit_set: dotted overrides of every
-    round's fit config (e.g. fit.iterations=30)."""
+    target: the stopping rule's fraction of the reachable share (module docstring); fit_set: dotted overrides of
+    every round's fit config (e.g. fit.iterations=30)."""
 
     start: int = 6
     per_round: int = 2
     max_lights: int = 20
-    target_share: float = 0.6
+    target: float = 0.9
     fit_set: tuple[str, ...] = ()
 
     def check(self, candidates: int) -> None:
@@ -84,21 +88,33 @@ class AdaptiveSettings:
             )
         if self.start > candidates:
             raise RigError(f"--start {self.start}: the light grid has only {candidates} positions")
-        if not 0.0 < self.target_share <= 1.0:
-            raise RigError(f"--target-share {self.target_share}: expected a share in (0, 1]")
+        if not 0.0 < self.target <= 1.0:
+            raise RigError(f"--target {self.target}: expected a fraction in (0, 1]")
+
+
+@dataclass(frozen=True)
+class Ranking:
+    """The candidates ranked by the coverage-greedy selection: order (N, 3) head-frame positions mm, best first (the
+    start set takes the first); reachable: the share of the seen texels that two strong-specular observations among
+    all candidates reach (SelectionResult.all_specular), the stopping rule's ceiling."""
+
+    order: np.ndarray
+    reachable: float
 
 
 @dataclass
 class Round:
     """One round: its number (1 = the start set), the lights captured so far, the head-frame positions added this
-    round (mm), the stopping statistic after its fit (None: the fit wrote no uncertainty), the capture and fit
-    times (s), the fit's run folder (relative to the capture folder) and its errors against the truth where the
-    scene has one (metrics.json ground_truth: pd_rmse, ps_median_rel_err, sigma_median_rel_err)."""
+    round (mm), its fit's determined_share and the stopping statistic determined_share / reachable (None: the fit
+    wrote no uncertainty), the capture and fit times (s), the fit's run folder (relative to the capture folder) and
+    its errors against the truth where the scene has one (metrics.json ground_truth: pd_rmse, ps_median_rel_err,
+    sigma_median_rel_err)."""
 
     round: int
     lights: int
     added_mm: list
     determined_share: float | None
+    statistic: float | None
     capture_s: float
     fit_s: float
     run: str
@@ -107,10 +123,11 @@ class Round:
 
 @dataclass
 class AdaptiveReport:
-    """OUT/adaptive.json: the settings, the rounds, why the loop stopped (rule, budget, candidates, or running while
-    it runs) and the total wall time (s)."""
+    """OUT/adaptive.json: the settings, the reachable share, the rounds, why the loop stopped (rule, budget,
+    candidates, or running while it runs) and the total wall time (s)."""
 
     settings: dict
+    reachable: float
     rounds: list[Round] = field(default_factory=list)
     stopped_by: str = "running"
     wall_s: float = 0.0
@@ -121,11 +138,11 @@ class AdaptiveReport:
 
 def round_line(r: Round, target: float) -> str:
     """The progress line of a round."""
-    share = "none" if r.determined_share is None else f"{r.determined_share:.3f}"
+    share = "none" if r.determined_share is None else f"{r.determined_share:.3f} ({r.statistic:.2f} of the reachable"
     added = ", ".join(f"[{p[0]:g}, {p[1]:g}]" for p in r.added_mm)
     return (
-        f"adaptive round {r.round}: {r.lights} lights (+{len(r.added_mm)}: {added}); determined_share {share} "
-        f"(target {target:g}); capture {r.capture_s:.1f} s, fit {r.fit_s:.1f} s"
+        f"adaptive round {r.round}: {r.lights} lights (+{len(r.added_mm)}: {added}); determined_share {share}, "
+        f"target {target:g}); capture {r.capture_s:.1f} s, fit {r.fit_s:.1f} s"
     )
 
 
@@ -139,7 +156,7 @@ def _ground_truth(metrics: dict) -> dict | None:
 def run_adaptive(
     out: Path,
     candidates: np.ndarray,
-    start_order: np.ndarray,
+    ranking: Ranking,
     capture: Callable[[np.ndarray], None],
     fit: Callable[[Path, Path | None], dict],
     settings: AdaptiveSettings,
@@ -148,17 +165,17 @@ def run_adaptive(
 ) -> AdaptiveReport:
     """The loop (module docstring) into the capture folder `out`.
 
-    candidates (M, 3): the head-frame light positions the rig can reach (mm); start_order (N, 3): positions in the
-    order the start set takes them (the coverage-greedy selection's); capture(positions (n, 3)): captures every
+    candidates (M, 3): the head-frame light positions the rig can reach (mm); ranking: the start set's order and the
+    reachable share (coverage_greedy_ranking); capture(positions (n, 3)): captures every
     given position into `out` (those already recorded are skipped); fit(run_dir, init_from or None) -> metrics:
     fits `out` into run_dir, warm-started from init_from. Returns the report (also written to out/adaptive.json)."""
     out = Path(out)
     candidates = np.asarray(candidates, dtype=np.float64)
     settings.check(len(candidates))
-    report = AdaptiveReport(settings=asdict(settings))
+    report = AdaptiveReport(settings=asdict(settings), reachable=float(ranking.reachable))
     t0 = time.perf_counter()
     taken: list[np.ndarray] = []
-    added = [np.asarray(p, dtype=np.float64) for p in np.asarray(start_order)[: settings.start]]
+    added = [np.asarray(p, dtype=np.float64) for p in np.asarray(ranking.order)[: settings.start]]
     previous = None
     while True:
         taken += added
@@ -170,11 +187,13 @@ def run_adaptive(
         metrics = fit(run_dir, previous)
         fit_s = time.perf_counter() - t
         share = (metrics.get("uncertainty") or {}).get("determined_share")
+        statistic = None if share is None else share / max(ranking.reachable, 1e-12)
         r = Round(
             len(report.rounds) + 1,
             len(taken),
             [[float(v) for v in p] for p in added],
             share,
+            statistic,
             round(capture_s, 3),
             round(fit_s, 3),
             str(run_dir.relative_to(out)),
@@ -182,11 +201,11 @@ def run_adaptive(
         )
         report.rounds.append(r)
         report.wall_s = round(time.perf_counter() - t0, 3)
-        progress(round_line(r, settings.target_share))
+        progress(round_line(r, settings.target))
         done = {target_key(p) for p in taken}
         remaining = np.array([p for p in candidates if target_key(p) not in done]).reshape(-1, 3)
         k = min(settings.per_round, settings.max_lights - len(taken), len(remaining))
-        if share is not None and share >= settings.target_share:
+        if statistic is not None and statistic >= settings.target:
             report.stopped_by = "rule"
         elif len(taken) >= settings.max_lights:
             report.stopped_by = "budget"
@@ -233,9 +252,9 @@ def round_config(scene, scene_set, out: Path, run_dir: Path, init_from: Path | N
     return load_config(scene, overrides)
 
 
-def coverage_greedy_order(cfg, folder: Path, candidates: np.ndarray) -> np.ndarray:
-    """(M, 3) the candidates in the coverage-greedy selection's order for the scan geometry in `folder` (the
-    selection forced to rank every candidate: selection.num_lights = M)."""
+def coverage_greedy_ranking(cfg, folder: Path, candidates: np.ndarray) -> Ranking:
+    """The Ranking of the candidates (M, 3) by the coverage-greedy selection of cfg for the scan geometry in `folder`
+    (the selection forced to rank every candidate: selection.num_lights = M)."""
     import dataclasses
 
     from torchrefl.capture.cylindrical_scan import CylindricalScanLoader
@@ -243,4 +262,5 @@ def coverage_greedy_order(cfg, folder: Path, candidates: np.ndarray) -> np.ndarr
 
     geom = CylindricalScanLoader().load_geometry(Path(folder), cfg, check_scale=False)
     every = dataclasses.replace(cfg, selection=dataclasses.replace(cfg.selection, num_lights=len(candidates)))
-    return np.asarray(candidates)[choose_lights(every, geom, candidates).chosen]
+    sel = choose_lights(every, geom, candidates)
+    return Ranking(np.asarray(candidates)[sel.chosen], float(sel.all_specular))
