@@ -1,0 +1,236 @@
+"""The next-best lights for a fitted run: the candidates whose images would reduce its Ps and sigma uncertainty most.
+
+For every candidate light (planning.run_scene: the loader's geometry of the light over the run's texels, with the
+camera's and the light's Embree visibility, i.e. cast shadows), the fitted model (transport.local: direct light)
+predicts each texel's image; an observation counts as the fitter would count it (fit.observe): seen, lit, not
+shadowed, n.v and n.l above reflectance.min_cos_view / min_cos_light, not saturated (a predicted channel at or above
+the scan's saturation level), on an estimated texel; it is strong-specular (T_spec, core.observation_classes) when
+its half-angle is at most reflectance.theta_specular_deg. Its Fisher information is fit.uncertainty's: J J^T /
+noise^2 with J = d(255 i_hat) / d(Pd, Ps, sigma) of the texel's own parameters at the estimate.
+
+A texel's information now is that of the run's own fitted lights, recomputed the same way at the estimate (the
+expected information: the run's stds without its robust-loss weights). Its covariance is fit.uncertainty's
+texel_covariance: the whole block where its lobe is measured, else Ps and sigma at the broad prior. A lobe counts as
+measured after the candidates when it was (the run's lobe_measured) or when the candidates' T_spec observations
+bring the texel's count (the run's n_specular plus theirs) to the two the closed form needs (fit.initialise).
+
+The score of a texel is  u = log(1 + r_Ps^2 / tau^2) + log(1 + r_sigma^2 / tau^2),  r the relative std (Ps: the
+largest over its channels, as report.uncertainty), tau = 0.1 the precision at which report.uncertainty counts a
+texel as determined; a light's gain is the sum over texels of the decrease of u. Why this and not log det or the
+trace: like log det it is unitless and rewards halving a texel's variance alike whatever the parameter's scale, but
+it saturates once a texel is known far better than tau (log det keeps paying for texels already determined, which is
+not what the median relative error needs) and, unlike the trace of relative variances, it is not dominated by the
+few texels with Ps near 0 or without a lobe (whose relative variances are huge).
+
+Greedy: each round scores every remaining candidate against the texels' information so far and takes the best; its
+information and T_spec counts are added before the next round (a light is chosen at most once).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from torchrefl.core.observation_classes import T_SPEC, classify
+from torchrefl.errors import ConfigError
+from torchrefl.fit.uncertainty import information, jacobian, texel_covariance
+from torchrefl.planning.run_scene import RunScene, load_run_scene
+from torchrefl.report.uncertainty import RELATIVE_PRECISION
+from torchrefl.transport.local import local_terms, predict
+
+#: Ps below this counts as this in a relative std (Ps = 0 has no relative precision)
+PS_FLOOR = 1e-3
+#: candidate lights whose Jacobians are computed at once
+CHUNK = 8
+#: a light's observation of a texel is scored only where it adds at least this share of the texel's precision (its
+#: information plus the prior's, before any candidate) to Ps or sigma; the rest change a score by < 1e-3
+RELEVANT = 1e-3
+#: what the gain measures (NextBest.score)
+SCORE = "sum over texels of the decrease of log(1 + (std/value)^2 / 0.1^2) for Ps (largest channel) and sigma"
+
+
+@dataclass
+class LightInformation:
+    """What each of M lights adds to the texels it measures: texels[m] (N_m,) int64 indices of the texels with a
+    fitted observation, info[m] (N_m, K, K) float64 their Fisher information, specular[m] (N_m,) int64 their T_spec
+    observations (0 or 1 on a scan)."""
+
+    texels: list[torch.Tensor]
+    info: list[torch.Tensor]
+    specular: list[torch.Tensor]
+
+
+@dataclass
+class NextBest:
+    """The greedy choice among the candidates (M, 3) head-frame mm: chosen, indices in choice order; gain (k,) the
+    score decrease of each when chosen (SCORE); sigma_known / both_known: the predicted share of the estimated
+    texels with sigma (and Ps) known to tau = 0.1 before any chosen light and after each (k + 1 values)."""
+
+    chosen: list[int]
+    gain: np.ndarray
+    candidates: np.ndarray
+    sigma_known: list[float]
+    both_known: list[float]
+    score: str = SCORE
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(k, 3) the chosen lights' positions, in choice order."""
+        return self.candidates[self.chosen]
+
+    def to_json(self) -> dict:
+        """The plan file (`positions_mm`, which the rig's `capture --plan` reads) and the prediction behind it."""
+        return {
+            "planner": "next_best",
+            "positions_mm": self.positions.tolist(),
+            "chosen": [int(c) for c in self.chosen],
+            "gain": [float(g) for g in self.gain],
+            "score": self.score,
+            "relative_precision": RELATIVE_PRECISION,
+            "sigma_known_share": [float(x) for x in self.sigma_known],
+            "ps_sigma_known_share": [float(x) for x in self.both_known],
+            "candidates": len(self.candidates),
+        }
+
+
+def light_information(scene: RunScene, positions: np.ndarray) -> LightInformation:
+    """The information each light at head-frame positions (M, 3) mm would add (module docstring)."""
+    rc = scene.cfg.reflectance
+    texels, infos, specular = [], [], []
+    for start in range(0, len(positions), CHUNK):
+        obs = scene.observations(np.asarray(positions[start : start + CHUNK], dtype=np.float64))
+        terms = local_terms(rc.brdf, scene.normals, obs, scene.run.minnaert_k)
+        model = lambda pd, ps, sigma: predict(terms, pd, ps, sigma)
+        with torch.no_grad():
+            saturated = (model(scene.pd, scene.ps, scene.sigma) >= scene.saturation_level).any(-1)
+        fit = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light) & ~saturated
+        fit &= scene.estimated[None]
+        spec = classify(terms.theta_h, fit, rc.theta_diffuse_deg, rc.theta_specular_deg) == T_SPEC
+        J = jacobian(model, scene.pd, scene.ps, scene.sigma).double()
+        for m in range(len(fit)):
+            idx = torch.nonzero(fit[m]).squeeze(1)
+            weight = torch.ones(1, len(idx), 3, dtype=torch.float64)
+            texels.append(idx)
+            infos.append(information(J[m : m + 1, idx], weight, scene.noise_dn))
+            specular.append(spec[m, idx].long())
+    return LightInformation(texels, infos, specular)
+
+
+class TexelState:
+    """The texels' information and T_spec counts as lights are added, and their scores (module docstring)."""
+
+    def __init__(self, scene: RunScene, info: torch.Tensor):
+        self.scene = scene
+        self.info = info
+        self.added_spec = torch.zeros(len(info), dtype=torch.int64)
+        self.prior_var = scene.ranges.prior_var(scene.ps.shape[1])
+        self.scores = self.score(torch.arange(len(info)), info, self.added_spec)
+
+    def covariance(self, idx: torch.Tensor, info: torch.Tensor, added_spec: torch.Tensor) -> torch.Tensor:
+        """(N, K, K) the covariance of texels idx (N,) with information info (N, K, K) and added_spec (N,) T_spec
+        observations more than the run's."""
+        s = self.scene
+        lobe = s.lobe_measured[idx] | ((added_spec > 0) & (s.n_specular[idx] + added_spec >= 2))
+        return texel_covariance(info, self.prior_var, lobe)
+
+    def relative_var(self, idx, info, added_spec) -> tuple[torch.Tensor, torch.Tensor]:
+        """(N,) squared relative stds of Ps (largest channel) and sigma of texels idx."""
+        s = self.scene
+        var = torch.diagonal(self.covariance(idx, info, added_spec), dim1=1, dim2=2)
+        C = s.ps.shape[1]
+        ps, sigma = s.ps[idx].double(), s.sigma[idx].double()
+        ps_rel = (var[:, 3 : 3 + C] / ps.clamp_min(PS_FLOOR).square()).amax(1)
+        return ps_rel, var[:, -1] / sigma.clamp_min(s.ranges.sigma_min).square()
+
+    def score(self, idx, info, added_spec) -> torch.Tensor:
+        """(N,) the score u of texels idx (module docstring)."""
+        ps_rel, sg_rel = self.relative_var(idx, info, added_spec)
+        tau2 = RELATIVE_PRECISION**2
+        return torch.log1p(ps_rel / tau2) + torch.log1p(sg_rel / tau2)
+
+    def relevant(self, light: LightInformation) -> LightInformation:
+        """light without the texels where it adds less than RELEVANT of the current precision of Ps or sigma (the
+        precision only grows, so what is negligible now stays negligible)."""
+        precision = torch.diagonal(self.info, dim1=1, dim2=2)[:, 3:] + 1.0 / self.prior_var[3:]
+        texels, infos, specular = [], [], []
+        for idx, info, spec in zip(light.texels, light.info, light.specular):
+            keep = (torch.diagonal(info, dim1=1, dim2=2)[:, 3:] > RELEVANT * precision[idx]).any(1) | (spec > 0)
+            texels.append(idx[keep])
+            infos.append(info[keep])
+            specular.append(spec[keep])
+        return LightInformation(texels, infos, specular)
+
+    def gain(self, light: LightInformation, m: int) -> float:
+        """The decrease of the summed score were light m added."""
+        idx = light.texels[m]
+        if not len(idx):
+            return 0.0
+        new = self.score(idx, self.info[idx] + light.info[m], self.added_spec[idx] + light.specular[m])
+        return float((self.scores[idx] - new).sum())
+
+    def add(self, light: LightInformation, m: int) -> None:
+        idx = light.texels[m]
+        self.info[idx] += light.info[m]
+        self.added_spec[idx] += light.specular[m]
+        self.scores[idx] = self.score(idx, self.info[idx], self.added_spec[idx])
+
+    def known_shares(self) -> tuple[float, float]:
+        """The shares of the estimated texels with sigma, and with Ps and sigma, known to RELATIVE_PRECISION."""
+        e = torch.nonzero(self.scene.estimated).squeeze(1)
+        if not len(e):
+            return 0.0, 0.0
+        ps_rel, sg_rel = self.relative_var(e, self.info[e], self.added_spec[e])
+        tau2 = RELATIVE_PRECISION**2
+        sigma_ok = sg_rel <= tau2
+        return float(sigma_ok.double().mean()), float((sigma_ok & (ps_rel <= tau2)).double().mean())
+
+
+def current_information(scene: RunScene) -> torch.Tensor:
+    """(T, K, K) the information of the run's own fitted lights at the estimate."""
+    T, K = len(scene.sigma), 4 + scene.ps.shape[1]
+    info = torch.zeros(T, K, K, dtype=torch.float64)
+    own = light_information(scene, scene.lights)
+    for idx, block in zip(own.texels, own.info):
+        info[idx] += block
+    return info
+
+
+def choose(scene: RunScene, candidates: np.ndarray, k: int) -> NextBest:
+    """Greedy choice of k of the candidates (M, 3) head-frame mm for the RunScene (module docstring)."""
+    candidates = check_candidates(candidates, "candidates")
+    if int(k) < 1 or int(k) > len(candidates):
+        raise ConfigError(f"--lights {k}: expected a number of lights between 1 and the {len(candidates)} candidates")
+    state = TexelState(scene, current_information(scene))
+    light = state.relevant(light_information(scene, candidates))
+    available = np.ones(len(candidates), dtype=bool)
+    chosen, gains = [], []
+    s, b = state.known_shares()
+    sigma_known, both_known = [s], [b]
+    for _ in range(int(k)):
+        g = np.array([state.gain(light, m) if available[m] else -np.inf for m in range(len(candidates))])
+        m = int(np.argmax(g))
+        state.add(light, m)
+        available[m] = False
+        chosen.append(m)
+        gains.append(g[m])
+        s, b = state.known_shares()
+        sigma_known.append(s)
+        both_known.append(b)
+    return NextBest(chosen, np.array(gains), candidates, sigma_known, both_known)
+
+
+def check_candidates(candidates, where: str) -> np.ndarray:
+    """(M, 3) float64 finite light positions, M >= 1; ConfigError naming `where` otherwise."""
+    a = np.asarray(candidates, dtype=np.float64) if not isinstance(candidates, str) else np.zeros(0)
+    if a.ndim != 2 or a.shape[1] != 3 or len(a) < 1 or not np.isfinite(a).all():
+        raise ConfigError(f"{where}: shape {a.shape}, expected (M, 3) finite light positions in mm, M >= 1")
+    return a
+
+
+def next_best_lights(run_dir: Path, candidates: np.ndarray, k: int) -> NextBest:
+    """The k next-best of the candidate lights (M, 3) (head-frame positions in mm, the run's lights' frame) for
+    the finished run in run_dir, greedily (module docstring)."""
+    return choose(load_run_scene(run_dir), candidates, k)
