@@ -126,7 +126,7 @@ FAST = ["--set", "light.settle_s=0", "--set", "timeouts.poll_s=0.005"]
 
 def test_dry_run_adaptive_writes_one_folder_that_trains(tmp_path, capsys):
     out = tmp_path / "cap"
-    args = ["capture", "--dry-run", "--adaptive", "--chooser", "coverage", "--start", "2", "--per-round", "2"]
+    args = ["capture", "--dry-run", "--adaptive", "--start", "2", "--per-round", "2"]  # the next-best planner
     assert main([*args, "--max-lights", "4", "--scene", "quick", "--out", str(out), *SCENE, *FIT, *FAST]) == 0
     streams = capsys.readouterr()
     assert "adaptive capture complete: stopped by the budget after 2 rounds, 4 images" in streams.out
