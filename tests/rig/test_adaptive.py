@@ -57,7 +57,7 @@ def test_the_loop_stops_by_its_rule_when_the_share_is_reached(tmp_path):
     assert doc["stopped_by"] == "rule" and [r["determined_share"] for r in doc["rounds"]] == [0.2, 0.5, 0.7]
     assert (
         "adaptive round 3: 6 lights (+2: [50, -50], [150, -50]); determined_share 0.700 (0.70 of the reachable, "
-        "target 0.6)" in lines[2]
+        "target 0.6); choice 0.0 s" in lines[2]
     )
     assert lines[-1] == "adaptive capture stopped by the rule after 6 lights"
 

@@ -106,7 +106,8 @@ class Ranking:
 class Round:
     """One round: its number (1 = the start set), the lights captured so far, the head-frame positions added this
     round (mm), its fit's determined_share and the stopping statistic determined_share / reachable (None: the fit
-    wrote no uncertainty), the capture and fit times (s), the fit's run folder (relative to the capture folder) and
+    wrote no uncertainty), the times (s) the chooser took to pick the added lights (0 for the start set), their
+    capture and the fit, the fit's run folder (relative to the capture folder) and
     its errors against the truth where the scene has one (metrics.json ground_truth: pd_rmse, ps_median_rel_err,
     sigma_median_rel_err)."""
 
@@ -115,6 +116,7 @@ class Round:
     added_mm: list
     determined_share: float | None
     statistic: float | None
+    choose_s: float
     capture_s: float
     fit_s: float
     run: str
@@ -142,7 +144,7 @@ def round_line(r: Round, target: float) -> str:
     added = ", ".join(f"[{p[0]:g}, {p[1]:g}]" for p in r.added_mm)
     return (
         f"adaptive round {r.round}: {r.lights} lights (+{len(r.added_mm)}: {added}); determined_share {share}, "
-        f"target {target:g}); capture {r.capture_s:.1f} s, fit {r.fit_s:.1f} s"
+        f"target {target:g}); choice {r.choose_s:.1f} s, capture {r.capture_s:.1f} s, fit {r.fit_s:.1f} s"
     )
 
 
@@ -176,7 +178,7 @@ def run_adaptive(
     t0 = time.perf_counter()
     taken: list[np.ndarray] = []
     added = [np.asarray(p, dtype=np.float64) for p in np.asarray(ranking.order)[: settings.start]]
-    previous = None
+    previous, choose_s = None, 0.0
     while True:
         taken += added
         t = time.perf_counter()
@@ -194,6 +196,7 @@ def run_adaptive(
             [[float(v) for v in p] for p in added],
             share,
             statistic,
+            round(choose_s, 3),
             round(capture_s, 3),
             round(fit_s, 3),
             str(run_dir.relative_to(out)),
@@ -211,12 +214,13 @@ def run_adaptive(
             report.stopped_by = "budget"
         elif k <= 0:
             report.stopped_by = "candidates"
+        report.write(out)
         if report.stopped_by != "running":
-            report.write(out)
             progress(f"adaptive capture stopped by the {report.stopped_by} after {len(taken)} lights")
             return report
-        report.write(out)
+        t = time.perf_counter()
         picked = checked_choice(chooser(run_dir, remaining, k), len(remaining), k)
+        choose_s = time.perf_counter() - t
         added = [remaining[i] for i in picked]
         previous = run_dir
 
