@@ -327,6 +327,11 @@ class FitConfig:
     prior_weight: float = opt(
         0.1, "weight pulling texels without specular evidence towards their interpolated Ps, sigma", low=0.0
     )
+    init_from: Optional[str] = opt(
+        None,
+        "run folder whose params.npz starts the fit where it has an estimate (a warm start; same texel grid); "
+        "null = the closed-form start",
+    )
 
 
 @dataclass

@@ -29,6 +29,7 @@ from torchrefl.fit.refine import Objective, Prior, neighbour_pairs, refine
 from torchrefl.fit.result import FitResult
 from torchrefl.fit.texel_lm import levenberg_marquardt
 from torchrefl.fit.uncertainty import fit_uncertainty
+from torchrefl.fit.warm_start import warm_start
 from torchrefl.transport.levels.auto import choose, named_level, prepare
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
@@ -296,6 +297,8 @@ def fit_capture(
                 level.prepare()
         if saved is None:
             init = level.start(first)
+            if cfg.fit.init_from:
+                init = warm_start(cfg, capture.surface, init, log)
             checkpoints.save(INITIALISE, {"first": first, "init": init})
         else:
             init = saved["init"]

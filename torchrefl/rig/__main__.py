@@ -3,7 +3,8 @@
 probe   connect, print the banner, the state and GRBL's settings
 home    run the homing cycle ($H)
 move    move the light to a grid node (--grid I J) or a head-frame position (--mm LATERAL VERTICAL)
-capture run a capture plan into a folder (resumable: run it again after any interruption)
+capture run a capture plan into a folder (resumable: run it again after any interruption); with --dry-run
+        --adaptive: capture, fit, choose the next lights from the fit, refit, until a stopping rule or a budget
 --dry-run (every subcommand) talks to a simulated GRBL 1.1 device on a pseudo-terminal; capture
 then renders the synthetic object of a fitting config (--scene) with a simulated camera.
 Streams: each command's result (probe's report, where the light is, the capture's summary) on stdout;
@@ -15,10 +16,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
+from pathlib import Path
 
 import numpy as np
 
-from torchrefl.errors import TorchReflError
+from torchrefl.errors import RigError, TorchReflError
+from torchrefl.rig.adaptive import AdaptiveSettings
 from torchrefl.rig.board_check import check_board, check_connected_board
 from torchrefl.rig.camera import ExternalCommandCamera
 from torchrefl.rig.folder import CaptureFolder
@@ -86,6 +89,12 @@ def build_parser() -> argparse.ArgumentParser:
     what.add_argument("--positions", nargs="+", metavar="LAT,VERT[,RAD]", help="head-frame positions, mm")
     what.add_argument("--grid-positions", nargs="+", metavar="I,J", help="grid nodes (column,row)")
     what.add_argument("--all-grid", action="store_true", help="every node of the light grid")
+    what.add_argument(
+        "--adaptive",
+        action="store_true",
+        help="dry run: capture a start set, fit, choose the next lights from the fit, refit, until the stopping rule "
+        "or the light budget (docs/rig.md)",
+    )
     cap.add_argument(
         "--out", required=True, help="capture folder (cylindrical_scan layout; mesh_views for a mesh_views plan)"
     )
@@ -100,6 +109,34 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="KEY=VALUE",
         help="dry run: override a key of the scene config, e.g. synthetic.rows=64",
+    )
+    ad = AdaptiveSettings()
+    cap.add_argument("--start", type=int, default=ad.start, help=f"--adaptive: lights of the first round ({ad.start})")
+    cap.add_argument(
+        "--per-round", type=int, default=ad.per_round, help=f"--adaptive: lights added per round ({ad.per_round})"
+    )
+    cap.add_argument(
+        "--max-lights", type=int, default=ad.max_lights, help=f"--adaptive: the light budget ({ad.max_lights})"
+    )
+    cap.add_argument(
+        "--target",
+        type=float,
+        default=ad.target,
+        help="--adaptive: stop when the share of the texels with Ps and sigma known to 10 %% reaches this fraction of "
+        f"the share the light grid can reach ({ad.target})",
+    )
+    cap.add_argument(
+        "--chooser",
+        choices=("next_best", "coverage"),
+        default="next_best",
+        help="--adaptive: next lights from the next-best-light planner (next_best) or the coverage-greedy order",
+    )
+    cap.add_argument(
+        "--fit-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="--adaptive: override a key of every round's fit config, e.g. fit.iterations=30",
     )
     return p
 
@@ -161,6 +198,10 @@ def _targets(args, model: RigModel):
 def run(args, settings: RigSettings) -> int:
     scan = None
     progress = _progress(args)
+    if args.cmd == "capture" and args.adaptive and not args.dry_run:
+        raise RigError(
+            "capture --adaptive runs in a dry run only (add --dry-run): it fits the synthetic scene's images"
+        )
     if args.cmd == "capture" and args.dry_run:
         from torchrefl.rig.dry_run import match_grid, synthetic_scene
 
@@ -204,7 +245,71 @@ def run(args, settings: RigSettings) -> int:
         return 0
 
 
+def _adaptive(args, settings, model, client, scan, progress) -> int:
+    """capture --adaptive (torchrefl.rig.adaptive) on the dry run's scene."""
+    from torchrefl.config import load_config
+    from torchrefl.rig.adaptive import (
+        CoverageOrder,
+        coverage_greedy_ranking,
+        next_best_chooser,
+        round_config,
+        run_adaptive,
+    )
+    from torchrefl.rig.dry_run import ViewsDryScene, prepare_folder, simulated_camera
+    from torchrefl.run import run as fit_run
+
+    if isinstance(scan, ViewsDryScene):
+        raise RigError("capture --adaptive: the scene is a mesh_views scene; the adaptive loop runs on a scan's scene")
+    out = Path(args.out)
+    folder = CaptureFolder(out)
+    folder.recover()
+    if folder.entries:
+        raise RigError(
+            f"capture --adaptive: {folder.manifest} already records {len(folder.entries)} images; the loop starts "
+            "from an empty capture folder (give a new --out)"
+        )
+    adaptive = AdaptiveSettings(args.start, args.per_round, args.max_lights, args.target, tuple(args.fit_set))
+    prepare_folder(scan, out)
+    candidates = scan.candidate_positions()
+    progress("adaptive capture: ranking the light grid by the coverage-greedy selection for the start set")
+    ranking = coverage_greedy_ranking(load_config(args.scene, list(args.scene_set)), out, candidates)
+    progress(
+        f"adaptive capture: two highlights among all {len(candidates)} grid lights reach {ranking.reachable:.1%} of "
+        f"the texels; the loop stops when {adaptive.target:.0%} of that share has Ps and sigma known to 10 %"
+    )
+    runner = CaptureRunner(client, model, simulated_camera(scan), folder, settings, progress=progress)
+
+    def fit(run_dir, init_from):
+        cfg = round_config(args.scene, args.scene_set, out, run_dir, init_from, adaptive.fit_set)
+        return fit_run(cfg, quiet=True, overwrite=True)
+
+    chooser = CoverageOrder(ranking.order) if args.chooser == "coverage" else next_best_chooser
+    try:
+        report = run_adaptive(
+            out,
+            candidates,
+            ranking,
+            lambda positions: runner.run(targets_from_positions(model, positions)),
+            fit,
+            adaptive,
+            chooser,
+            progress,
+        )
+    finally:
+        client.link.close()
+    last = report.rounds[-1]
+    share = "none" if last.determined_share is None else f"{last.determined_share:.3f} of {report.reachable:.3f}"
+    print(
+        f"adaptive capture complete: stopped by the {report.stopped_by} after {len(report.rounds)} rounds, "
+        f"{last.lights} images in {folder.manifest}; determined_share {share} reachable; {report.wall_s:.0f} s; "
+        f"rounds in {out / 'adaptive.json'}, the last fit in {out / last.run}"
+    )
+    return 0
+
+
 def _capture(args, settings, model, client, scan, progress) -> int:
+    if args.adaptive:
+        return _adaptive(args, settings, model, client, scan, progress)
     targets = _targets(args, model)
     folder = CaptureFolder(args.out)
     if scan is not None:
