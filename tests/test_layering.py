@@ -11,6 +11,8 @@ LAYERS = [
     "version",
     "config_loading",
     "config_bundle",
+    "config_fields",
+    "config_selection",
     "config",
     "core",
     "geometry",
@@ -25,6 +27,7 @@ LAYERS = [
     "planning.next_best_plan",
     "rig",
     "run",
+    "rig.__main__",  # the rig's command: its adaptive capture fits runs
     "plan",
     "render",
     "train",

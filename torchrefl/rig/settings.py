@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from torchrefl.config import opt
+from torchrefl.config_fields import opt
 from torchrefl.config_loading import _apply, _nest, parse_override, read_yaml_mapping
 from torchrefl.errors import ConfigError
 
