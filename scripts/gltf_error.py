@@ -13,7 +13,9 @@ fitted conversion with the base colour Pd / (1 - specular) (not written: the exp
     python scripts/gltf_error.py --configs diligent_ball --ball /path/to/DiLiGenT/pmsData/ballPNG
     python scripts/gltf_error.py --tiny          # a 9 x 12 cap and 3 lights, no fit (tests/scripts runs it)
 
---reuse takes an existing run in WORK/NAME instead of fitting. --out PAGE writes the table as markdown.
+--reuse takes an existing run in WORK/NAME instead of fitting. --set KEY=VALUE (repeatable) is passed to every fit
+(`python -m torchrefl.train NAME KEY=VALUE ...`), for configs whose full fit is too slow (e.g. `--set fit.model=local
+synthetic.indirect_samples=16`); the table's note column names them. --out PAGE writes the table as markdown.
 docs/results/exports.md has the numbers.
 """
 
@@ -154,13 +156,15 @@ def _double(obs: Observations) -> Observations:
     return replace(obs, view_dir=obs.view_dir.double(), **conv)
 
 
-def run_config(name: str, work: Path, reuse: bool, ball: Path | None) -> Row:
+def run_config(name: str, work: Path, reuse: bool, ball: Path | None, overrides: tuple[str, ...] = ()) -> Row:
+    """One config's row: fit it with `overrides` (or reuse WORK/NAME) and compare the renders."""
     out = work / name
     if name == "diligent_ball" and (ball is None or not ball.is_dir()):
         return Row(name, 0, 0, 0, 0.0, None, math.nan, math.nan, math.nan, f"skipped: no DiLiGenT ball folder ({ball})")
     if not (reuse and (out / "run_complete.json").is_file()):
         cmd = [sys.executable, "-m", "torchrefl.train", name, f"output.dir={out}", "--quiet", "--overwrite"]
         cmd += [f"capture.path={ball}"] if name == "diligent_ball" else []
+        cmd += list(overrides)
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode:
             return Row(name, 0, 0, 0, 0.0, None, math.nan, math.nan, math.nan, f"failed: {done.stderr.strip()[-200:]}")
@@ -168,10 +172,10 @@ def run_config(name: str, work: Path, reuse: bool, ball: Path | None) -> Row:
     cap = capture_of(run, ball)
     with tempfile.TemporaryDirectory() as tmp:
         got = compare(run, cap.obs, cap.surface.texel_index.numpy(), cap.surface.normals.double().numpy(), Path(tmp))
-    return _row(name, run, cap.obs.num_lights, got)
+    return _row(name, run, cap.obs.num_lights, got, " ".join(f"`{o}`" for o in overrides))
 
 
-def _row(name: str, run: RunResult, lights: int, got: dict) -> Row:
+def _row(name: str, run: RunResult, lights: int, got: dict, note: str = "") -> Row:
     rerender = run.metrics.get("rerender", {}).get("mean_abs_diff_8bit")
     return Row(
         name,
@@ -183,6 +187,7 @@ def _row(name: str, run: RunResult, lights: int, got: dict) -> Row:
         got["fitted"],
         got["one_line"],
         got["compensated"],
+        note,
     )
 
 
@@ -261,7 +266,13 @@ def main(argv=None) -> int:
     ap.add_argument("--ball", default=None, help="the DiLiGenT ball folder (pmsData/ballPNG)")
     ap.add_argument("--tiny", action="store_true", help="a tiny scene, no fit (seconds)")
     ap.add_argument("--out", default=None, help="write the table (markdown) to this file")
+    ap.add_argument(
+        "--set", nargs="+", action="extend", default=[], metavar="KEY=VALUE", help="config overrides for every fit"
+    )
     args = ap.parse_args(argv)
+    bad = [o for o in args.set if "=" not in o]
+    if bad:
+        ap.error(f"--set {bad[0]}: expected KEY=VALUE")
     unknown = [c for c in args.configs if not (ROOT / "configs" / f"{c}.yaml").is_file()]
     if unknown:
         ap.error(f"configs/{unknown[0]}.yaml: no such bundled config")
@@ -270,8 +281,8 @@ def main(argv=None) -> int:
     if args.tiny:
         rows, command = [tiny(work)], "python scripts/gltf_error.py --tiny"
     else:
-        rows = [run_config(name, work, args.reuse, ball) for name in args.configs]
-        shown = ["--ball", BALL_SHOWN] if ball else []
+        rows = [run_config(name, work, args.reuse, ball, tuple(args.set)) for name in args.configs]
+        shown = (["--ball", BALL_SHOWN] if ball else []) + (["--set", *args.set] if args.set else [])
         command = " ".join(["python scripts/gltf_error.py", "--configs", *args.configs, *shown])
     page = table(rows, command)
     print(page)
