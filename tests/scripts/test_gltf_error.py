@@ -21,6 +21,8 @@ def test_tiny_mode_measures_the_conversions(tmp_path, capsys):
     # the fitted conversion is closer to the fitted model than the one-line formula, and undoing glTF's diffuse
     # darkening closes most of the rest; all well under a few DN on this half-glossy cap
     assert row.compensated < row.fitted < row.one_line < 5.0
+    # the glossy half's highlights are a few of the observations, and there the fitted lobe is clearly closer
+    assert 0 < row.near_share < 0.5 and row.fitted_near < 0.8 * row.one_line_near
 
 
 def test_ball_missing_is_a_skipped_row(tmp_path):
