@@ -2,22 +2,24 @@
 broken folder, a worker killed mid-fit, a re-run), and a photon fit killed in its second outer iteration and resumed.
 
     python scripts/batch_targets.py [--work DIR] [--part throughput|targets|resume|all] [--fits N]
+    python scripts/batch_targets.py --tiny      # the resume part only, on the tiny fold: seconds (the test's)
 
 throughput: N small synthetic local fits (synthetic_seeds) with --num-cpus 1, then 2 (cpus_per_task 1: one torch
 thread per fit). targets: 3 cylindrical_scan folders (the throughput run's captures), 1 copy of one with a damaged
 scan.yaml, the DiLiGenT ball (16 lights; ../shared/data/diligent_ball) and 3 synthetic seeds; the worker fitting
 seed-11 is SIGKILLed once its first checkpoint is written; then the same command again. resume: a small photon fit,
 uninterrupted (seeds 0 and 1: the seed-to-seed spread), and seed 0 SIGKILLed during its second outer iteration then
-continued with --resume. Prints the figures as JSON lines; needs Ray (pip install "torchrefl[ray]").
+continued with --resume. Prints the figures as JSON lines; needs Ray (pip install "torchrefl[ray]"). The runs are
+killed by scripts/kill_runs.py's kill_when. --tiny: the resume part on the tiny fold of scripts/tiny_mode.py (2 outer
+iterations), without the uninterrupted seeds, killed as soon as its second outer iteration starts (no Ray:
+tests/batch runs a batch on Ray).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -30,6 +32,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from torchrefl.batch import read_batch, run_batch  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "scripts"))
+from kill_runs import kill_when  # noqa: E402
+from tiny_mode import FOLD, TINY  # noqa: E402
 
 SMALL = {
     "seed": 1,
@@ -116,19 +122,6 @@ def throughput(work: Path, fits: int) -> None:
         )
 
 
-def _kill_when(pattern: str, folder: Path, timeout: float = 1800) -> int | None:
-    """SIGKILL the process whose staging folder `folder`/.PATTERN.staging-PID first holds a checkpoint."""
-    end = time.time() + timeout
-    while time.time() < end:
-        for staging in folder.glob(f".{pattern}.staging-*"):
-            if any((staging / "checkpoint").glob("*.pt")):
-                pid = int(staging.name.rsplit("-", 1)[1])
-                os.kill(pid, signal.SIGKILL)
-                return pid
-        time.sleep(0.5)
-    return None
-
-
 def targets(work: Path) -> None:
     (work / "small.yaml").write_text(yaml.safe_dump(SMALL))
     caps = work / "caps"
@@ -158,7 +151,8 @@ def targets(work: Path) -> None:
     cmd = [*PY, "-m", "torchrefl.batch", str(work / "targets.yaml"), "--num-cpus", "2", "--quiet"]
     start = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    killed = _kill_when("seed-11", work / "targets")
+    has_checkpoint = lambda staging: any((staging / "checkpoint").glob("*.pt"))
+    killed = kill_when(work / "targets", "seed-11", has_checkpoint, poll_s=0.5)
     out, err = proc.communicate()
     wall = time.perf_counter() - start
     rows = json.loads((work / "targets" / "summary.json").read_text())
@@ -195,24 +189,37 @@ def _metrics(folder: Path) -> dict:
     }
 
 
-def resume(work: Path) -> None:
-    cfg = work / "photon.yaml"
-    cfg.write_text(yaml.safe_dump(PHOTON))
-    train = [*PY, "-m", "torchrefl.train", str(cfg), "--quiet"]
-    for seed in (0, 1):
+class SecondOuterIteration:
+    """kill_when's moment: outer iteration 1 is done and its checkpoint saved (checkpoint/outer.pt rewritten since
+    the last look before the log said 'photon refresh 1', which comes just before that save): iteration 2 runs."""
+
+    def __init__(self):
+        self.before: tuple[int, int] | None = None  # outer.pt's (inode, mtime) at the last look before refresh 1
+
+    def __call__(self, staging: Path) -> bool:
+        outer = staging / "checkpoint" / "outer.pt"
+        stamp = (outer.stat().st_ino, outer.stat().st_mtime_ns) if outer.is_file() else None
+        log = staging / "log.txt"
+        if not (log.is_file() and "photon refresh 1:" in log.read_text()):
+            self.before = stamp
+            return False
+        return stamp is not None and stamp != self.before
+
+
+def resume(work: Path, config: Path | None = None, overrides: tuple[str, ...] = (), seeds=(0, 1), after_s=2.0) -> None:
+    """A photon fit (`config` with `overrides`; None: PHOTON) killed in its second outer iteration, `after_s` after
+    it starts, and resumed; beside it the uninterrupted fits of `seeds`."""
+    if config is None:
+        config = work / "photon.yaml"
+        config.write_text(yaml.safe_dump(PHOTON))
+    train = [*PY, "-m", "torchrefl.train", str(config), *overrides, "--quiet"]
+    for seed in seeds:
         subprocess.run([*train, f"seed={seed}", f"output.dir={work / f'whole{seed}'}"], cwd=ROOT, check=True)
     target = work / "killed"
+    start = time.perf_counter()
     proc = subprocess.Popen([*train, f"output.dir={target}"], cwd=ROOT)
-    start, killed_at = time.perf_counter(), None
-    while proc.poll() is None and killed_at is None:
-        for staging in work.glob(".killed.staging-*"):
-            log = (staging / "log.txt").read_text() if (staging / "log.txt").is_file() else ""
-            if "photon refresh 1:" in log:  # outer iteration 1 done and saved: iteration 2 is running
-                time.sleep(2.0)
-                proc.send_signal(signal.SIGKILL)
-                killed_at = time.perf_counter() - start
-        time.sleep(0.5)
-    proc.wait()
+    killed = kill_when(work, target.name, SecondOuterIteration(), proc, poll_s=0.05, after_s=after_s)
+    killed_at = None if killed is None else time.perf_counter() - start
     start = time.perf_counter()
     subprocess.run([*train, f"output.dir={target}", "--resume"], cwd=ROOT, check=True)
     resumed_s = time.perf_counter() - start
@@ -222,21 +229,24 @@ def resume(work: Path) -> None:
         killed_after_s=None if killed_at is None else round(killed_at, 1),
         resumed_run_s=round(resumed_s, 1),
         refreshes_after_resume=[line.split("] ")[1].split(":")[0] for line in after if "photon refresh" in line],
-        whole_seed0=_metrics(work / "whole0"),
-        whole_seed1=_metrics(work / "whole1"),
+        **{f"whole_seed{seed}": _metrics(work / f"whole{seed}") for seed in seeds},
         killed_and_resumed_seed0=_metrics(target),
     )
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, help="working folder (default: a new temporary one)")
     parser.add_argument("--part", choices=("throughput", "targets", "resume", "all"), default="all")
     parser.add_argument("--fits", type=int, default=6, help="fits in the throughput batch")
-    args = parser.parse_args()
+    parser.add_argument("--tiny", action="store_true", help="the resume part on the tiny fold: seconds")
+    args = parser.parse_args(argv)
     work = (args.work or Path(tempfile.mkdtemp(prefix="batch-targets-"))).absolute()
     work.mkdir(parents=True, exist_ok=True)
     emit(work=str(work))
+    if args.tiny:
+        resume(work, FOLD, (*TINY, "fit.model=photon", "photon.outer_iterations=2"), seeds=(), after_s=0.0)
+        return 0
     if args.part in ("throughput", "all"):
         throughput(work, args.fits)
     if args.part in ("targets", "all"):

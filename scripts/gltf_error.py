@@ -7,13 +7,16 @@ light, the capture's own shadow mask) with the fitted model (torchrefl.transport
 the glTF material; the table gives the mean |difference| in 8-bit DN over the lit, seen, estimated observations
 (both renders clipped to the sensor's range), for the fitted conversion (the .glb torchrefl writes), for the
 one-line formula (export_material: formula 'one_line') and, to show what glTF's diffuse darkening costs, the
-fitted conversion with the base colour Pd / (1 - specular) (not written: the exported base colour is Pd).
+fitted conversion with the base colour Pd / (1 - specular) (not written: the exported base colour is Pd); then
+both conversions' over the observations near a highlight alone (the fitted model's specular part above NEAR_DN).
 
     python scripts/gltf_error.py --configs default quick mesh_views --work outputs/gltf_error
     python scripts/gltf_error.py --configs diligent_ball --ball /path/to/DiLiGenT/pmsData/ballPNG
     python scripts/gltf_error.py --tiny          # a 9 x 12 cap and 3 lights, no fit (tests/scripts runs it)
 
---reuse takes an existing run in WORK/NAME instead of fitting. --out PAGE writes the table as markdown.
+--reuse takes an existing run in WORK/NAME instead of fitting. --set KEY=VALUE (repeatable) is passed to every fit
+(`python -m torchrefl.train NAME KEY=VALUE ...`), for configs whose full fit is too slow (e.g. `--set fit.model=local
+synthetic.indirect_samples=16`); the table's note column names them. --out PAGE writes the table as markdown.
 docs/results/exports.md has the numbers.
 """
 
@@ -62,6 +65,8 @@ CONFIGS = (
 )
 SYNTHETIC = {"synthetic_cylindrical": "cylindrical_scan", "synthetic_mesh_views": "mesh_views"}
 BALL_SHOWN = "/path/to/DiLiGenT/pmsData/ballPNG"
+#: an observation is near a highlight where the fitted model's specular part exceeds this many 8-bit DN
+NEAR_DN = 2.0
 
 
 @dataclass
@@ -77,6 +82,9 @@ class Row:
     fitted: float  # the written .glb vs the fitted model
     one_line: float
     compensated: float
+    near_share: float = math.nan  # the share of the observations near a highlight (fitted specular > NEAR_DN)
+    fitted_near: float = math.nan  # fitted / one_line over those observations alone
+    one_line_near: float = math.nan
     note: str = ""
 
 
@@ -138,10 +146,16 @@ def compare(run: RunResult, obs: Observations, texel_index: np.ndarray, normals:
         run.brdf, t(n), _double(obs), t(run.pd[rows, cols]), t(ps), t(run.sigma[rows, cols]), run.minnaert_k
     )
     mask = obs.valid & torch.from_numpy(est)[None]
-    out = {"count": int(mask.sum()) * 3}
+    diffuse = render_reference(
+        run.brdf, t(n), _double(obs), t(run.pd[rows, cols]), t(0.0 * ps), t(run.sigma[rows, cols]), run.minnaert_k
+    )
+    near = mask & ((fitted - diffuse).amax(-1) * 255.0 > NEAR_DN)
+    out = {"count": int(mask.sum()) * 3, "near_share": float(near.sum()) / max(int(mask.sum()), 1)}
     for formula in ("fitted", "one_line"):
         material = GlbMaterial(glb_of(run, work / formula, formula)).at_texels(rows, cols)
-        out[formula] = mean_dn(render_gltf(material, n, _double(obs)), fitted, mask)
+        rendered = render_gltf(material, n, _double(obs))
+        out[formula] = mean_dn(rendered, fitted, mask)
+        out[f"{formula}_near"] = mean_dn(rendered, fitted, near) if bool(near.any()) else math.nan
         if formula == "fitted":
             scale = 1.0 / np.maximum(1.0 - material["specular"], 1e-6)
             out["compensated"] = mean_dn(render_gltf(material, n, _double(obs), scale), fitted, mask)
@@ -154,24 +168,30 @@ def _double(obs: Observations) -> Observations:
     return replace(obs, view_dir=obs.view_dir.double(), **conv)
 
 
-def run_config(name: str, work: Path, reuse: bool, ball: Path | None) -> Row:
+def run_config(name: str, work: Path, reuse: bool, ball: Path | None, overrides: tuple[str, ...] = ()) -> Row:
+    """One config's row: fit it with `overrides` (or reuse WORK/NAME) and compare the renders."""
     out = work / name
     if name == "diligent_ball" and (ball is None or not ball.is_dir()):
-        return Row(name, 0, 0, 0, 0.0, None, math.nan, math.nan, math.nan, f"skipped: no DiLiGenT ball folder ({ball})")
+        return Row(
+            name, 0, 0, 0, 0.0, None, math.nan, math.nan, math.nan, note=f"skipped: no DiLiGenT ball folder ({ball})"
+        )
     if not (reuse and (out / "run_complete.json").is_file()):
         cmd = [sys.executable, "-m", "torchrefl.train", name, f"output.dir={out}", "--quiet", "--overwrite"]
         cmd += [f"capture.path={ball}"] if name == "diligent_ball" else []
+        cmd += list(overrides)
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode:
-            return Row(name, 0, 0, 0, 0.0, None, math.nan, math.nan, math.nan, f"failed: {done.stderr.strip()[-200:]}")
+            return Row(
+                name, 0, 0, 0, 0.0, None, math.nan, math.nan, math.nan, note=f"failed: {done.stderr.strip()[-200:]}"
+            )
     run = load_run(out)
     cap = capture_of(run, ball)
     with tempfile.TemporaryDirectory() as tmp:
         got = compare(run, cap.obs, cap.surface.texel_index.numpy(), cap.surface.normals.double().numpy(), Path(tmp))
-    return _row(name, run, cap.obs.num_lights, got)
+    return _row(name, run, cap.obs.num_lights, got, " ".join(f"`{o}`" for o in overrides))
 
 
-def _row(name: str, run: RunResult, lights: int, got: dict) -> Row:
+def _row(name: str, run: RunResult, lights: int, got: dict, note: str = "") -> Row:
     rerender = run.metrics.get("rerender", {}).get("mean_abs_diff_8bit")
     return Row(
         name,
@@ -183,6 +203,10 @@ def _row(name: str, run: RunResult, lights: int, got: dict) -> Row:
         got["fitted"],
         got["one_line"],
         got["compensated"],
+        got["near_share"],
+        got["fitted_near"],
+        got["one_line_near"],
+        note,
     )
 
 
@@ -242,15 +266,22 @@ def table(rows: list[Row], command: str) -> str:
         f"Written by `{command}` on {time.strftime('%Y-%m-%d')}.",
         "",
         "| config | texels | lights | observations | median s | fit vs photos | glTF fitted | glTF one-line "
-        "| fitted, base Pd / (1 - s) | note |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| fitted, base Pd / (1 - s) | near highlights: share, fitted / one-line | note |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r.name} | {r.texels} | {r.lights} | {r.count} | {r.specular:.3f} | {fmt(r.fit_vs_photos)} "
-            f"| {fmt(r.fitted)} | {fmt(r.one_line)} | {fmt(r.compensated)} | {r.note} |"
+            f"| {fmt(r.fitted)} | {fmt(r.one_line)} | {fmt(r.compensated)} | {_near(r)} | {r.note} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _near(r: Row) -> str:
+    """The near-highlight cell: the share of the observations (%), then both conversions' mean |diff| there."""
+    if math.isnan(r.near_share) or math.isnan(r.fitted_near):
+        return ""
+    return f"{100 * r.near_share:.1f} %, {r.fitted_near:.2f} / {r.one_line_near:.2f}"
 
 
 def main(argv=None) -> int:
@@ -261,7 +292,13 @@ def main(argv=None) -> int:
     ap.add_argument("--ball", default=None, help="the DiLiGenT ball folder (pmsData/ballPNG)")
     ap.add_argument("--tiny", action="store_true", help="a tiny scene, no fit (seconds)")
     ap.add_argument("--out", default=None, help="write the table (markdown) to this file")
+    ap.add_argument(
+        "--set", nargs="+", action="extend", default=[], metavar="KEY=VALUE", help="config overrides for every fit"
+    )
     args = ap.parse_args(argv)
+    bad = [o for o in args.set if "=" not in o]
+    if bad:
+        ap.error(f"--set {bad[0]}: expected KEY=VALUE")
     unknown = [c for c in args.configs if not (ROOT / "configs" / f"{c}.yaml").is_file()]
     if unknown:
         ap.error(f"configs/{unknown[0]}.yaml: no such bundled config")
@@ -270,8 +307,8 @@ def main(argv=None) -> int:
     if args.tiny:
         rows, command = [tiny(work)], "python scripts/gltf_error.py --tiny"
     else:
-        rows = [run_config(name, work, args.reuse, ball) for name in args.configs]
-        shown = ["--ball", BALL_SHOWN] if ball else []
+        rows = [run_config(name, work, args.reuse, ball, tuple(args.set)) for name in args.configs]
+        shown = (["--ball", BALL_SHOWN] if ball else []) + (["--set", *args.set] if args.set else [])
         command = " ".join(["python scripts/gltf_error.py", "--configs", *args.configs, *shown])
     page = table(rows, command)
     print(page)

@@ -30,6 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from torchrefl import TorchReflError, load_run  # noqa: E402
+from torchrefl.report.run_folder import STAGING  # noqa: E402
 
 CONFIG = {
     "seed": 1,
@@ -64,17 +65,41 @@ def train(config: Path, target: Path, overwrite: bool) -> subprocess.Popen:
     )
 
 
+def kill_when(
+    parent: Path,
+    name: str,
+    reached,
+    proc: subprocess.Popen | None = None,
+    timeout_s: float = 1800.0,
+    poll_s: float = 0.001,
+    after_s: float = 0.0,
+) -> int | None:
+    """SIGKILL the run into parent/NAME as soon as `reached(staging)` holds for its staging folder
+    (`.NAME.staging-PID`, torchrefl.report.run_folder.STAGING), `after_s` seconds later. `proc`: the run, started
+    here: only its own staging folder counts; None (a batch's Ray worker): any run's, the PID killed read from the
+    folder's name. Returns the PID killed; None if `proc` ended first or `timeout_s` passed. The scripts' one way
+    to kill a run at a moment."""
+    pattern = STAGING.format(name=name, pid="*" if proc is None else proc.pid)
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and (proc is None or proc.poll() is None):
+        for staging in parent.glob(pattern):
+            if reached(staging):
+                time.sleep(after_s)
+                pid = int(staging.name.rsplit("-", 1)[1])
+                os.kill(pid, signal.SIGKILL)
+                if proc is not None:
+                    proc.wait()
+                return pid
+        time.sleep(poll_s)
+    return None
+
+
 def kill_at(config: Path, target: Path, overwrite: bool, reached) -> str:
     """Start a run, SIGKILL it when `reached(staging)` holds; returns 'killed' or 'finished first'."""
     proc = train(config, target, overwrite)
-    staging = target.parent / f".{target.name}.staging-{proc.pid}"
-    while proc.poll() is None:
-        if reached(staging):
-            os.kill(proc.pid, signal.SIGKILL)
-            proc.wait()
-            return "killed"
-        time.sleep(0.001)
-    return "finished first"
+    killed = kill_when(target.parent, target.name, reached, proc)
+    proc.wait()
+    return "killed" if killed is not None else "finished first"
 
 
 def digest(folder: Path) -> str:
