@@ -108,9 +108,10 @@ def jacobian(model: Callable, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.T
 def channel_information(J: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """(3, T, K, K) float64 per channel c: sum over p of weight J J^T (the information at unit noise).
     J (P, T, 3, K) in DN per parameter unit; weight (P, T, 3) the observations' weights (0 = not fitted).
-    The products are summed in J's dtype (float32 by default: J itself is no more precise, and float64 sums took
-    3 times as long at paper size); the inverses that follow are float64."""
-    return torch.einsum("ptck,ptc,ptcl->ctkl", J, weight.to(J.dtype), J).double()
+    Summed in float64: float32 sums leave a block whose parameters are nearly collinear (a strong lobe's Ps and
+    sigma) indefinite by rounding, and its Cholesky factorisation fails."""
+    Jd = J.double()
+    return torch.einsum("ptck,ptc,ptcl->ctkl", Jd, weight.double(), Jd)
 
 
 def information(J: torch.Tensor, weight: torch.Tensor, noise_dn: torch.Tensor) -> torch.Tensor:
