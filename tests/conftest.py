@@ -238,3 +238,18 @@ def pytest_terminal_summary(terminalreporter):
     for report in skipped:
         reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
         terminalreporter.write_line(reason.removeprefix("Skipped: "))
+
+
+#: the quick scene at 24 x 32 texels under the 6 candidates of a 3 x 2 light grid, one torch thread: a run in a
+#: second or two (tests/fit/test_warm_start.py, tests/rig/test_adaptive.py)
+TINY_QUICK_SCENE = (
+    "synthetic.columns=32",
+    "synthetic.rows=24",
+    "synthetic.angle_step_deg=11.25",
+    "synthetic.height_step_mm=6.0",
+    "synthetic.supersample=1",
+    "synthetic.mesh_subdivisions=3",
+    "selection.grid.columns=3",
+    "selection.grid.rows=2",
+    "threads=1",
+)

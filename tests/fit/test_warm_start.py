@@ -2,27 +2,13 @@
 
 import numpy as np
 import pytest
+from conftest import TINY_QUICK_SCENE
 
 from torchrefl.errors import ConfigError
 from torchrefl.run import fit
 
-#: the quick scene at 24 x 32 texels under the 6 lights of a 3 x 2 grid (no selection), the fit cut short, no
-#: export: a run in a second or two
-TINY = [
-    "synthetic.columns=32",
-    "synthetic.rows=24",
-    "synthetic.angle_step_deg=11.25",
-    "synthetic.height_step_mm=6.0",
-    "synthetic.supersample=1",
-    "synthetic.mesh_subdivisions=3",
-    "selection.enabled=false",
-    "selection.grid.columns=3",
-    "selection.grid.rows=2",
-    "output.export=false",
-    "fit.iterations=3",
-    "output.map_lights=0",
-    "threads=1",
-]
+#: the tiny quick scene with all 6 grid lights (no selection), the fit cut short, no export
+TINY = [*TINY_QUICK_SCENE, "selection.enabled=false", "output.export=false", "fit.iterations=3", "output.map_lights=0"]
 
 
 @pytest.fixture(scope="module")

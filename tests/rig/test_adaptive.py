@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import TINY_QUICK_SCENE
 
 from torchrefl.errors import RigError
 from torchrefl.rig.__main__ import main
@@ -105,21 +106,8 @@ def test_a_bad_choice_is_a_named_error(tmp_path):
         )
 
 
-#: the quick scene at 24 x 32 texels with a 3 x 2 light grid, each round's fit cut short
-SCENE = [
-    f"--scene-set={kv}"
-    for kv in (
-        "synthetic.columns=32",
-        "synthetic.rows=24",
-        "synthetic.angle_step_deg=11.25",
-        "synthetic.height_step_mm=6.0",
-        "synthetic.supersample=1",
-        "synthetic.mesh_subdivisions=3",
-        "selection.grid.columns=3",
-        "selection.grid.rows=2",
-        "threads=1",
-    )
-]
+#: the tiny quick scene, each round's fit cut short
+SCENE = [f"--scene-set={kv}" for kv in TINY_QUICK_SCENE]
 FIT = [f"--fit-set={kv}" for kv in ("fit.iterations=3", "output.map_lights=0", "output.export=false")]
 FAST = ["--set", "light.settle_s=0", "--set", "timeouts.poll_s=0.005"]
 
