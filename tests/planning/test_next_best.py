@@ -31,6 +31,7 @@ class FlatScene:
     lobe_measured: torch.Tensor
     intensity: float = 1.0e5
     saturation_level: float = 0.995
+    images_per_light = 1
 
     def __post_init__(self):
         T = 8
@@ -63,6 +64,9 @@ class FlatScene:
             view_dir=torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(T, 3),
             kappa=torch.full((3,), math.pi, dtype=torch.float64),
         )
+
+    def fitted_observations(self, chunk: int):
+        yield self.observations(self.lights)
 
 
 def captured_scene(**kw) -> FlatScene:

@@ -32,11 +32,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator, Protocol
 
 import numpy as np
 import torch
 
 from torchrefl.core.observation_classes import T_SPEC, classify
+from torchrefl.core.observations import Observations
 from torchrefl.errors import ConfigError
 from torchrefl.fit.uncertainty import information, jacobian, texel_covariance
 from torchrefl.planning.run_scene import RunScene, load_run_scene
@@ -54,11 +56,26 @@ RELEVANT = 1e-3
 SCORE = "sum over texels of the decrease of log(1 + (std/value)^2 / 0.1^2) for Ps (largest channel) and sigma"
 
 
+class PlanningScene(Protocol):
+    """What the planner reads of a fitted run (planning.run_scene.RunScene for a scan,
+    planning.views_run_scene.ViewsRunScene for mesh_views): cfg, run (its minnaert_k), normals (T, 3), the estimate
+    pd, ps, sigma, estimated, lobe_measured, n_specular, lights (P, 3) the run's own light positions,
+    saturation_level, noise_dn, ranges; observations(positions (M, 3)): the geometry of M candidate lights, light
+    after light, images_per_light rows each; fitted_observations(chunk): the run's own fitted images' geometry, in
+    Observations of at most chunk lights' images."""
+
+    images_per_light: int
+
+    def observations(self, positions: np.ndarray) -> Observations: ...
+
+    def fitted_observations(self, chunk: int) -> Iterator[Observations]: ...
+
+
 @dataclass
 class LightInformation:
     """What each of M lights adds to the texels it measures: texels[m] (N_m,) int64 indices of the texels with a
     fitted observation, info[m] (N_m, K, K) float64 their Fisher information, specular[m] (N_m,) int64 their T_spec
-    observations (0 or 1 on a scan)."""
+    observations (0 or 1 on a scan; up to the cameras that photograph the light on a mesh_views run)."""
 
     texels: list[torch.Tensor]
     info: list[torch.Tensor]
@@ -98,26 +115,40 @@ class NextBest:
         }
 
 
-def light_information(scene: RunScene, positions: np.ndarray) -> LightInformation:
-    """The information each light at head-frame positions (M, 3) mm would add (module docstring)."""
+def light_information(scene: PlanningScene, positions: np.ndarray) -> LightInformation:
+    """The information each light at positions (M, 3) mm (the scene's frame) would add (module docstring); a light
+    is scene.images_per_light consecutive rows of scene.observations (one per camera that photographs it)."""
+    parts = [
+        observation_information(scene, scene.observations(np.asarray(positions[s : s + CHUNK], dtype=np.float64)))
+        for s in range(0, len(positions), CHUNK)
+    ]
+    return LightInformation(*(sum((getattr(p, f) for p in parts), []) for f in ("texels", "info", "specular")))
+
+
+def observation_information(
+    scene: PlanningScene, obs: Observations, rows_per_light: int | None = None
+) -> LightInformation:
+    """The information of Observations obs, per group of rows_per_light consecutive rows (one light; default
+    scene.images_per_light): the texels some row of the group measures as the fitter would, their information
+    summed over the group's rows and their T_spec observations counted."""
     rc = scene.cfg.reflectance
+    V = scene.images_per_light if rows_per_light is None else rows_per_light
+    terms = local_terms(rc.brdf, scene.normals, obs, scene.run.minnaert_k)
+    model = lambda pd, ps, sigma: predict(terms, pd, ps, sigma)
+    with torch.no_grad():
+        saturated = (model(scene.pd, scene.ps, scene.sigma) >= scene.saturation_level).any(-1)
+    fit = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light) & ~saturated
+    fit &= scene.estimated[None]
+    spec = classify(terms.theta_h, fit, rc.theta_diffuse_deg, rc.theta_specular_deg) == T_SPEC
+    J = jacobian(model, scene.pd, scene.ps, scene.sigma).double()
     texels, infos, specular = [], [], []
-    for start in range(0, len(positions), CHUNK):
-        obs = scene.observations(np.asarray(positions[start : start + CHUNK], dtype=np.float64))
-        terms = local_terms(rc.brdf, scene.normals, obs, scene.run.minnaert_k)
-        model = lambda pd, ps, sigma: predict(terms, pd, ps, sigma)
-        with torch.no_grad():
-            saturated = (model(scene.pd, scene.ps, scene.sigma) >= scene.saturation_level).any(-1)
-        fit = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light) & ~saturated
-        fit &= scene.estimated[None]
-        spec = classify(terms.theta_h, fit, rc.theta_diffuse_deg, rc.theta_specular_deg) == T_SPEC
-        J = jacobian(model, scene.pd, scene.ps, scene.sigma).double()
-        for m in range(len(fit)):
-            idx = torch.nonzero(fit[m]).squeeze(1)
-            weight = torch.ones(1, len(idx), 3, dtype=torch.float64)
-            texels.append(idx)
-            infos.append(information(J[m : m + 1, idx], weight, scene.noise_dn))
-            specular.append(spec[m, idx].long())
+    for start in range(0, len(fit), V):
+        rows = slice(start, start + V)
+        idx = torch.nonzero(fit[rows].any(0)).squeeze(1)
+        weight = fit[rows][:, idx, None].expand(-1, -1, 3).double()
+        texels.append(idx)
+        infos.append(information(J[rows, idx], weight, scene.noise_dn))
+        specular.append(spec[rows][:, idx].sum(0).long())
     return LightInformation(texels, infos, specular)
 
 
@@ -194,9 +225,10 @@ def current_information(scene: RunScene) -> torch.Tensor:
     """(T, K, K) the information of the run's own fitted lights at the estimate."""
     T, K = len(scene.sigma), 4 + scene.ps.shape[1]
     info = torch.zeros(T, K, K, dtype=torch.float64)
-    own = light_information(scene, scene.lights)
-    for idx, block in zip(own.texels, own.info):
-        info[idx] += block
+    for obs in scene.fitted_observations(CHUNK):
+        own = observation_information(scene, obs, 1)
+        for idx, block in zip(own.texels, own.info):
+            info[idx] += block
     return info
 
 

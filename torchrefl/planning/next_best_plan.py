@@ -6,6 +6,11 @@ gains, the predicted share of the estimated texels with sigma known to 10 % befo
 Candidates: the run config's light grid (selection.grid) by default, or a file of head-frame positions in mm: a
 .npy array (M, 3), a text file of M rows of 3 numbers (numpy.loadtxt: spaces or commas, # comments), or a .json
 list of [lateral, vertical, radial] or a mapping with `positions_mm` (a plan file).
+
+A mesh_views or synthetic_mesh_views run (planning.views_run_scene) is planned in world coordinates: its
+candidates are the config's selection.world positions by default, or the file's positions read as world [x, y, z]
+mm (named L000, L001, ...); its plan is a mesh_views plan (`kind: mesh_views`: the chosen lights' world
+position_mm, and gantry_mm on a gantry layout, and one image per camera that sees the object for each light).
 """
 
 from __future__ import annotations
@@ -16,11 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
+from torchrefl.config import load_config
 from torchrefl.core.atomic_files import atomic_write_text
 from torchrefl.errors import ConfigError, OutputError
 from torchrefl.planning.capture_plan import PLAN_FILE, PlanFiles, write_plan
 from torchrefl.planning.next_best import NextBest, check_candidates, choose
-from torchrefl.planning.run_scene import load_run_scene
+from torchrefl.planning.run_scene import SCAN_KINDS, RunScene, load_run_scene
+from torchrefl.planning.views_run_scene import VIEWS_KINDS, ViewsRunScene, views_run_scene
+from torchrefl.planning.world_candidates import WorldCandidates
+from torchrefl.report.run_result import CONFIG, load_run
 
 #: the report's name in a plan folder (beside a .json plan: STEM_report.txt)
 REPORT_FILE = "next_best.txt"
@@ -53,6 +62,26 @@ def read_candidates(path: str | Path) -> np.ndarray:
     except (ValueError, TypeError, OSError) as exc:
         raise ConfigError(f"{where}: unreadable ({exc}); expected (M, 3) light positions in mm") from None
     return check_candidates(data, where)
+
+
+def load_planning_scene(run_dir: str | Path) -> RunScene | ViewsRunScene:
+    """The planner's view of a finished run: a RunScene for a scan (SCAN_KINDS), a ViewsRunScene for mesh_views
+    (VIEWS_KINDS); ConfigError naming config.yaml's capture.kind for the other kinds."""
+    run = load_run(run_dir)
+    cfg = load_config(run.folder / CONFIG)
+    if cfg.capture.kind in VIEWS_KINDS:
+        return views_run_scene(run, cfg)
+    if cfg.capture.kind in SCAN_KINDS:
+        return load_run_scene(run_dir)
+    raise ConfigError(
+        f"{run.folder / CONFIG}: capture.kind is '{cfg.capture.kind}'; the next-best light planner reads runs of "
+        f"{', '.join(SCAN_KINDS + VIEWS_KINDS)} (lights at positions in mm), not of this kind"
+    )
+
+
+def listed_candidates(positions: np.ndarray) -> WorldCandidates:
+    """Candidate world positions (M, 3) from a --candidates file, named L000, L001, ... in their order."""
+    return WorldCandidates("file", tuple(f"L{k:03d}" for k in range(len(positions))), positions)
 
 
 def report_files(out: str | Path) -> tuple[Path, Path]:
@@ -94,8 +123,14 @@ def plan_next_best(
     if plan.exists() and not overwrite:
         raise OutputError(f"{plan}: a plan is already there; pass --overwrite to replace it")
     positions = read_candidates(candidates) if candidates is not None else None
-    scene = load_run_scene(run_dir)
-    result = choose(scene, scene.default_candidates() if positions is None else positions, k)
-    files: PlanFiles = write_plan(None, plan, None, result.to_json())
+    scene = load_planning_scene(run_dir)
+    if isinstance(scene, ViewsRunScene):
+        world = scene.world_candidates() if positions is None else listed_candidates(positions)
+        result = choose(scene, world.positions, k)
+        doc = scene.plan_json(result, world)
+    else:
+        result = choose(scene, scene.default_candidates() if positions is None else positions, k)
+        doc = result.to_json()
+    files: PlanFiles = write_plan(None, plan, None, doc)
     atomic_write_text(report, report_text(Path(run_dir), result))
     return NextBestPlan(result, files.plan, report)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 import torch
@@ -63,6 +64,8 @@ class RunScene:
     saturation_level: float
     noise_dn: torch.Tensor
     ranges: ParameterRanges
+    #: rows of `observations` per light (a scan has one camera)
+    images_per_light = 1
 
     @property
     def normals(self) -> torch.Tensor:
@@ -96,6 +99,38 @@ class RunScene:
             kappa=t(self.kappa),
             source=f"{self.run.folder}: predicted lights",
         )
+
+    def fitted_observations(self, chunk: int) -> Iterator[Observations]:
+        """The geometry of the run's own fitted lights, chunk lights at a time."""
+        for start in range(0, len(self.lights), chunk):
+            yield self.observations(self.lights[start : start + chunk])
+
+
+@dataclass
+class TexelEstimate:
+    """A run's estimate over the T texels of its geometry (RunScene's fields of the same names)."""
+
+    pd: torch.Tensor
+    ps: torch.Tensor
+    sigma: torch.Tensor
+    estimated: torch.Tensor
+    lobe_measured: torch.Tensor
+    n_specular: torch.Tensor
+
+
+def texel_estimate(run: RunResult, index: np.ndarray, dtype: torch.dtype) -> TexelEstimate:
+    """The run's maps at the texels' flat grid indices index (T,), in dtype (0 where there is no estimate)."""
+    flat = lambda a: torch.from_numpy(np.asarray(a).reshape(-1, *a.shape[2:])[index]).to(dtype)
+    estimated = torch.from_numpy(run.mask.reshape(-1)[index])
+    keep = estimated[:, None].to(dtype)
+    if run.lobe_measured is not None:
+        lobe = torch.from_numpy(run.lobe_measured.reshape(-1)[index]) & estimated
+    else:
+        lobe = torch.from_numpy(run.coverage.reshape(-1)[index] == COVER_FULL) & estimated
+    n_spec = torch.from_numpy(run.n_specular.reshape(-1)[index]) if run.n_specular is not None else lobe * 2
+    return TexelEstimate(
+        flat(run.pd) * keep, flat(run.ps) * keep, flat(run.sigma) * keep[:, 0], estimated, lobe, n_spec.long()
+    )
 
 
 def capture_folder(run: RunResult, cfg: Config) -> Path:
@@ -138,15 +173,7 @@ def load_run_scene(run_dir: str | Path) -> RunScene:
         raise RunFolderError(
             f"{folder}: its grid {tuple(geometry.surface.grid_shape)} is not the run's {run.grid_shape} (params.npz)"
         )
-    dtype = cfg.torch_dtype  # the fit's (what its uncertainty was computed in)
-    flat = lambda a: torch.from_numpy(np.asarray(a).reshape(-1, *a.shape[2:])[index]).to(dtype)
-    estimated = torch.from_numpy(run.mask.reshape(-1)[index])
-    keep = estimated[:, None].to(dtype)
-    if run.lobe_measured is not None:
-        lobe = torch.from_numpy(run.lobe_measured.reshape(-1)[index]) & estimated
-    else:
-        lobe = torch.from_numpy(run.coverage.reshape(-1)[index] == COVER_FULL) & estimated
-    n_spec = torch.from_numpy(run.n_specular.reshape(-1)[index]) if run.n_specular is not None else lobe * 2
+    est = texel_estimate(run, index, cfg.torch_dtype)  # the fit's dtype (what its uncertainty was computed in)
     doc = read_scan_yaml(folder)
     entries = doc["lights"]
     subset = cfg.capture.light_subset
@@ -158,12 +185,12 @@ def load_run_scene(run_dir: str | Path) -> RunScene:
         run=run,
         cfg=cfg,
         geometry=geometry,
-        pd=flat(run.pd) * keep,
-        ps=flat(run.ps) * keep,
-        sigma=flat(run.sigma) * keep[:, 0],
-        estimated=estimated,
-        lobe_measured=lobe,
-        n_specular=n_spec.long(),
+        pd=est.pd,
+        ps=est.ps,
+        sigma=est.sigma,
+        estimated=est.estimated,
+        lobe_measured=est.lobe_measured,
+        n_specular=est.n_specular,
         lights=lights,
         intensity=np.asarray(doc["light"]["intensity"], dtype=np.float64),
         kappa=np.asarray(run.kappa, dtype=np.float64),

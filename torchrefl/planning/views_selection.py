@@ -65,18 +65,25 @@ class ViewsSelection:
                 "kind": "mesh_views",
                 "layout": c.layout,
                 "gantry": c.frame.to_json() if c.frame is not None else None,
-                "lights": [
-                    {
-                        "name": c.names[p],
-                        "position_mm": [float(x) for x in c.positions[p]],
-                        "gantry_mm": None if c.gantry_mm is None else [float(x) for x in c.gantry_mm[p]],
-                    }
-                    for p in self.selection.chosen
-                ],
+                "lights": plan_lights(c, self.selection.chosen),
                 "images": [{"camera": im.camera, "light": im.light} for im in self.images],
             }
         )
         return doc
+
+
+def plan_lights(candidates: WorldCandidates, chosen) -> list[dict]:
+    """A mesh_views plan's `lights`: per chosen candidate index its name, world position_mm and gantry_mm
+    [lateral, vertical] (None off a gantry layout)."""
+    c = candidates
+    return [
+        {
+            "name": c.names[p],
+            "position_mm": [float(x) for x in c.positions[p]],
+            "gantry_mm": None if c.gantry_mm is None else [float(x) for x in c.gantry_mm[p]],
+        }
+        for p in chosen
+    ]
 
 
 def views_measurability(
