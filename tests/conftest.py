@@ -224,6 +224,17 @@ def tiny_fold_run(tmp_path_factory):
     return load_script("tiny_mode").tiny_run(tmp_path_factory.mktemp("tiny_fold") / "run")
 
 
+@pytest.fixture(scope="session")
+def tiny_views_run(tmp_path_factory):
+    """The tiny synthetic mesh_views capture of scripts/tiny_mode.py (TINY_VIEWS: a 16 x 16 atlas, 4 cameras, 8
+    images, image 1 held out) fitted at the local level: the run folder (its capture in capture/), shared by the
+    tests that read a finished mesh_views run."""
+    script = load_script("tiny_mode")
+    return script.tiny_run(
+        tmp_path_factory.mktemp("tiny_views") / "run", script.ROOT / "configs" / "mesh_views.yaml", "local"
+    )
+
+
 #: the doc-command test (tests/docs/test_doc_commands.py) whose skipped blocks are listed at the end of a run
 DOC_TEST = "test_doc_block_runs_as_written"
 
