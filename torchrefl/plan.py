@@ -4,9 +4,10 @@ python -m torchrefl.plan RUN_DIR --lights K [--candidates FILE] [--out FILE.json
 Light selection without a fit, and the capture plan the rig runs (`python -m torchrefl.rig capture --plan FILE`)
 written with its coverage figure. CONFIG is a YAML file or the name of a bundled config.
 
-With a folder instead (RUN_DIR: a finished run of a scan, torchrefl.train's output.dir), the K next-best lights for
-that fit (planning.next_best: the candidates whose predicted images would reduce its Ps and sigma uncertainty most)
-among the config's light grid or the positions in FILE (planning.next_best_plan), written as a plan and a report.
+With a folder instead (RUN_DIR: a finished run of a scan or of mesh_views, torchrefl.train's output.dir), the K
+next-best lights for that fit (planning.next_best: the candidates whose predicted images would reduce its Ps and
+sigma uncertainty most) among the config's light grid (a mesh_views run: selection.world's world positions) or the
+positions in FILE (planning.next_best_plan), written as a plan and a report.
 
 - synthetic_cylindrical: the config's object is scanned (its synthetic stand-in: range image only, no texture is
   rendered) and the lights of `selection` are chosen on the light grid `selection.grid` exactly as a synthetic run
@@ -131,7 +132,8 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--candidates",
         default=None,
-        help="RUN_DIR: candidate head-frame positions in mm (.npy, .json or text; default: the run's selection.grid)",
+        help="RUN_DIR: candidate positions in mm, head frame for a scan, world for mesh_views (.npy, .json or text; "
+        "default: the run's selection.grid, or selection.world)",
     )
     args = parser.parse_intermixed_args(argv)
     log = (lambda message: None) if args.quiet else (lambda message: print(message, file=sys.stderr))
