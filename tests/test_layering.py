@@ -23,6 +23,8 @@ LAYERS = [
     "fit",
     "report",
     "planning.run_scene",  # the planners of a fitted run (a run folder, its uncertainty): above report
+    "planning.views_run_scene",
+    "planning.scenes",
     "planning.next_best",
     "planning.next_best_plan",
     "rig",

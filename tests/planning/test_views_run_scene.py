@@ -14,7 +14,8 @@ from torchrefl.core.rays import RayTracer
 from torchrefl.errors import ConfigError
 from torchrefl.plan import main
 from torchrefl.planning.next_best import choose
-from torchrefl.planning.next_best_plan import load_planning_scene, plan_next_best
+from torchrefl.planning.next_best_plan import plan_next_best
+from torchrefl.planning.scenes import load_planning_scene
 
 
 @pytest.fixture(scope="module")
@@ -68,10 +69,10 @@ def test_the_plan_of_a_mesh_views_run_lists_world_lights_and_an_image_per_camera
 
 
 def test_a_run_of_another_kind_is_named(tiny_views_run, tmp_path, monkeypatch):
-    from torchrefl.planning import next_best_plan
+    from torchrefl.planning import scenes
 
     cfg = copy.deepcopy(load_config(tiny_views_run / "config.yaml"))
     cfg.capture.kind = "photometric_stereo"  # a run's config.yaml is hashed in its marker: read it as another kind
-    monkeypatch.setattr(next_best_plan, "load_config", lambda path: cfg)
+    monkeypatch.setattr(scenes, "load_config", lambda path: cfg)
     with pytest.raises(ConfigError, match="capture.kind is 'photometric_stereo'; the next-best light planner reads"):
         plan_next_best(tiny_views_run, 1, out=tmp_path / "plan")

@@ -41,7 +41,8 @@ from torchrefl.core.observation_classes import T_SPEC, classify
 from torchrefl.core.observations import Observations
 from torchrefl.errors import ConfigError
 from torchrefl.fit.uncertainty import information, jacobian, texel_covariance
-from torchrefl.planning.run_scene import RunScene, load_run_scene
+from torchrefl.planning.run_scene import RunScene
+from torchrefl.planning.scenes import load_planning_scene
 from torchrefl.report.uncertainty import RELATIVE_PRECISION
 from torchrefl.transport.local import local_terms, predict
 
@@ -278,6 +279,6 @@ def check_candidates(candidates, where: str) -> np.ndarray:
 
 
 def next_best_lights(run_dir: Path, candidates: np.ndarray, k: int) -> NextBest:
-    """The k next-best of the candidate lights (M, 3) (head-frame positions in mm, the run's lights' frame) for
-    the finished run in run_dir, greedily (module docstring)."""
-    return choose(load_run_scene(run_dir), candidates, k)
+    """The k next-best of the candidate lights (M, 3) (positions in mm in the run's lights' frame: head frame for a
+    scan, world for mesh_views) for the finished run in run_dir, greedily (module docstring)."""
+    return choose(load_planning_scene(run_dir), candidates, k)

@@ -21,15 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-from torchrefl.config import load_config
 from torchrefl.core.atomic_files import atomic_write_text
 from torchrefl.errors import ConfigError, OutputError
 from torchrefl.planning.capture_plan import PLAN_FILE, PlanFiles, write_plan
 from torchrefl.planning.next_best import NextBest, check_candidates, choose
-from torchrefl.planning.run_scene import SCAN_KINDS, RunScene, load_run_scene
-from torchrefl.planning.views_run_scene import VIEWS_KINDS, ViewsRunScene, views_run_scene
+from torchrefl.planning.scenes import load_planning_scene
+from torchrefl.planning.views_run_scene import ViewsRunScene
+from torchrefl.planning.views_selection import plan_lights
 from torchrefl.planning.world_candidates import WorldCandidates
-from torchrefl.report.run_result import CONFIG, load_run
 
 #: the report's name in a plan folder (beside a .json plan: STEM_report.txt)
 REPORT_FILE = "next_best.txt"
@@ -64,24 +63,29 @@ def read_candidates(path: str | Path) -> np.ndarray:
     return check_candidates(data, where)
 
 
-def load_planning_scene(run_dir: str | Path) -> RunScene | ViewsRunScene:
-    """The planner's view of a finished run: a RunScene for a scan (SCAN_KINDS), a ViewsRunScene for mesh_views
-    (VIEWS_KINDS); ConfigError naming config.yaml's capture.kind for the other kinds."""
-    run = load_run(run_dir)
-    cfg = load_config(run.folder / CONFIG)
-    if cfg.capture.kind in VIEWS_KINDS:
-        return views_run_scene(run, cfg)
-    if cfg.capture.kind in SCAN_KINDS:
-        return load_run_scene(run_dir)
-    raise ConfigError(
-        f"{run.folder / CONFIG}: capture.kind is '{cfg.capture.kind}'; the next-best light planner reads runs of "
-        f"{', '.join(SCAN_KINDS + VIEWS_KINDS)} (lights at positions in mm), not of this kind"
-    )
-
-
 def listed_candidates(positions: np.ndarray) -> WorldCandidates:
     """Candidate world positions (M, 3) from a --candidates file, named L000, L001, ... in their order."""
     return WorldCandidates("file", tuple(f"L{k:03d}" for k in range(len(positions))), positions)
+
+
+def views_plan(scene: ViewsRunScene, result: NextBest, candidates: WorldCandidates) -> dict:
+    """The plan file of a mesh_views run's next-best choice among candidates: the prediction (NextBest.to_json,
+    without the scan's head-frame positions_mm) and a mesh_views plan the rig reads (planning.views_selection's
+    keys: kind, layout, gantry, lights; images: each chosen light with every camera that sees the object)."""
+    doc = result.to_json()
+    doc.pop("positions_mm")
+    names = [candidates.names[p] for p in result.chosen]
+    cameras = scene.meta.cameras.names
+    doc.update(
+        {
+            "kind": "mesh_views",
+            "layout": candidates.layout,
+            "gantry": candidates.frame.to_json() if candidates.frame is not None else None,
+            "lights": plan_lights(candidates, result.chosen),
+            "images": [{"camera": cameras[c], "light": n} for n in names for c in scene.cameras],
+        }
+    )
+    return doc
 
 
 def report_files(out: str | Path) -> tuple[Path, Path]:
@@ -127,7 +131,7 @@ def plan_next_best(
     if isinstance(scene, ViewsRunScene):
         world = scene.world_candidates() if positions is None else listed_candidates(positions)
         result = choose(scene, world.positions, k)
-        doc = scene.plan_json(result, world)
+        doc = views_plan(scene, result, world)
     else:
         result = choose(scene, scene.default_candidates() if positions is None else positions, k)
         doc = result.to_json()

@@ -41,9 +41,7 @@ from torchrefl.errors import RunFolderError
 from torchrefl.fit.pipeline import held_out
 from torchrefl.fit.uncertainty import ParameterRanges
 from torchrefl.geometry.atlas_surface import AtlasGeometry
-from torchrefl.planning.next_best import NextBest
 from torchrefl.planning.run_scene import run_noise, texel_estimate
-from torchrefl.planning.views_selection import plan_lights
 from torchrefl.planning.world_candidates import WorldCandidates, world_candidates
 from torchrefl.report.run_result import RunResult
 
@@ -170,25 +168,6 @@ class ViewsRunScene:
                 pl = self._light(lights.position[k]) if lights.point[k] else self._light(direction=lights.direction[k])
                 pairs.append((view_of[int(m.camera_index[i])], pl))
             yield self._rows(pairs, lights.intensity[[int(m.light_index[i]) for i in images]], "fitted images")
-
-    def plan_json(self, result: NextBest, candidates: WorldCandidates) -> dict:
-        """The plan file of a next-best choice among candidates (their positions: result.candidates): the
-        prediction (NextBest.to_json, without the scan's head-frame positions_mm) and a mesh_views plan the rig
-        reads (planning.views_selection's keys: kind, layout, gantry, lights, images: each chosen light with every
-        camera that sees the object)."""
-        doc = result.to_json()
-        doc.pop("positions_mm")
-        names = [candidates.names[p] for p in result.chosen]
-        doc.update(
-            {
-                "kind": "mesh_views",
-                "layout": candidates.layout,
-                "gantry": candidates.frame.to_json() if candidates.frame is not None else None,
-                "lights": plan_lights(candidates, result.chosen),
-                "images": [{"camera": self.meta.cameras.names[c], "light": n} for n in names for c in self.cameras],
-            }
-        )
-        return doc
 
 
 def views_capture_folder(run: RunResult, cfg: Config) -> Path:
