@@ -33,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # next_best_compare beside this script
 
 from next_best_compare import ROOT, Row, fit, plot, row, summary  # noqa: E402
+from tiny_mode import TINY_VIEWS  # noqa: E402
 
 from torchrefl.config import load_config  # noqa: E402
 from torchrefl.plan import plan_capture  # noqa: E402
@@ -54,17 +55,8 @@ REDUCED = [
     "output.progress=false",
     "threads=1",
 ]
-TINY = [
-    *REDUCED,
-    "capture.texture_size=16",
-    "views.width=96",
-    "views.height=72",
-    "views.focal_px=160",
-    "views.camera_elevations_deg=[-20.0,30.0]",
-    "views.cameras_per_ring=2",
-    "views.supersample=1",
-    "fit.iterations=2",
-]
+#: scripts/tiny_mode.py's tiny mesh_views scene (a 16 x 16 atlas, 4 views of 96 x 72 px)
+TINY = [*TINY_VIEWS, "output.export=false"]
 
 
 def lights_overrides(positions: np.ndarray, centre: np.ndarray) -> list[str]:
