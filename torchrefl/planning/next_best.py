@@ -146,9 +146,10 @@ def observation_information(
     for start in range(0, len(fit), V):
         rows = slice(start, start + V)
         idx = torch.nonzero(fit[rows].any(0)).squeeze(1)
-        weight = fit[rows][:, idx, None].expand(-1, -1, 3).double()
+        used = fit[rows][:, idx]  # a light's images that do not measure a texel add nothing (not even a NaN)
+        weight = used[..., None].expand(-1, -1, 3).double()
         texels.append(idx)
-        infos.append(information(J[rows, idx], weight, scene.noise_dn))
+        infos.append(information(torch.where(used[..., None, None], J[rows, idx], 0.0), weight, scene.noise_dn))
         specular.append(spec[rows][:, idx].sum(0).long())
     return LightInformation(texels, infos, specular)
 
