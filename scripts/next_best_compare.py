@@ -10,7 +10,7 @@ The target: the planner reaches coverage-greedy's errors at its usual count (--r
 with at most 70 % of the lights.
 
     python scripts/next_best_compare.py [--config configs/quick.yaml] [--seeds 1 2 3] [--greedy 3 4 5 6 7 8 9]
-        [--start 3] [--plan 4] [--reference 9] [--out FOLDER] [--plot FILE.png] [dotted.key=value ...]
+        [--start 3] [--plan 4] [--reference 9] [--out FOLDER] [--plot FILE.png] [--keep] [dotted.key=value ...]
     python scripts/next_best_compare.py --tabulate --out FOLDER   # the tables of the runs a call left in FOLDER
     python scripts/next_best_compare.py --tiny     # a 24 x 16 texel scan, one seed (a check, not a result)
 """
@@ -98,9 +98,10 @@ def compare_seed(args, seed: int, out: Path, log) -> list[Row]:
     base = [*args.overrides, f"synthetic.noise_seed={seed}"]
     rows = []
     for n in sorted(set(args.greedy) | {args.start}):
-        rows.append(
-            row("coverage", seed, fit(args.config, [*base, f"selection.num_lights={n}"], out / f"coverage_{n}"))
-        )
+        folder = out / f"coverage_{n}"
+        if not (args.keep and (folder / "run_complete.json").is_file()):
+            fit(args.config, [*base, f"selection.num_lights={n}"], folder)
+        rows.append(row("coverage", seed, folder))
         log(f"seed {seed}: coverage-greedy {n} lights: {rows[-1]}")
     start_dir = out / f"coverage_{args.start}"
     start = json.loads((start_dir / "selection" / "selection.json").read_text())["chosen"]
@@ -231,6 +232,12 @@ def main(argv=None) -> int:
     parser.add_argument("--plot", default=None, help="PNG of the curves (default: OUT/next_best.png)")
     parser.add_argument("--tabulate", action="store_true", help="no fit: the tables of the runs already in --out")
     parser.add_argument("--tiny", action="store_true", help="a 24 x 16 texel scan: checks that the script runs")
+    parser.add_argument(
+        "--keep",
+        action="store_true",
+        help="read the coverage-greedy runs already finished in --out instead of refitting them (they do not depend "
+        "on the planner); the planner's runs are always refitted",
+    )
     parser.add_argument("overrides", nargs="*", help="dotted.key=value overrides of the config")
     args = parser.parse_args(argv)
     if args.tiny:

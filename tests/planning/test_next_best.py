@@ -8,12 +8,13 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 
 from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.fit.uncertainty import ParameterRanges
-from torchrefl.planning.next_best import choose, light_information
+from torchrefl.planning.next_best import LightInformation, Planner, TexelState, choose, light_information
 
 TILT = math.radians(30.0)
 UP = np.array([0.0, 0.0, 500.0])
@@ -127,3 +128,56 @@ def test_a_light_the_run_already_has_is_not_planned_again():
     # the tilted group's own light again would give its second highlight, but the capture has that image
     result = choose(scene, np.stack([MIRROR, UP + [5.0, 0.0, 0.0]]), 1)
     assert result.chosen == [1]
+
+
+def test_halving_the_std_of_many_determined_texels_beats_one_first_lobe():
+    """The score is the log posterior variance (D-optimal): 8 texels whose Ps and sigma are known to 5 % (candidate A
+    gives them 3 x their information: their stds halve) against one texel without a measured lobe (candidate B gives
+    it its second highlight, Ps and sigma then known to 20 %). By hand, with the broad prior's variances v0 (Ps
+    16 / 12, sigma 0.59^2 / 12) and diagonal blocks: A gains 8 x sum log((4 I + 1/v0) / (I + 1/v0)) ~ 8 x 2 log 4
+    = 22.2; B gains sum log(v0 / v) ~ log(1.333 / 0.04^2) + log(0.029 / 0.03^2) = 10.2. (A saturating score,
+    log(1 + r^2 / 0.1^2), would rank them the other way: A 2.6, B 9.8.)"""
+    N, ps, sigma = 8, 0.2, 0.15
+    ranges = ParameterRanges(4.0, 0.01, 0.6)
+    v0 = ranges.prior_var(1)
+    scene = SimpleNamespace(
+        ps=torch.full((N + 1, 1), ps, dtype=torch.float64),
+        sigma=torch.full((N + 1,), sigma, dtype=torch.float64),
+        ranges=ranges,
+        lobe_measured=torch.tensor([True] * N + [False]),
+        n_specular=torch.tensor([2] * N + [1]),
+        estimated=torch.ones(N + 1, dtype=torch.bool),
+    )
+
+    def block(ps_rel_std, sigma_rel_std):
+        """A diagonal (5, 5) information: Pd well known, Ps and sigma to the given relative stds without prior."""
+        d = [1e6] * 3 + [1.0 / (ps_rel_std * ps) ** 2, 1.0 / (sigma_rel_std * sigma) ** 2]
+        return torch.diag(torch.tensor(d, dtype=torch.float64))
+
+    info = torch.stack([block(0.05, 0.05)] * N + [torch.diag(torch.tensor([1e6] * 3 + [0.0, 0.0]))]).double()
+    state = TexelState(scene, info.clone())
+    light = LightInformation(
+        texels=[torch.arange(N), torch.tensor([N])],
+        info=[3.0 * info[:N], block(0.2, 0.2)[None]],
+        specular=[torch.zeros(N, dtype=torch.long), torch.ones(1, dtype=torch.long)],
+    )
+    I = torch.diagonal(info[0])[3:]
+    gain_a = N * float(torch.log((4 * I + 1 / v0[3:]) / (I + 1 / v0[3:])).sum())
+    gain_b = float(torch.log(v0[3:] * (torch.diagonal(block(0.2, 0.2))[3:] + 1 / v0[3:])).sum())
+    assert gain_a == pytest.approx(22.2, abs=0.1) and gain_b == pytest.approx(10.2, abs=0.1)
+    assert state.gain(light, 0) == pytest.approx(gain_a, rel=1e-9)
+    assert state.gain(light, 1) == pytest.approx(gain_b, rel=1e-9)
+
+
+def test_the_reachable_share_is_the_share_with_every_candidate_added():
+    scene = captured_scene()
+    scene.noise_dn = torch.full((3,), 0.01, dtype=torch.float64)  # precise enough that a measured lobe is determined
+    shift = np.array([5.0, 0.0, 0.0])
+    # no candidate sees a texel: the ceiling is the share now, the upward group (lobe measured) and not the tilted one
+    assert Planner(scene, BELOW[None]).reachable() == 0.5
+    # two more highlights on the tilted group (its lobe measured, and off the mirror direction for sigma): every texel
+    # determined, as choosing all of the candidates predicts
+    candidates = np.stack([UP + shift, MIRROR + shift, MIRROR + [0.0, 40.0, 0.0], BELOW])
+    assert Planner(scene, candidates).reachable() == 1.0 == choose(scene, candidates, 4).both_known[-1]
+    # the ceiling leaves out a candidate at one of the run's lights (its image is already captured)
+    assert Planner(scene, np.stack([MIRROR, BELOW])).reachable() == 0.5

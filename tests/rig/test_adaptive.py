@@ -30,18 +30,27 @@ class Recorder:
         return {"uncertainty": {"determined_share": self.shares[len(self.starts) - 1]}}
 
 
-def loop(tmp_path, shares, reachable=1.0, **settings):
+def loop(tmp_path, shares, reachable=(1.0,) * 8, **settings):
+    """The loop on GRID with the Recorder's shares; reachable: the ceiling's answer in each round (it is told the run
+    folder of the round and the candidates not yet captured, recorded in rec.asked)."""
     rec = Recorder(shares)
+    rec.asked = []
+
+    def ceiling(run_dir, remaining):
+        rec.asked.append((run_dir.name, len(remaining)))
+        return reachable[len(rec.asked) - 1]
+
     lines = []
     report = run_adaptive(
         tmp_path,
         GRID,
-        Ranking(GRID[::-1], reachable),
+        Ranking(GRID[::-1]),
         rec.capture,
         rec.fit,
         AdaptiveSettings(**settings),
         CoverageOrder(GRID),
         lines.append,
+        ceiling,
     )
     return report, rec, lines
 
@@ -57,15 +66,26 @@ def test_the_loop_stops_by_its_rule_when_the_share_is_reached(tmp_path):
     doc = json.loads((tmp_path / "adaptive.json").read_text())
     assert doc["stopped_by"] == "rule" and [r["determined_share"] for r in doc["rounds"]] == [0.2, 0.5, 0.7]
     assert (
-        "adaptive round 3: 6 lights (+2: [50, -50], [150, -50]); determined_share 0.700 (0.70 of the reachable, "
-        "target 0.6); choice 0.0 s" in lines[2]
+        "adaptive round 3: 6 lights (+2: [50, -50], [150, -50]); determined_share 0.700 (0.70 of the reachable "
+        "1.000, target 0.6); choice 0.0 s" in lines[2]
     )
     assert lines[-1] == "adaptive capture stopped by the rule after 6 lights"
 
 
-def test_the_rule_is_relative_to_the_reachable_share(tmp_path):
-    report, _, _ = loop(tmp_path, [0.3, 0.46, 0.5], reachable=0.5, start=2, per_round=2, max_lights=8, target=0.9)
-    assert report.stopped_by == "rule" and [r.statistic for r in report.rounds] == [0.6, 0.92]
+def test_the_rule_is_relative_to_each_rounds_reachable_share(tmp_path):
+    # the ceiling is asked each round, with that round's fit and the candidates not yet captured
+    shares, reachable = [0.3, 0.46, 0.5], [0.5, 0.6, 0.5]
+    report, rec, _ = loop(tmp_path, shares, reachable, start=2, per_round=2, max_lights=8, target=0.9)
+    assert report.stopped_by == "rule" and [r.lights for r in report.rounds] == [2, 4, 6]
+    assert [r.statistic for r in report.rounds] == pytest.approx([0.6, 0.46 / 0.6, 1.0])
+    assert [r.reachable for r in report.rounds] == reachable
+    assert rec.asked == [("round_01", 6), ("round_02", 4), ("round_03", 2)]
+
+
+def test_a_fit_at_or_above_the_ceiling_stops_the_loop(tmp_path):
+    # nothing more to gain from the grid (the prediction at or below the fit's own share): statistic 1
+    report, _, _ = loop(tmp_path, [0.2, 0.2], [0.0, 0.0], start=2, per_round=2, max_lights=8, target=0.9)
+    assert report.stopped_by == "rule" and report.rounds[0].statistic == 1.0
 
 
 def test_the_loop_stops_by_the_budget_otherwise(tmp_path):
@@ -98,11 +118,12 @@ def test_a_bad_choice_is_a_named_error(tmp_path):
         run_adaptive(
             tmp_path,
             GRID,
-            Ranking(GRID, 1.0),
+            Ranking(GRID),
             rec.capture,
             rec.fit,
             AdaptiveSettings(start=2, per_round=2),
             lambda r, c, k: [3, 3],
+            ceiling=lambda r, c: 1.0,
         )
 
 

@@ -14,13 +14,18 @@ texel_covariance: the whole block where its lobe is measured, else Ps and sigma 
 measured after the candidates when it was (the run's lobe_measured) or when the candidates' T_spec observations
 bring the texel's count (the run's n_specular plus theirs) to the two the closed form needs (fit.initialise).
 
-The score of a texel is  u = log(1 + r_Ps^2 / tau^2) + log(1 + r_sigma^2 / tau^2),  r the relative std (Ps: the
-largest over its channels, as report.uncertainty), tau = 0.1 the precision at which report.uncertainty counts a
-texel as determined; a light's gain is the sum over texels of the decrease of u. Why this and not log det or the
-trace: like log det it is unitless and rewards halving a texel's variance alike whatever the parameter's scale, but
-it saturates once a texel is known far better than tau (log det keeps paying for texels already determined, which is
-not what the median relative error needs) and, unlike the trace of relative variances, it is not dominated by the
-few texels with Ps near 0 or without a lobe (whose relative variances are huge).
+The score of a texel is  u = log r_Ps^2 + log r_sigma^2,  r the relative std (std / value; Ps: the largest over
+its channels, as report.uncertainty); a light's gain is the sum over texels of the decrease of u, i.e. of
+log(var_before / var_after) over the texels and the two parameters: the expected reduction of the log posterior
+variance (D-optimal design per texel and parameter, on the marginal variances). Relative to the value, so that Ps
+and sigma weigh alike and a texel counts the same whatever its parameters' scale; halving a std is worth log 4
+wherever it happens, so the score keeps rewarding precision on the texels already known to 10 % (the typical texels
+that set the median relative error), and a texel's first measured lobe is worth log(prior variance / variance after)
+(large but finite: the broad prior bounds it). Why not a saturating score such as log(1 + r^2 / 0.1^2): it pays
+almost nothing for texels already known better than 10 %, so a light that halves the std of thousands of such
+texels lost to one that gives a few texels their second highlight, and the median error lagged (docs/results/
+next_best.md). Why not the trace of relative variances (A-optimal): it is dominated by the few texels with Ps near
+0 or without a lobe (whose relative variances are huge).
 
 Greedy: each round scores every remaining candidate against the texels' information so far and takes the best; its
 information and T_spec counts are added before the next round (a light is chosen at most once). A candidate at the
@@ -54,7 +59,7 @@ CHUNK = 8
 #: information plus the prior's, before any candidate) to Ps or sigma; the rest change a score by < 1e-3
 RELEVANT = 1e-3
 #: what the gain measures (NextBest.score)
-SCORE = "sum over texels of the decrease of log(1 + (std/value)^2 / 0.1^2) for Ps (largest channel) and sigma"
+SCORE = "sum over texels of log(var_before / var_after) of Ps (largest channel) and sigma (D-optimal per texel)"
 
 
 class PlanningScene(Protocol):
@@ -183,8 +188,7 @@ class TexelState:
     def score(self, idx, info, added_spec) -> torch.Tensor:
         """(N,) the score u of texels idx (module docstring)."""
         ps_rel, sg_rel = self.relative_var(idx, info, added_spec)
-        tau2 = RELATIVE_PRECISION**2
-        return torch.log1p(ps_rel / tau2) + torch.log1p(sg_rel / tau2)
+        return torch.log(ps_rel) + torch.log(sg_rel)
 
     def relevant(self, light: LightInformation) -> LightInformation:
         """light without the texels where it adds less than RELEVANT of the current precision of Ps or sigma (the
@@ -234,33 +238,56 @@ def current_information(scene: RunScene) -> torch.Tensor:
     return info
 
 
+class Planner:
+    """One fitted run's planning inputs, computed once: its texels' information now and what each of the candidates
+    (M, 3) head-frame mm would add (module docstring); choose(k) the greedy choice, reachable() the ceiling."""
+
+    def __init__(self, scene: RunScene, candidates: np.ndarray):
+        self.scene = scene
+        self.candidates = check_candidates(candidates, "candidates")
+        self.available = ~taken(self.candidates, scene.lights)
+        self.info = current_information(scene)
+        self.light = TexelState(scene, self.info.clone()).relevant(light_information(scene, self.candidates))
+
+    def choose(self, k: int) -> NextBest:
+        """Greedy choice of k of the candidates (module docstring)."""
+        m_all = len(self.candidates)
+        if int(k) < 1 or int(k) > m_all:
+            raise ConfigError(f"--lights {k}: expected a number of lights between 1 and the {m_all} candidates")
+        available = self.available.copy()
+        if int(k) > int(available.sum()):
+            raise ConfigError(
+                f"--lights {k}: only {int(available.sum())} of the {m_all} candidates are not already lights of the run"
+            )
+        state = TexelState(self.scene, self.info.clone())
+        chosen, gains = [], []
+        s, b = state.known_shares()
+        sigma_known, both_known = [s], [b]
+        for _ in range(int(k)):
+            g = np.array([state.gain(self.light, m) if available[m] else -np.inf for m in range(m_all)])
+            m = int(np.argmax(g))
+            state.add(self.light, m)
+            available[m] = False
+            chosen.append(m)
+            gains.append(g[m])
+            s, b = state.known_shares()
+            sigma_known.append(s)
+            both_known.append(b)
+        return NextBest(chosen, np.array(gains), self.candidates, sigma_known, both_known)
+
+    def reachable(self) -> float:
+        """The predicted share of the estimated texels with Ps and sigma known to RELATIVE_PRECISION were every
+        candidate (not already a light of the run) added: the ceiling of what the candidates can determine, by the
+        same prediction as the choice's (TexelState.known_shares)."""
+        state = TexelState(self.scene, self.info.clone())
+        for m in np.flatnonzero(self.available):
+            state.add(self.light, int(m))
+        return state.known_shares()[1]
+
+
 def choose(scene: RunScene, candidates: np.ndarray, k: int) -> NextBest:
     """Greedy choice of k of the candidates (M, 3) head-frame mm for the RunScene (module docstring)."""
-    candidates = check_candidates(candidates, "candidates")
-    if int(k) < 1 or int(k) > len(candidates):
-        raise ConfigError(f"--lights {k}: expected a number of lights between 1 and the {len(candidates)} candidates")
-    available = ~taken(candidates, scene.lights)
-    if int(k) > int(available.sum()):
-        raise ConfigError(
-            f"--lights {k}: only {int(available.sum())} of the {len(candidates)} candidates are not already lights of "
-            "the run"
-        )
-    state = TexelState(scene, current_information(scene))
-    light = state.relevant(light_information(scene, candidates))
-    chosen, gains = [], []
-    s, b = state.known_shares()
-    sigma_known, both_known = [s], [b]
-    for _ in range(int(k)):
-        g = np.array([state.gain(light, m) if available[m] else -np.inf for m in range(len(candidates))])
-        m = int(np.argmax(g))
-        state.add(light, m)
-        available[m] = False
-        chosen.append(m)
-        gains.append(g[m])
-        s, b = state.known_shares()
-        sigma_known.append(s)
-        both_known.append(b)
-    return NextBest(chosen, np.array(gains), candidates, sigma_known, both_known)
+    return Planner(scene, candidates).choose(k)
 
 
 def taken(candidates: np.ndarray, lights: np.ndarray, tolerance_mm: float = 1e-3) -> np.ndarray:

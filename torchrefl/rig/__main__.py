@@ -123,7 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=ad.target,
         help="--adaptive: stop when the share of the texels with Ps and sigma known to 10 %% reaches this fraction of "
-        f"the share the light grid can reach ({ad.target})",
+        f"the share the next-best planner predicts with every grid light ({ad.target})",
     )
     cap.add_argument(
         "--chooser",
@@ -250,8 +250,8 @@ def _adaptive(args, settings, model, client, scan, progress) -> int:
     from torchrefl.config import load_config
     from torchrefl.rig.adaptive import (
         CoverageOrder,
+        NextBestRounds,
         coverage_greedy_ranking,
-        next_best_chooser,
         round_config,
         run_adaptive,
     )
@@ -274,8 +274,8 @@ def _adaptive(args, settings, model, client, scan, progress) -> int:
     progress("adaptive capture: ranking the light grid by the coverage-greedy selection for the start set")
     ranking = coverage_greedy_ranking(load_config(args.scene, list(args.scene_set)), out, candidates)
     progress(
-        f"adaptive capture: two highlights among all {len(candidates)} grid lights reach {ranking.reachable:.1%} of "
-        f"the texels; the loop stops when {adaptive.target:.0%} of that share has Ps and sigma known to 10 %"
+        f"adaptive capture: the loop stops when the share of the texels with Ps and sigma known to 10 % reaches "
+        f"{adaptive.target:.0%} of the share the planner predicts with all {len(candidates)} grid lights"
     )
     runner = CaptureRunner(client, model, simulated_camera(scan), folder, settings, progress=progress)
 
@@ -283,7 +283,8 @@ def _adaptive(args, settings, model, client, scan, progress) -> int:
         cfg = round_config(args.scene, args.scene_set, out, run_dir, init_from, adaptive.fit_set)
         return fit_run(cfg, quiet=True, overwrite=True)
 
-    chooser = CoverageOrder(ranking.order) if args.chooser == "coverage" else next_best_chooser
+    planner = NextBestRounds()
+    chooser = CoverageOrder(ranking.order) if args.chooser == "coverage" else planner.choose
     try:
         report = run_adaptive(
             out,
@@ -294,11 +295,12 @@ def _adaptive(args, settings, model, client, scan, progress) -> int:
             adaptive,
             chooser,
             progress,
+            planner.reachable,
         )
     finally:
         client.link.close()
     last = report.rounds[-1]
-    share = "none" if last.determined_share is None else f"{last.determined_share:.3f} of {report.reachable:.3f}"
+    share = "none" if last.reachable is None else f"{last.determined_share:.3f} of {last.reachable:.3f}"
     print(
         f"adaptive capture complete: stopped by the {report.stopped_by} after {len(report.rounds)} rounds, "
         f"{last.lights} images in {folder.manifest}; determined_share {share} reachable; {report.wall_s:.0f} s; "

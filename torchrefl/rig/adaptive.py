@@ -11,12 +11,14 @@ of lights, fit, choose the next lights from the fit, capture them, refit, until 
   `CoverageOrder` continues the coverage-greedy order instead.
 - Stopping rule: the share of the estimated texels whose Ps (every channel) and sigma have std / value at most 0.1
   (metrics.json `uncertainty.determined_share`, torchrefl.report.uncertainty) reaches `target` (0.9) of the share the
-  light grid can reach (`reachable`: the seen texels that two strong-specular observations among all candidates
-  reach, the coverage-greedy selection's all-candidates specular coverage); else the budget `max_lights`, or no
-  candidate left. The statistic is the fit's own uncertainty (no truth needed, so it works on a real object); it is
-  taken relative to the reachable share because texels that no pair of candidate lights gives highlights are never
-  determined: an absolute share (say 90 %) is out of reach on the default object (all 60 grid lights reach 57 % of
-  its texels) and would always end by the budget, and a share that suits one object is lax or out of reach on another.
+  light grid can reach (`reachable`: the next-best planner's predicted share of texels with Ps and sigma known to 0.1
+  were every grid light not yet captured added to this round's fit, planning.next_best.Planner.reachable, recomputed
+  each round); else the budget `max_lights`, or no candidate left. Both sides count the same thing, Ps and sigma
+  known to 10 % by the same Fisher-information model (the fit's uncertainty), the ceiling at the round's estimate
+  with all the grid's images; no truth needed, so it works on a real object. The share is taken relative to the
+  ceiling because texels that the grid cannot determine never are: an absolute share (say 90 %) is out of reach on
+  the default object and would always end by the budget, and a share that suits one object is lax or out of reach
+  on another. Where the fit already reaches the ceiling (or more) the statistic is 1.
 - The rounds are logged in OUT/adaptive.json (rewritten whole after each round: AdaptiveReport) and one progress
   line per round.
 """
@@ -37,21 +39,43 @@ from torchrefl.rig.plan import target_key
 
 #: (run folder, candidate head-frame positions (M, 3) mm, k) -> up to k indices into the candidates, in choice order
 Chooser = Callable[[Path, np.ndarray, int], list[int]]
+#: (run folder, candidate head-frame positions (M, 3) mm not yet captured) -> the predicted determined share were all
+#: of them captured (module docstring)
+Ceiling = Callable[[Path, np.ndarray], float]
 #: the report file and the folder of the rounds' fits, inside the capture folder
 REPORT = "adaptive.json"
 ROUNDS = "adaptive"
 
 
-def next_best_chooser(run_dir: Path, candidates: np.ndarray, k: int) -> list[int]:
-    """The next-best-light planner's choice (torchrefl.planning.next_best.next_best_lights)."""
-    try:
-        from torchrefl.planning.next_best import next_best_lights
-    except ImportError:
-        raise RigError(
-            "adaptive capture: the next-best-light planner (torchrefl.planning.next_best) is not in this install; "
-            "choose with --chooser coverage"
-        ) from None
-    return [int(i) for i in next_best_lights(run_dir, candidates, k).chosen]
+class NextBestRounds:
+    """The next-best-light planner (torchrefl.planning.next_best.Planner) as the loop's chooser and ceiling: both ask
+    about the same round's run and candidates, so the planner's inputs (every candidate's information, the costly
+    part) are computed once per round."""
+
+    def __init__(self):
+        self._key, self._planner = None, None
+
+    def planner(self, run_dir: Path, candidates: np.ndarray):
+        key = (str(Path(run_dir).resolve()), np.asarray(candidates, dtype=np.float64).tobytes())
+        if key != self._key:
+            try:
+                from torchrefl.planning.next_best import Planner
+                from torchrefl.planning.run_scene import load_run_scene
+            except ImportError:
+                raise RigError(
+                    "adaptive capture: the next-best-light planner (torchrefl.planning.next_best) is not in this "
+                    "install; it predicts the stopping rule's reachable share"
+                ) from None
+            self._key, self._planner = key, Planner(load_run_scene(Path(run_dir)), candidates)
+        return self._planner
+
+    def choose(self, run_dir: Path, candidates: np.ndarray, k: int) -> list[int]:
+        """The planner's greedy choice of k (a Chooser)."""
+        return [int(i) for i in self.planner(run_dir, candidates).choose(k).chosen]
+
+    def reachable(self, run_dir: Path, candidates: np.ndarray) -> float:
+        """The planner's predicted determined share with every candidate added (a Ceiling)."""
+        return self.planner(run_dir, candidates).reachable()
 
 
 class CoverageOrder:
@@ -95,41 +119,41 @@ class AdaptiveSettings:
 @dataclass(frozen=True)
 class Ranking:
     """The candidates ranked by the coverage-greedy selection: order (N, 3) head-frame positions mm, best first (the
-    start set takes the first); reachable: the share of the seen texels that two strong-specular observations among
-    all candidates reach (SelectionResult.all_specular), the stopping rule's ceiling."""
+    start set takes the first)."""
 
     order: np.ndarray
-    reachable: float
 
 
 @dataclass
 class Round:
     """One round: its number (1 = the start set), the lights captured so far, the head-frame positions added this
-    round (mm), its fit's determined_share and the stopping statistic determined_share / reachable (None: the fit
-    wrote no uncertainty), the times (s) the chooser took to pick the added lights (0 for the start set), their
-    capture and the fit, the fit's run folder (relative to the capture folder) and
-    its errors against the truth where the scene has one (metrics.json ground_truth: pd_rmse, ps_median_rel_err,
-    sigma_median_rel_err)."""
+    round (mm), its fit's determined_share, the reachable share (the planner's ceiling, module docstring) and the
+    stopping statistic determined_share / reachable (None: the fit wrote no uncertainty, or no candidate is left),
+    the times (s) the chooser took to pick the added lights (0 for the start set), their capture and the fit, the
+    fit's run folder (relative to the capture folder), its errors against the truth where the scene has one
+    (metrics.json ground_truth: pd_rmse, ps_median_rel_err, sigma_median_rel_err) and the time (s) the reachable
+    share took (with the next-best planner it computes the candidates' information, which the next choice reuses)."""
 
     round: int
     lights: int
     added_mm: list
     determined_share: float | None
+    reachable: float | None
     statistic: float | None
     choose_s: float
     capture_s: float
     fit_s: float
     run: str
     ground_truth: dict | None = None
+    reachable_s: float = 0.0
 
 
 @dataclass
 class AdaptiveReport:
-    """OUT/adaptive.json: the settings, the reachable share, the rounds, why the loop stopped (rule, budget,
-    candidates, or running while it runs) and the total wall time (s)."""
+    """OUT/adaptive.json: the settings, the rounds, why the loop stopped (rule, budget, candidates, or running while
+    it runs) and the total wall time (s)."""
 
     settings: dict
-    reachable: float
     rounds: list[Round] = field(default_factory=list)
     stopped_by: str = "running"
     wall_s: float = 0.0
@@ -140,11 +164,14 @@ class AdaptiveReport:
 
 def round_line(r: Round, target: float) -> str:
     """The progress line of a round."""
-    share = "none" if r.determined_share is None else f"{r.determined_share:.3f} ({r.statistic:.2f} of the reachable"
+    share = "none" if r.determined_share is None else f"{r.determined_share:.3f}"
+    if r.statistic is not None:
+        share += f" ({r.statistic:.2f} of the reachable {r.reachable:.3f}, target {target:g})"
     added = ", ".join(f"[{p[0]:g}, {p[1]:g}]" for p in r.added_mm)
     return (
-        f"adaptive round {r.round}: {r.lights} lights (+{len(r.added_mm)}: {added}); determined_share {share}, "
-        f"target {target:g}); choice {r.choose_s:.1f} s, capture {r.capture_s:.1f} s, fit {r.fit_s:.1f} s"
+        f"adaptive round {r.round}: {r.lights} lights (+{len(r.added_mm)}: {added}); determined_share {share}; "
+        f"choice {r.choose_s:.1f} s, capture {r.capture_s:.1f} s, fit {r.fit_s:.1f} s, "
+        f"reachable share {r.reachable_s:.1f} s"
     )
 
 
@@ -162,19 +189,25 @@ def run_adaptive(
     capture: Callable[[np.ndarray], None],
     fit: Callable[[Path, Path | None], dict],
     settings: AdaptiveSettings,
-    chooser: Chooser = next_best_chooser,
+    chooser: Chooser | None = None,
     progress: Callable[[str], None] = print,
+    ceiling: Ceiling | None = None,
 ) -> AdaptiveReport:
     """The loop (module docstring) into the capture folder `out`.
 
-    candidates (M, 3): the head-frame light positions the rig can reach (mm); ranking: the start set's order and the
-    reachable share (coverage_greedy_ranking); capture(positions (n, 3)): captures every
+    candidates (M, 3): the head-frame light positions the rig can reach (mm); ranking: the start set's order
+    (coverage_greedy_ranking); capture(positions (n, 3)): captures every
     given position into `out` (those already recorded are skipped); fit(run_dir, init_from or None) -> metrics:
-    fits `out` into run_dir, warm-started from init_from. Returns the report (also written to out/adaptive.json)."""
+    fits `out` into run_dir, warm-started from init_from; chooser and ceiling: the next lights and the stopping rule's
+    reachable share (both the next-best planner's where not given, NextBestRounds). Returns the report (also written
+    to out/adaptive.json)."""
     out = Path(out)
     candidates = np.asarray(candidates, dtype=np.float64)
     settings.check(len(candidates))
-    report = AdaptiveReport(settings=asdict(settings), reachable=float(ranking.reachable))
+    planner = NextBestRounds()
+    chooser = planner.choose if chooser is None else chooser
+    ceiling = planner.reachable if ceiling is None else ceiling
+    report = AdaptiveReport(settings=asdict(settings))
     t0 = time.perf_counter()
     taken: list[np.ndarray] = []
     added = [np.asarray(p, dtype=np.float64) for p in np.asarray(ranking.order)[: settings.start]]
@@ -189,24 +222,30 @@ def run_adaptive(
         metrics = fit(run_dir, previous)
         fit_s = time.perf_counter() - t
         share = (metrics.get("uncertainty") or {}).get("determined_share")
-        statistic = None if share is None else share / max(ranking.reachable, 1e-12)
+        done = {target_key(p) for p in taken}
+        remaining = np.array([p for p in candidates if target_key(p) not in done]).reshape(-1, 3)
+        reachable = statistic = None
+        t = time.perf_counter()
+        if share is not None and len(remaining):
+            reachable = float(ceiling(run_dir, remaining))
+            statistic = 1.0 if share >= reachable else share / reachable
         r = Round(
             len(report.rounds) + 1,
             len(taken),
             [[float(v) for v in p] for p in added],
             share,
+            reachable,
             statistic,
             round(choose_s, 3),
             round(capture_s, 3),
             round(fit_s, 3),
             str(run_dir.relative_to(out)),
             _ground_truth(metrics),
+            round(time.perf_counter() - t, 3),
         )
         report.rounds.append(r)
         report.wall_s = round(time.perf_counter() - t0, 3)
         progress(round_line(r, settings.target))
-        done = {target_key(p) for p in taken}
-        remaining = np.array([p for p in candidates if target_key(p) not in done]).reshape(-1, 3)
         k = min(settings.per_round, settings.max_lights - len(taken), len(remaining))
         if statistic is not None and statistic >= settings.target:
             report.stopped_by = "rule"
@@ -267,4 +306,4 @@ def coverage_greedy_ranking(cfg, folder: Path, candidates: np.ndarray) -> Rankin
     geom = CylindricalScanLoader().load_geometry(Path(folder), cfg, check_scale=False)
     every = dataclasses.replace(cfg, selection=dataclasses.replace(cfg.selection, num_lights=len(candidates)))
     sel = choose_lights(every, geom, candidates)
-    return Ranking(np.asarray(candidates)[sel.chosen], float(sel.all_specular))
+    return Ranking(np.asarray(candidates)[sel.chosen])
