@@ -141,7 +141,9 @@ def levenberg_marquardt(
         cost_all = cost_all.index_copy(0, index, kept.to(cost_all.dtype))
         total = float(cost_all.sum()) / objective._count
         history.append(total)
-        active = active.index_put((index,), ~texel_converged(cost, new_cost, better, step, lam_a))
+        active = active.index_put(
+            (index,), ~texel_converged(cost, new_cost, better, step, lam_a, total * objective._count / T)
+        )
         if progress is not None:
             progress.update(1)
             progress.set_postfix(loss=f"{total:.4g}")
@@ -181,12 +183,19 @@ def _texels_of(model: Callable, params: TexelParams, x: list, index: torch.Tenso
 
 
 def texel_converged(
-    cost: torch.Tensor, new_cost: torch.Tensor, better: torch.Tensor, step: torch.Tensor, lam: torch.Tensor
+    cost: torch.Tensor,
+    new_cost: torch.Tensor,
+    better: torch.Tensor,
+    step: torch.Tensor,
+    lam: torch.Tensor,
+    typical: float,
 ) -> torch.Tensor:
-    """(n,) bool texels whose iteration moved them below the fit's own tolerance (TOLERANCE): a kept step that
-    lowered their cost by less than that fraction and moved no raw component by more than it; or a refused step at
+    """(n,) bool texels this iteration left below the fit's own tolerance (TOLERANCE): a step (kept or not) that
+    moved no raw component by more than it and changed their cost by less than that fraction of their cost plus
+    `typical` (the mean texel's cost: a texel fitted exactly has no cost to be a fraction of); or a refused step at
     the largest damping (no step left to try)."""
-    small = better & (cost - new_cost <= TOLERANCE * cost.abs()) & (step.abs().amax(1) <= TOLERANCE)
+    change = (cost - new_cost).abs()
+    small = (step.abs().amax(1) <= TOLERANCE) & (change <= TOLERANCE * (cost.abs() + typical))
     return small | (~better & (lam >= _LAMBDA_MAX))
 
 

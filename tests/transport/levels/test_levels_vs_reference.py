@@ -35,6 +35,7 @@ from torchrefl.core.progress import Stages
 from torchrefl.fit.pipeline import level_inputs
 from torchrefl.synthetic.capture import synthetic_capture
 from torchrefl.synthetic.objects import make_object
+from torchrefl.transport.levels.base import IndirectTerms
 from torchrefl.transport.levels.local import LocalLevel
 from torchrefl.transport.levels.photon import PhotonLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
@@ -403,3 +404,24 @@ def test_texel_model_is_predict_with_the_indirect_light_held(fold, name):
         if name == "radiosity":
             moved = (level.predict(pd1, ps1, sigma1) - level.predict(pd0, ps, sigma)).abs().amax((0, 2)) > 1e-9
             assert int(moved.sum()) > 1
+
+
+@pytest.mark.parametrize("name", ["radiosity", "photon_hybrid"])
+def test_texel_model_of_some_texels_is_theirs_of_the_whole(fold, name):
+    """texel_model(pd0, texels): the model of those texels alone gives their rows of the whole model's images, at a
+    lobe per texel; so do the indirect terms restricted without the level's own restriction (specular_of None)."""
+    level = level_for(fold["cfg"], fold["capture"], name, 0)
+    pd, ps, sigma = fold["truth"]
+    predict_at(level, fold["truth"])
+    pd0 = pd * 0.8
+    index = torch.as_tensor(fold["near"][::3], dtype=torch.long)
+    with torch.no_grad():
+        whole = level.texel_model(pd0)(pd0, ps, sigma)[:, index]
+        part = level.texel_model(pd0, index)(pd0[index], ps[index], sigma[index])
+        torch.testing.assert_close(part, whole, rtol=1e-9, atol=1e-12)
+        terms = level.indirect_terms(pd0)
+        plain = IndirectTerms(terms.diffuse, terms.specular).texels(index)
+        own = terms.texels(index)
+        torch.testing.assert_close(plain.specular(sigma[index]), terms.specular(sigma)[:, index])
+        torch.testing.assert_close(own.specular(sigma[index]), terms.specular(sigma)[:, index])
+        torch.testing.assert_close(own.diffuse, terms.diffuse[:, index])
