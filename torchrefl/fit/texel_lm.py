@@ -102,7 +102,10 @@ def levenberg_marquardt(
     lam = torch.full((T,), _LAMBDA0, dtype=torch.float64, device=device)
     history: list[float] = []
     x = [q.detach().clone() for q in raws]
-    active = torch.ones(T, dtype=torch.bool, device=device) if skip is None else ~skip.to(device)
+    if skip is not None:
+        skip = skip.to(device)
+    active = torch.ones(T, dtype=torch.bool, device=device) if skip is None else ~skip
+    refit = active.nonzero()[:, 0]
     cost_all = None  # (T,) each texel's cost at x; a texel no longer evaluated keeps its last
     if not bool(active.all()):
         with torch.no_grad():
@@ -136,18 +139,18 @@ def levenberg_marquardt(
             x[i] = x[i].index_copy(0, index, torch.where(keep, trial[i], part[i]))
         lam_a = torch.where(better, lam_a / 3.0, lam_a * 4.0).clamp(_LAMBDA_MIN, _LAMBDA_MAX)
         lam = lam.index_copy(0, index, lam_a)
-        before = float(cost_all.sum()) / objective._count
+        before = float(cost_all.index_select(0, refit).sum())  # the skipped texels' cost is not this fit's
         kept = torch.where(better, new_cost, cost)
         cost_all = cost_all.index_copy(0, index, kept.to(cost_all.dtype))
         total = float(cost_all.sum()) / objective._count
         history.append(total)
-        active = active.index_put(
-            (index,), ~texel_converged(cost, new_cost, better, step, lam_a, total * objective._count / T)
-        )
+        after = float(cost_all.index_select(0, refit).sum())
+        typical = after / len(refit)
+        active = active.index_put((index,), ~texel_converged(cost, new_cost, better, step, lam_a, typical))
         if progress is not None:
             progress.update(1)
             progress.set_postfix(loss=f"{total:.4g}")
-        if not bool(better.any()) or before - total < TOLERANCE * abs(before):
+        if not bool(better.any()) or before - after < TOLERANCE * abs(before):
             if progress is not None:  # converged: the bar ends full
                 progress.total = len(history)
                 progress.refresh()
@@ -192,7 +195,7 @@ def texel_converged(
 ) -> torch.Tensor:
     """(n,) bool texels this iteration left below the fit's own tolerance (TOLERANCE): a step (kept or not) that
     moved no raw component by more than it and changed their cost by less than that fraction of their cost plus
-    `typical` (the mean texel's cost: a texel fitted exactly has no cost to be a fraction of); or a refused step at
+    `typical` (the mean refit texel's cost: a texel fitted exactly has none to be a fraction of); or a refused step at
     the largest damping (no step left to try)."""
     change = (cost - new_cost).abs()
     small = (step.abs().amax(1) <= TOLERANCE) & (change <= TOLERANCE * (cost.abs() + typical))
