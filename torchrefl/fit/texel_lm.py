@@ -88,9 +88,9 @@ def levenberg_marquardt(
     """Minimise the objective per texel in place (see the module docstring); returns the objective after each
     iteration. texel_model(pd) -> (pd, ps, sigma) -> (P, T, 3) with the indirect light held at pd; texels_model(pd,
     texels) -> the same model of the texels (n,) long only ((n, 3), ... -> (P, n, 3); TransportLevel.texel_model;
-    None: texel_model's images of them); train: the raw tensors to solve for (default all), the others stay fixed. A
-    texel stops being evaluated once it has converged (texel_converged); skip: (T,) bool texels not refit at all
-    (they keep their values and count in the objective at them)."""
+    None, or where it gives None: texel_model's images of them); train: the raw tensors to solve for (default all),
+    the others stay fixed. A texel stops being evaluated once it has converged (texel_converged); skip: (T,) bool
+    texels not refit at all (they keep their values and count in the objective at them, not in its stop test)."""
     if params.shared_specular or objective.couples_texels:
         raise FitError("fit.optimizer lm: the objective couples texels (a shared lobe or fit.smoothness); use lbfgs")
     raws = [params.raw_pd, params.raw_ps, params.raw_sigma]
@@ -116,9 +116,8 @@ def levenberg_marquardt(
         if not len(index):
             break
         part = [q.index_select(0, index) for q in x]
-        if texels_model is not None:
-            model = texels_model(softplus_b(x[0]), index)
-        else:
+        model = None if texels_model is None else texels_model(softplus_b(x[0]), index)
+        if model is None:
             model = _texels_of(texel_model(softplus_b(x[0])), params, x, index)
         problem = _TexelProblem(params, objective, model, index)
         H, g, r, pulls = _normal_equations(problem, part, columns)

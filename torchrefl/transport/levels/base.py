@@ -53,9 +53,10 @@ class LevelInputs:
     log: Callable[[str], None]
     initialise: Callable[[torch.Tensor], Any]
 
-    def local_predict(self) -> Callable:
-        """(pd, ps, sigma) -> (P, T, 3) direct light on the fit's device."""
-        terms = self.terms
+    def local_predict(self, texels: Optional[torch.Tensor] = None) -> Callable:
+        """(pd, ps, sigma) -> (P, T, 3) direct light on the fit's device; texels (n,) long: of those texels only,
+        taking and giving their rows."""
+        terms = self.terms if texels is None else self.terms.texels(texels)
         if self.device.type != "cpu":
             terms = LocalTerms(
                 terms.brdf, *(getattr(terms, k).to(self.device) for k in LOCAL_TENSORS), terms.diffuse_exponent
@@ -143,27 +144,17 @@ class TransportLevel(ABC):
         """The indirect light this level predicts at texel Pd (T, 3), as IndirectTerms (default: none)."""
         return None
 
-    def texel_model(self, pd: torch.Tensor, texels: Optional[torch.Tensor] = None) -> Callable:
+    def texel_model(self, pd: torch.Tensor, texels: Optional[torch.Tensor] = None) -> Optional[Callable]:
         """(pd, ps, sigma) -> (P, T, 3): predict with the indirect light held at texel Pd `pd` (indirect_terms), so
         that each texel's images depend on its own parameters only; equals predict at pd (the per-texel solver's
         model, torchrefl.fit.texel_lm). texels: (n,) long, the model of those texels only, taking and giving their
-        rows ((n, 3), ..., -> (P, n, 3)); None: all."""
+        rows ((n, 3), ... -> (P, n, 3)); None where the level cannot give it (no indirect terms: predict is texel by
+        texel but need not be the local model, unless the level says so by overriding this)."""
         terms = self.indirect_terms(pd)
-        if texels is None:
-            if terms is None:  # no indirect light: predict itself is texel by texel
-                return self.predict
-            local = self.inputs.local_predict()
-        else:
-            local_terms = self.inputs.terms.texels(texels)
-            if self.inputs.device.type != "cpu":
-                local_terms = LocalTerms(
-                    local_terms.brdf,
-                    *(getattr(local_terms, k).to(self.inputs.device) for k in LOCAL_TENSORS),
-                    local_terms.diffuse_exponent,
-                )
-            local = lambda pd, ps, sigma: predict(local_terms, pd, ps, sigma)
-            if terms is None:
-                return local
+        if terms is None:  # no indirect light: predict itself is texel by texel
+            return self.predict if texels is None else None
+        local = self.inputs.local_predict(texels)
+        if texels is not None:
             terms = terms.texels(texels)
         return lambda pd, ps, sigma: local(pd, ps, sigma) + pd[None] * terms.diffuse + ps[None] * terms.specular(sigma)
 
