@@ -167,12 +167,12 @@ def refit(
     for k in range(done, level.refits):
         before = [v.detach().clone() for v in params.values()]
         again = reestimate(level, params, cfg, memory)
-        memory = again.memory
-        if again.memory is not None and again.searched < int(again.memory.sigma.numel()):
+        if memory is not None and again.memory is not None:
             level.inputs.log(
                 f"{level.name} refit {k + 1}: the sigma search on the {again.searched} texels with specular evidence "
                 f"whose indirect light moved by more than {fc.noise_floor_dn:g} DN"
             )
+        memory = again.memory
         if again.restarted:
             level.inputs.log(
                 f"{level.name} refit {k + 1}: {again.restarted} texels restart from the sigma search on direct plus "
@@ -229,10 +229,11 @@ def quiet_refit(level: TransportLevel, params: TexelParams, before: list, k: int
         quiet = quiet_texels(terms, pd, ps, sigma, level.inputs.fit_mask, floor_dn)
         for old, new in zip(before, (pd, ps, sigma)):
             quiet &= (old == new).reshape(len(quiet), -1).all(1)
-    level.inputs.log(
-        f"{level.name} refit {k + 1}: {int(quiet.sum())} texels with predicted interreflection below {floor_dn:g} DN "
-        "keep their values"
-    )
+    if bool(quiet.any()):
+        level.inputs.log(
+            f"{level.name} refit {k + 1}: {int(quiet.sum())} texels with predicted interreflection below {floor_dn:g} "
+            "DN keep their values"
+        )
     return quiet
 
 
