@@ -163,3 +163,39 @@ def test_a_texel_nothing_constrains_stays_where_it_is():
     assert all(torch.equal(a.detach()[3], b[3]) for a, b in zip(after, before))
     assert all(torch.isfinite(q).all() for q in after)
     assert not torch.equal(params.raw_pd.detach()[0], before[0][0])
+
+
+def test_converged_texels_stop_being_evaluated_and_skipped_ones_are_left_alone():
+    """Noise-free images: the texels started at the truth leave the evaluated set after the first iteration, those
+    in skip are never evaluated and keep their values bit for bit, the rest still reach the truth."""
+    obs, terms, (pd, ps, sigma) = glossy_scene(T=60, seed=3, noise=0.0)
+    params = start(obs, terms)
+    T = len(pd)
+    skip = torch.arange(T) % 20 == 1  # three: their cost counts in the objective whose progress stops the loop
+    at_truth = (torch.arange(T) % 3 == 0) & ~skip
+    with torch.no_grad():
+        params.assign(
+            torch.where(at_truth[:, None], pd, pd * 1.2),
+            torch.where(at_truth[:, None], ps, ps * 0.7),
+            torch.where(at_truth, sigma, sigma * 1.3),
+        )
+    raw = [q.detach().clone() for q in (params.raw_pd, params.raw_ps, params.raw_sigma)]
+    seen: list[torch.Tensor] = []
+
+    def texels_model(pd_at, index):
+        seen.append(index.clone())
+        return lambda a, b, c: predict(terms.texels(index), a, b, c)
+
+    levenberg_marquardt(
+        params, objective(obs, terms, loss="l2"), local_model(terms), 60, skip=skip, texels_model=texels_model
+    )
+    assert len(seen) > 3
+    assert not bool(skip[torch.cat(seen)].any())
+    assert not bool(at_truth[torch.cat(seen[1:])].any())
+    assert int((~skip & ~at_truth)[seen[1]].sum()) > 0
+    for q, r in zip((params.raw_pd, params.raw_ps, params.raw_sigma), raw):
+        assert torch.equal(q.detach()[skip], r[skip])
+    spec = (classify(terms.theta_h, obs.valid) == T_SPEC).sum(0) >= 2
+    moved = ~skip & ~at_truth & spec
+    torch.testing.assert_close(params.pd().detach()[moved], pd[moved], rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(params.pd().detach()[at_truth], pd[at_truth], rtol=1e-6, atol=1e-7)

@@ -19,10 +19,14 @@ INITIALISE = "initialise"
 OUTER = "outer"
 
 
-def outer_state(done: int, level: TransportLevel, params: TexelParams, objective, history: list[float]) -> dict:
+def outer_state(
+    done: int, level: TransportLevel, params: TexelParams, objective, history: list[float], memory=None
+) -> dict:
     """The refinement after `done` outer iterations (0: after the first refresh). `objective` is the fit's objective
-    factory; its lobe priors are kept when it has them (state())."""
+    factory; its lobe priors are kept when it has them (state()); memory: the indirect terms the last re-estimation
+    saw (torchrefl.fit.outer_skip.IndirectMemory, or None)."""
     return {
+        "reestimate_memory": memory,
         "done": done,
         "level": level.name,
         "params": {n: p.detach().clone() for n, p in params.named_parameters()},
@@ -35,7 +39,7 @@ def outer_state(done: int, level: TransportLevel, params: TexelParams, objective
 
 def restore_outer(state: dict, level: TransportLevel, params: TexelParams, objective) -> tuple[list[float], int]:
     """Put a saved refinement state back into the level, the parameters and the objective factory; returns the
-    loss history so far and the number of outer iterations done."""
+    loss history so far and the number of outer iterations done (the re-estimation's memory: saved_memory)."""
     with torch.no_grad():
         for n, p in params.named_parameters():
             p.copy_(state["params"][n].to(p))
@@ -44,3 +48,8 @@ def restore_outer(state: dict, level: TransportLevel, params: TexelParams, objec
     level.restore(state["level_state"])
     torch.set_rng_state(state["rng"])
     return list(state["history"]), int(state["done"])
+
+
+def saved_memory(state: dict | None):
+    """The re-estimation's memory a saved refinement state holds (None: none, or a checkpoint from before it)."""
+    return None if state is None else state.get("reestimate_memory")

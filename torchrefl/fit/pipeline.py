@@ -23,7 +23,8 @@ from torchrefl.fit.emitter_fill import nearest_fitted
 from torchrefl.fit.initialise import COVER_MATERIAL, COVER_MISFIT, initialise_local, mark_untrusted
 from torchrefl.fit.misfit import MISFIT_DEVIATIONS, misfit_texels, near_edge
 from torchrefl.fit.observe import observe
-from torchrefl.fit.outer_state import INITIALISE, OUTER, outer_state, restore_outer
+from torchrefl.fit.outer_skip import quiet_texels
+from torchrefl.fit.outer_state import INITIALISE, OUTER, outer_state, restore_outer, saved_memory
 from torchrefl.fit.reestimate import reestimate
 from torchrefl.fit.refine import Objective, Prior, neighbour_pairs, refine
 from torchrefl.fit.result import FitResult
@@ -162,8 +163,16 @@ def refit(
     else:
         history, done = restore_outer(saved, level, params, make_objective)
         level.inputs.log(f"resume: {level.name} refinement after outer iteration {done} of {level.refits}")
+    memory = saved_memory(saved)  # the indirect terms the last re-estimation saw
     for k in range(done, level.refits):
-        again = reestimate(level, params, cfg)
+        before = [v.detach().clone() for v in params.values()]
+        again = reestimate(level, params, cfg, memory)
+        if memory is not None and again.memory is not None:
+            level.inputs.log(
+                f"{level.name} refit {k + 1}: the sigma search on the {again.searched} texels with specular evidence "
+                f"whose indirect light moved by more than {fc.noise_floor_dn:g} DN"
+            )
+        memory = again.memory
         if again.restarted:
             level.inputs.log(
                 f"{level.name} refit {k + 1}: {again.restarted} texels restart from the sigma search on direct plus "
@@ -177,25 +186,55 @@ def refit(
             )
         if isinstance(make_objective, ObjectiveFactory):  # a plain (predict, mask) -> Objective has no priors
             make_objective.pool(again.pooled, params)
+        quiet = quiet_refit(level, params, before, k, fc.noise_floor_dn) if optimizer == "lm" else None
         for step in level.steps(k):
             train = None if step.train is None else [getattr(params, name) for name in step.train]
             objective = make_objective(level.predict, step.mask)
             with bar(step.iterations, step.label, cfg.output.progress) as pb:
                 if optimizer == "lm":
                     history += levenberg_marquardt(
-                        params, objective, level.texel_model, step.iterations, progress=pb, train=train
+                        params,
+                        objective,
+                        level.texel_model,
+                        step.iterations,
+                        progress=pb,
+                        train=train,
+                        skip=quiet,
+                        texels_model=level.texel_model,
                     )
                 else:
                     history += refine(
                         params, objective, optimizer, step.iterations, fc.learning_rate, progress=pb, train=train
                     )
         level.refresh(params, k + 1)
-        checkpoints.save(OUTER, outer_state(k + 1, level, params, make_objective, history))
+        checkpoints.save(OUTER, outer_state(k + 1, level, params, make_objective, history, memory))
     level.finish(params)
     if not history:  # no refit (e.g. photon.outer_iterations 0): the start's loss
         with torch.no_grad():
             history = [float(make_objective(level.predict, level.inputs.fit_mask)(params))]
     return history
+
+
+def quiet_refit(level: TransportLevel, params: TexelParams, before: list, k: int, floor_dn: float):
+    """(T,) bool texels refit k (from 0) leaves alone, or None: from the second refit on, those whose predicted
+    indirect light stays below floor_dn on all their fitted observations (torchrefl.fit.outer_skip) and that the
+    re-estimation did not move from `before` (their values before it)."""
+    if k == 0:
+        return None
+    with torch.no_grad():
+        pd, ps, sigma = (v.detach() for v in params.values())
+        terms = level.indirect_terms(pd)
+        if terms is None:
+            return None
+        quiet = quiet_texels(terms, pd, ps, sigma, level.inputs.fit_mask, floor_dn)
+        for old, new in zip(before, (pd, ps, sigma)):
+            quiet &= (old == new).reshape(len(quiet), -1).all(1)
+    if bool(quiet.any()):
+        level.inputs.log(
+            f"{level.name} refit {k + 1}: {int(quiet.sum())} texels with predicted interreflection below {floor_dn:g} "
+            "DN keep their values"
+        )
+    return quiet
 
 
 def level_inputs(cfg: Config, capture: Capture, log, device: torch.device = torch.device("cpu")):

@@ -28,6 +28,7 @@ from torchrefl.core.params import TexelParams
 from torchrefl.fit.lobe_consensus import settle_outliers
 from torchrefl.fit.material_fill import colour_matched_lobes
 from torchrefl.fit.material_lobe import cluster_lobes, colour_clusters
+from torchrefl.fit.outer_skip import IndirectMemory
 from torchrefl.fit.profile_search import profile_search, profiled_fit, sigma_grid
 from torchrefl.transport.levels.base import IndirectTerms, TransportLevel
 
@@ -41,12 +42,18 @@ class Reestimated:
     restarted: int = 0
     lent: Optional[torch.Tensor] = None
     pooled: Optional[torch.Tensor] = None
+    searched: int = 0
+    memory: Optional[IndirectMemory] = None
 
 
-def reestimate(level: TransportLevel, params: TexelParams, cfg: Config) -> Reestimated:
+def reestimate(
+    level: TransportLevel, params: TexelParams, cfg: Config, memory: Optional[IndirectMemory] = None
+) -> Reestimated:
     """Restart the texels with at least two fitted T_spec observations from the sigma search against direct plus
     the level's indirect light where that lowers their squared error, then lend the measured lobes to the texels
-    without specular evidence (lend_lobes)."""
+    without specular evidence (lend_lobes). memory: the indirect terms the last re-estimation saw (its result's
+    `memory`; None: none): the search runs only on the texels whose indirect light moved by more than
+    fit.noise_floor_dn since (torchrefl.fit.outer_skip); searched: how many it ran on."""
     inp, rc, fc = level.inputs, cfg.reflectance, cfg.fit
     if params.shared_specular or fc.sigma_search <= 0 or inp.terms.brdf == "lambertian":
         return Reestimated()
@@ -55,16 +62,31 @@ def reestimate(level: TransportLevel, params: TexelParams, cfg: Config) -> Reest
         terms = level.indirect_terms(pd)
         if terms is None:
             return Reestimated()
-        cpu = IndirectTerms(terms.diffuse.cpu(), lambda s: terms.specular(s).cpu())
+        cpu = _on_cpu(terms)
         intensity, mask = inp.obs.intensity, inp.fit_mask
         evidence = ((inp.classes == T_SPEC) & mask).sum(0) >= 2
+        search = evidence
+        if memory is not None:
+            search = evidence & memory.changed(cpu, pd.cpu(), ps.cpu(), mask, fc.noise_floor_dn)
         grid = sigma_grid(rc.sigma_min, rc.sigma_max, fc.sigma_search)
-        pd_s, ps_s, sg_s, err_s = profile_search(
-            inp.terms, intensity, mask, grid, rc.ps_channels, ps_max=rc.ps_max, indirect=cpu
-        )
         residual = (level.predict(pd, ps, sigma).cpu() - intensity) * mask[..., None]
         err0 = residual.square().sum((0, 2))
-        take = evidence & (err_s < err0)
+        pd_s, ps_s, sg_s = pd.cpu().clone(), ps.cpu().clone(), sigma.cpu().clone()
+        err_s = torch.full_like(err0, float("inf"))
+        index = search.nonzero()[:, 0]
+        if len(index):  # only these texels can restart: the search runs on them alone
+            found = profile_search(
+                inp.terms.texels(index),
+                intensity.index_select(1, index),
+                mask.index_select(1, index),
+                grid,
+                rc.ps_channels,
+                ps_max=rc.ps_max,
+                indirect=cpu.texels(index),
+            )
+            for full, part in zip((pd_s, ps_s, sg_s, err_s), found):
+                full[index] = part.to(full.dtype)
+        take = search & (err_s < err0)
         pd_new = torch.where(take[:, None], pd_s.to(pd.dtype), pd.cpu())
         ps_new = torch.where(take[:, None], ps_s.to(ps.dtype), ps.cpu())
         sigma_new = torch.where(take, sg_s.to(sigma.dtype), sigma.cpu())
@@ -80,7 +102,17 @@ def reestimate(level: TransportLevel, params: TexelParams, cfg: Config) -> Reest
             params.assign(pd_new.to(dev), ps_new.to(dev), sigma_new.to(dev))
     lent = lend_lobes(level, params)
     pooled = material_lobes(level, params, cpu, evidence if lent is None else evidence | lent, cfg)
-    return Reestimated(int(take.sum()), lent, pooled)
+    return Reestimated(int(take.sum()), lent, pooled, len(index), IndirectMemory.of(cpu, sigma.cpu()))
+
+
+def _on_cpu(terms: IndirectTerms) -> IndirectTerms:
+    """The indirect terms with every factor they give moved to the CPU (the re-estimation's sums run there)."""
+    of = terms.specular_of
+    return IndirectTerms(
+        terms.diffuse.cpu(),
+        lambda s: terms.specular(s).cpu(),
+        None if of is None else (lambda texels: lambda s, f=of(texels): f(s).cpu()),
+    )
 
 
 def material_lobes(
@@ -96,10 +128,18 @@ def material_lobes(
         cluster = colour_clusters(inp.surface.neighbours, pd, members)
         if cluster.max() < 0:
             return None
-        profile = profiled_fit(inp.terms, inp.obs.intensity, inp.fit_mask, rc.ps_channels, rc.ps_max, indirect)
-        grid = sigma_grid(rc.sigma_min, rc.sigma_max, max(3, 2 * cfg.fit.sigma_search))
-        ps_c, sg_c, determined = cluster_lobes(profile.parts, cluster, grid, rc.ps_channels, rc.ps_max)
         cluster = torch.from_numpy(cluster)
+        index = (cluster >= 0).nonzero()[:, 0]  # the lobes are fitted to the clusters' texels alone
+        profile = profiled_fit(
+            inp.terms.texels(index),
+            inp.obs.intensity.index_select(1, index),
+            inp.fit_mask.index_select(1, index),
+            rc.ps_channels,
+            rc.ps_max,
+            indirect.texels(index),
+        )
+        grid = sigma_grid(rc.sigma_min, rc.sigma_max, max(3, 2 * cfg.fit.sigma_search))
+        ps_c, sg_c, determined = cluster_lobes(profile.parts, cluster[index].numpy(), grid, rc.ps_channels, rc.ps_max)
         pooled = (cluster >= 0) & determined[cluster.clamp_min(0)]
         if not bool(pooled.any()):
             return None

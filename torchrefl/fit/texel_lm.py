@@ -40,32 +40,37 @@ def irls_weight(r: torch.Tensor, kind: str, scale: float) -> torch.Tensor:
 
 
 class _TexelProblem:
-    """The per-texel residuals of an Objective for a frozen-indirect model, as functions of the raw tensors."""
+    """The per-texel residuals of an Objective for a frozen-indirect model, as functions of the raw tensors of the
+    texels `texels` (n,) long (None: all): model takes and gives their rows only."""
 
-    def __init__(self, params: TexelParams, objective: Objective, model: Callable):
+    def __init__(self, params: TexelParams, objective: Objective, model: Callable, texels=None):
         self.params, self.objective, self.model = params, objective, model
-        self.mask = objective.weight.to(objective.intensity.dtype)[..., None]
+        pick = (lambda x, dim=0: x) if texels is None else (lambda x, dim=0: x.index_select(dim, texels))
+        self.weight = pick(objective.weight, 1)
+        self.intensity = pick(objective.intensity, 1)
+        self.mask = self.weight.to(objective.intensity.dtype)[..., None]
         # the objective is (sum of robust losses + sum of prior pulls) / count: per texel, in units of the robust
         # loss, a prior of weight w over n texels pulls with w * count / n
         self.priors = [
-            (p, (2.0 * p.weight * objective._count / int(p.mask.sum())) ** 0.5) for p in objective._active_priors()
+            (pick(p.mask), pick(p.ps), pick(p.sigma), (2.0 * p.weight * objective._count / int(p.mask.sum())) ** 0.5)
+            for p in objective._active_priors()
         ]
 
     def residuals(self, raw_pd, raw_ps, raw_sigma) -> tuple[torch.Tensor, torch.Tensor]:
-        """(P, T, 3) data residuals in 8-bit DN (0 where not fitted), and (T, n (C + 1)) the n priors' residuals."""
+        """(P, n, 3) data residuals in 8-bit DN (0 where not fitted), and (n, m (C + 1)) the m priors' residuals."""
         p = self.params
         pd, ps, sigma = softplus_b(raw_pd), p.ps_of(raw_ps), p.sigma_of(raw_sigma)
-        r = (self.model(pd, ps, sigma) - self.objective.intensity) * 255.0 * self.mask
+        r = (self.model(pd, ps, sigma) - self.intensity) * 255.0 * self.mask
         pulls = [r.new_zeros(r.shape[1], 0)]
-        for prior, root in self.priors:
-            m = prior.mask.to(r.dtype)[:, None] * root
-            d_ps = torch.log(ps + _LOG_EPS) - torch.log(prior.ps + _LOG_EPS)
-            d_sigma = torch.log(sigma / prior.sigma)[:, None]
+        for mask, prior_ps, prior_sigma, root in self.priors:
+            m = mask.to(r.dtype)[:, None] * root
+            d_ps = torch.log(ps + _LOG_EPS) - torch.log(prior_ps + _LOG_EPS)
+            d_sigma = torch.log(sigma / prior_sigma)[:, None]
             pulls.append(torch.cat([d_ps, d_sigma], 1) * m)
         return r, torch.cat(pulls, 1)
 
     def cost(self, r: torch.Tensor, pulls: torch.Tensor) -> torch.Tensor:
-        """(T,) each texel's cost: its robust losses plus half its squared prior residuals."""
+        """(n,) each texel's cost: its robust losses plus half its squared prior residuals."""
         o = self.objective
         return robust_loss(r, o.loss, o.loss_scale_8bit).sum((0, 2)) + 0.5 * (pulls * pulls).sum(1)
 
@@ -73,14 +78,19 @@ class _TexelProblem:
 def levenberg_marquardt(
     params: TexelParams,
     objective: Objective,
-    texel_model: Callable[[torch.Tensor], Callable],
+    texel_model: Callable[..., Callable],
     iterations: int,
     progress=None,
     train=None,
+    skip: torch.Tensor | None = None,
+    texels_model: Callable[..., Callable] | None = None,
 ) -> list[float]:
     """Minimise the objective per texel in place (see the module docstring); returns the objective after each
-    iteration. texel_model(pd) -> (pd, ps, sigma) -> (P, T, 3) with the indirect light held at pd; train: the raw
-    tensors to solve for (default all), the others stay fixed."""
+    iteration. texel_model(pd) -> (pd, ps, sigma) -> (P, T, 3) with the indirect light held at pd; texels_model(pd,
+    texels) -> the same model of the texels (n,) long only ((n, 3), ... -> (P, n, 3); TransportLevel.texel_model;
+    None, or where it gives None: texel_model's images of them); train: the raw tensors to solve for (default all),
+    the others stay fixed. A texel stops being evaluated once it has converged (texel_converged); skip: (T,) bool
+    texels not refit at all (they keep their values and count in the objective at them, not in its stop test)."""
     if params.shared_specular or objective.couples_texels:
         raise FitError("fit.optimizer lm: the objective couples texels (a shared lobe or fit.smoothness); use lbfgs")
     raws = [params.raw_pd, params.raw_ps, params.raw_sigma]
@@ -88,38 +98,58 @@ def levenberg_marquardt(
     columns = [(i, j) for i, q in enumerate(raws) if trained[i] for j in range(1 if q.dim() == 1 else q.shape[1])]
     if not columns:
         return []
-    T = params.num_texels
-    lam = torch.full((T,), _LAMBDA0, dtype=torch.float64, device=params.raw_pd.device)
+    T, device = params.num_texels, params.raw_pd.device
+    lam = torch.full((T,), _LAMBDA0, dtype=torch.float64, device=device)
     history: list[float] = []
     x = [q.detach().clone() for q in raws]
+    if skip is not None:
+        skip = skip.to(device)
+    active = torch.ones(T, dtype=torch.bool, device=device) if skip is None else ~skip
+    refit = active.nonzero()[:, 0]
+    cost_all = None  # (T,) each texel's cost at x; a texel no longer evaluated keeps its last
+    if not bool(active.all()):
+        with torch.no_grad():
+            full = _TexelProblem(params, objective, texel_model(softplus_b(x[0])))
+            cost_all = full.cost(*full.residuals(*x))
     for _ in range(iterations):
-        problem = _TexelProblem(params, objective, texel_model(softplus_b(x[0])))
-        H, g, r, pulls = _normal_equations(problem, x, columns)
+        index = active.nonzero()[:, 0]
+        if not len(index):
+            break
+        part = [q.index_select(0, index) for q in x]
+        model = None if texels_model is None else texels_model(softplus_b(x[0]), index)
+        if model is None:
+            model = _texels_of(texel_model(softplus_b(x[0])), params, x, index)
+        problem = _TexelProblem(params, objective, model, index)
+        H, g, r, pulls = _normal_equations(problem, part, columns)
         cost = problem.cost(r, pulls)
+        if cost_all is None:
+            cost_all = cost.clone()
+        lam_a = lam.index_select(0, index)
         diag = torch.diagonal(H, dim1=1, dim2=2)
-        A = H + torch.diag_embed(lam[:, None] * diag + 1e-12 * (1.0 + diag.amax(1, keepdim=True)))
+        A = H + torch.diag_embed(lam_a[:, None] * diag + 1e-12 * (1.0 + diag.amax(1, keepdim=True)))
         solved, info = torch.linalg.solve_ex(A, g[..., None])
         step = -torch.where((info == 0)[:, None], solved[..., 0], 0.0).to(x[0].dtype)  # singular: no step
-        trial = [q.clone() for q in x]
-        for k, (i, j) in enumerate(columns):
-            if trial[i].dim() == 1:
-                trial[i] = trial[i] + step[:, k]
-            else:
-                trial[i][:, j] += step[:, k]
+        trial = _stepped(part, step, columns)
         with torch.no_grad():
             new_cost = problem.cost(*problem.residuals(*trial))
         better = new_cost < cost  # NaN compares False: refused
         for i in range(3):
             keep = better.view(-1, *([1] * (x[i].dim() - 1)))
-            x[i] = torch.where(keep, trial[i], x[i])
-        lam = torch.where(better, lam / 3.0, lam * 4.0).clamp(_LAMBDA_MIN, _LAMBDA_MAX)
-        total = float(torch.where(better, new_cost, cost).sum()) / objective._count
+            x[i] = x[i].index_copy(0, index, torch.where(keep, trial[i], part[i]))
+        lam_a = torch.where(better, lam_a / 3.0, lam_a * 4.0).clamp(_LAMBDA_MIN, _LAMBDA_MAX)
+        lam = lam.index_copy(0, index, lam_a)
+        before = float(cost_all.index_select(0, refit).sum())  # the skipped texels' cost is not this fit's
+        kept = torch.where(better, new_cost, cost)
+        cost_all = cost_all.index_copy(0, index, kept.to(cost_all.dtype))
+        total = float(cost_all.sum()) / objective._count
         history.append(total)
+        after = float(cost_all.index_select(0, refit).sum())
+        typical = after / len(refit)
+        active = active.index_put((index,), ~texel_converged(cost, new_cost, better, step, lam_a, typical))
         if progress is not None:
             progress.update(1)
             progress.set_postfix(loss=f"{total:.4g}")
-        before = float(cost.sum()) / objective._count
-        if not bool(better.any()) or before - total < TOLERANCE * abs(before):
+        if not bool(better.any()) or before - after < TOLERANCE * abs(before):
             if progress is not None:  # converged: the bar ends full
                 progress.total = len(history)
                 progress.refresh()
@@ -132,6 +162,45 @@ def levenberg_marquardt(
     return history
 
 
+def _stepped(x: list, step: torch.Tensor, columns: list) -> list:
+    """The raw tensors x moved by step (n, K), its column k on component columns[k]."""
+    trial = [q.clone() for q in x]
+    for k, (i, j) in enumerate(columns):
+        if trial[i].dim() == 1:
+            trial[i] = trial[i] + step[:, k]
+        else:
+            trial[i][:, j] += step[:, k]
+    return trial
+
+
+def _texels_of(model: Callable, params: TexelParams, x: list, index: torch.Tensor) -> Callable:
+    """The full model's images of the texels index (n,) long, the other texels at the raw values x."""
+    at = [softplus_b(x[0]), params.ps_of(x[1]), params.sigma_of(x[2])]
+
+    def of(*values: torch.Tensor) -> torch.Tensor:
+        full = [a.index_put((index,), v) for a, v in zip(at, values)]
+        return model(*full).index_select(1, index)
+
+    return of
+
+
+def texel_converged(
+    cost: torch.Tensor,
+    new_cost: torch.Tensor,
+    better: torch.Tensor,
+    step: torch.Tensor,
+    lam: torch.Tensor,
+    typical: float,
+) -> torch.Tensor:
+    """(n,) bool texels this iteration left below the fit's own tolerance (TOLERANCE): a step (kept or not) that
+    moved no raw component by more than it and changed their cost by less than that fraction of their cost plus
+    `typical` (the mean refit texel's cost: a texel fitted exactly has none to be a fraction of); or a refused step at
+    the largest damping (no step left to try)."""
+    change = (cost - new_cost).abs()
+    small = (step.abs().amax(1) <= TOLERANCE) & (change <= TOLERANCE * (cost.abs() + typical))
+    return small | (~better & (lam >= _LAMBDA_MAX))
+
+
 def _normal_equations(problem: _TexelProblem, x: list, columns: list) -> tuple:
     """(T, K, K) J^T W J and (T, K) J^T W r per texel (float64), the Jacobian's columns by forward-mode
     derivatives along each raw component of every texel at once (the texels do not interact); and the residuals
@@ -139,7 +208,7 @@ def _normal_equations(problem: _TexelProblem, x: list, columns: list) -> tuple:
     residuals are 0 elsewhere) and the sums run over chunks of them: memory follows the fitted observations, not
     images x texels x K."""
     o = problem.objective
-    fitted = o.weight
+    fitted = problem.weight
     t_idx = fitted.nonzero()[:, 1]  # each fitted observation's texel, in the order r[fitted] lists them
     cols, pcols = [], []
     for i, j in columns:

@@ -44,6 +44,19 @@ class LocalTerms:
     def num_lights(self) -> int:
         return int(self.theta_h.shape[0])
 
+    def texels(self, index: torch.Tensor) -> "LocalTerms":
+        """The terms of the texels index (n,) long only (each texel's terms are its own: the model of a subset)."""
+        pick = lambda x: x.index_select(1, index.to(x.device))
+        return LocalTerms(
+            self.brdf,
+            pick(self.theta_h),
+            pick(self.cos_l),
+            pick(self.cos_v),
+            pick(self.diffuse),
+            pick(self.specular),
+            self.diffuse_exponent,
+        )
+
 
 def light_scale(obs: Observations) -> torch.Tensor:
     """(P, T, 3) kappa * Y * falloff * unshadowed: the irradiance scale of each observation."""

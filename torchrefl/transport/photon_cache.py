@@ -439,6 +439,24 @@ def specular_per_unit_ps(cache: PhotonCache, kappa: torch.Tensor, sigma) -> torc
     return kappa * _specular_sum(cache, sigma)
 
 
+def texel_cache(cache: PhotonCache, texels: torch.Tensor) -> PhotonCache:
+    """The cache of the texels (n,) long only: H0 (P, n, 3) and their specular entries, renumbered to them (what
+    specular_per_unit_ps needs; no linear part: Pd's own term is irradiance_at's, evaluated on all texels)."""
+    P, T, _ = cache.irradiance.shape
+    texels = texels.to(cache.entry_obs.device)
+    row = torch.full((T,), -1, dtype=torch.long, device=texels.device)
+    row[texels] = torch.arange(len(texels), device=texels.device)
+    of = row.index_select(0, cache.entry_obs % T)
+    keep = (of >= 0).nonzero()[:, 0]
+    return PhotonCache(
+        cache.brdf,
+        cache.irradiance.index_select(1, texels),
+        (cache.entry_obs.index_select(0, keep) // T) * len(texels) + of.index_select(0, keep),
+        cache.entry_theta_h.index_select(0, keep),
+        cache.entry_weight.index_select(0, keep),
+    )
+
+
 def indirect_radiance_reference(
     hits: PhotonHits,
     sources: LightSources,

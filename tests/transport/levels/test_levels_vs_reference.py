@@ -35,6 +35,7 @@ from torchrefl.core.progress import Stages
 from torchrefl.fit.pipeline import level_inputs
 from torchrefl.synthetic.capture import synthetic_capture
 from torchrefl.synthetic.objects import make_object
+from torchrefl.transport.levels.base import IndirectTerms
 from torchrefl.transport.levels.local import LocalLevel
 from torchrefl.transport.levels.photon import PhotonLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
@@ -403,3 +404,11 @@ def test_texel_model_is_predict_with_the_indirect_light_held(fold, name):
         if name == "radiosity":
             moved = (level.predict(pd1, ps1, sigma1) - level.predict(pd0, ps, sigma)).abs().amax((0, 2)) > 1e-9
             assert int(moved.sum()) > 1
+        # texel_model(pd0, texels): the model of some texels alone gives their rows of the whole model's images
+        index = torch.as_tensor(fold["near"][::3], dtype=torch.long)
+        part = level.texel_model(pd0, index)(pd1[index], ps1[index], sigma1[index])
+        torch.testing.assert_close(part, model(pd1, ps1, sigma1)[:, index], rtol=1e-9, atol=1e-12)
+        terms = level.indirect_terms(pd0)
+        if terms is not None:  # restricted by the level (specular_of) and by slicing the whole factor
+            for restricted in (terms.texels(index), IndirectTerms(terms.diffuse, terms.specular).texels(index)):
+                torch.testing.assert_close(restricted.specular(sigma1[index]), terms.specular(sigma1)[:, index])

@@ -30,6 +30,9 @@ from torchrefl.core.observations import Observations
 from torchrefl.core.surface import Surface
 from torchrefl.transport.local import LocalTerms, predict
 
+#: LocalTerms' tensors, in their constructor's order
+LOCAL_TENSORS = ("theta_h", "cos_l", "cos_v", "diffuse", "specular")
+
 
 @dataclass
 class LevelInputs:
@@ -50,14 +53,13 @@ class LevelInputs:
     log: Callable[[str], None]
     initialise: Callable[[torch.Tensor], Any]
 
-    def local_predict(self) -> Callable:
-        """(pd, ps, sigma) -> (P, T, 3) direct light on the fit's device."""
-        terms = self.terms
+    def local_predict(self, texels: Optional[torch.Tensor] = None) -> Callable:
+        """(pd, ps, sigma) -> (P, T, 3) direct light on the fit's device; texels (n,) long: of those texels only,
+        taking and giving their rows."""
+        terms = self.terms if texels is None else self.terms.texels(texels)
         if self.device.type != "cpu":
             terms = LocalTerms(
-                terms.brdf,
-                *(getattr(terms, k).to(self.device) for k in ("theta_h", "cos_l", "cos_v", "diffuse", "specular")),
-                terms.diffuse_exponent,
+                terms.brdf, *(getattr(terms, k).to(self.device) for k in LOCAL_TENSORS), terms.diffuse_exponent
             )
         return lambda pd, ps, sigma: predict(terms, pd, ps, sigma)
 
@@ -71,6 +73,26 @@ class IndirectTerms:
 
     diffuse: torch.Tensor
     specular: Callable[[torch.Tensor], torch.Tensor]
+    #: index (n,) long -> the specular factor of those texels only, sigma (n,) -> (P, n, 3) (None: specular sliced)
+    specular_of: Optional[Callable[[torch.Tensor], Callable[[torch.Tensor], torch.Tensor]]] = None
+
+    def texels(self, index: torch.Tensor) -> "IndirectTerms":
+        """The terms of the texels index (n,) long only; their specular factor takes sigma per texel of the subset
+        ((n,) or 0-d). Without specular_of the full factor is evaluated and sliced (the other texels at the
+        subset's mean sigma: a texel's factor depends on its own sigma only)."""
+        index = index.to(self.diffuse.device)
+        diffuse = self.diffuse.index_select(1, index)
+        if self.specular_of is not None:
+            return IndirectTerms(diffuse, self.specular_of(index))
+        T, full = self.diffuse.shape[1], self.specular
+
+        def specular(sigma: torch.Tensor) -> torch.Tensor:
+            sigma = torch.as_tensor(sigma, dtype=diffuse.dtype, device=diffuse.device)
+            if sigma.dim():
+                sigma = sigma.mean().expand(T).index_put((index,), sigma)
+            return full(sigma).index_select(1, index)
+
+        return IndirectTerms(diffuse, specular)
 
 
 @dataclass
@@ -122,14 +144,18 @@ class TransportLevel(ABC):
         """The indirect light this level predicts at texel Pd (T, 3), as IndirectTerms (default: none)."""
         return None
 
-    def texel_model(self, pd: torch.Tensor) -> Callable:
+    def texel_model(self, pd: torch.Tensor, texels: Optional[torch.Tensor] = None) -> Optional[Callable]:
         """(pd, ps, sigma) -> (P, T, 3): predict with the indirect light held at texel Pd `pd` (indirect_terms), so
         that each texel's images depend on its own parameters only; equals predict at pd (the per-texel solver's
-        model, torchrefl.fit.texel_lm)."""
+        model, torchrefl.fit.texel_lm). texels: (n,) long, the model of those texels only, taking and giving their
+        rows ((n, 3), ... -> (P, n, 3)); None where the level cannot give it (no indirect terms: predict is texel by
+        texel but need not be the local model, unless the level says so by overriding this)."""
         terms = self.indirect_terms(pd)
         if terms is None:  # no indirect light: predict itself is texel by texel
-            return self.predict
-        local = self.inputs.local_predict()
+            return self.predict if texels is None else None
+        local = self.inputs.local_predict(texels)
+        if texels is not None:
+            terms = terms.texels(texels)
         return lambda pd, ps, sigma: local(pd, ps, sigma) + pd[None] * terms.diffuse + ps[None] * terms.specular(sigma)
 
     def refresh(self, params, k: int) -> None:

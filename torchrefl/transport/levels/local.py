@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from typing import Callable, Optional
+
+import torch
+
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 
 
@@ -19,3 +23,7 @@ class LocalLevel(TransportLevel):
 
     def predict(self, pd, ps, sigma):
         return self._predict(pd, ps, sigma)
+
+    def texel_model(self, pd: torch.Tensor, texels: Optional[torch.Tensor] = None) -> Callable:
+        """predict, which is the local model: of the texels (n,) long only where given."""
+        return self.predict if texels is None else self.inputs.local_predict(texels)

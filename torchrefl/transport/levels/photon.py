@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import time
+from functools import partial
 
 import torch
 
@@ -26,7 +27,12 @@ from torchrefl.core.rays import RayTracer
 from torchrefl.transport.cache_average import average_caches
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, RefitStep, TransportLevel
 from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
-from torchrefl.transport.photon_cache import indirect_radiance, light_sources, specular_per_unit_ps
+from torchrefl.transport.photon_cache import (
+    indirect_radiance,
+    light_sources,
+    specular_per_unit_ps,
+    texel_cache,
+)
 from torchrefl.transport.photon_density import (
     KERNEL_PHOTONS,
     MAX_AUTO_SMOOTHING,
@@ -199,7 +205,11 @@ class PhotonLevel(TransportLevel):
         cache = self.cache
         with torch.no_grad():
             diffuse = kappa * cache.irradiance_at(pd) / math.pi
-        return IndirectTerms(diffuse, lambda sigma: specular_per_unit_ps(cache, kappa, sigma))
+        return IndirectTerms(
+            diffuse,
+            lambda sigma: specular_per_unit_ps(cache, kappa, sigma),
+            lambda texels: partial(specular_per_unit_ps, texel_cache(cache, texels), kappa),
+        )
 
     def steps(self, k: int) -> list[RefitStep]:
         inp, pc = self.inputs, self.inputs.cfg.photon
