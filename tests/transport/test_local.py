@@ -56,6 +56,21 @@ def test_gradcheck_predict():
     assert torch.autograd.gradcheck(lambda a, b, c: predict(terms, a, b, c), args)
 
 
+def test_gradcheck_predict_on_some_texels():
+    """LocalTerms.texels (the model of the texels the LM refits still evaluate): float64 gradients, and the values
+    are the whole model's rows of those texels."""
+    nrm, pos, lights, cam = dome_scene(T=6)
+    obs = point_light_observations(nrm, pos, lights[::10], cam)
+    terms = local_terms("torrance_sparrow", torch.as_tensor(nrm), obs)
+    index = torch.tensor([4, 1])
+    pd, ps, sigma = params(6)
+    torch.testing.assert_close(
+        predict(terms.texels(index), pd[index], ps[index], sigma[index]), predict(terms, pd, ps, sigma)[:, index]
+    )
+    args = [x[index].clone().requires_grad_() for x in (pd, ps, sigma)]
+    assert torch.autograd.gradcheck(lambda a, b, c: predict(terms.texels(index), a, b, c), args)
+
+
 def test_light_one_millimetre_from_surface_is_finite():
     nrm, pos, lights, cam = dome_scene(T=50)
     near = torch.as_tensor(pos[:1]) + 1.0 * torch.as_tensor(nrm[:1])  # 1 mm above texel 0
