@@ -38,8 +38,9 @@ def runs(tmp_path_factory):
     out = {}
     assert main([str(cfg), f"output.dir={tmp / 'local'}", "fit.model=local", "--quiet"]) == 0
     capture = tmp / "local" / "capture"
-    # auto chooses at the closed-form start, before any refinement: its run needs no optimizer steps
-    for level, more in (("radiosity", []), ("auto", ["fit.optimizer=none"])):
+    # auto chooses at the closed-form start, before any refinement: its run needs no optimizer steps and no outer
+    # photon iterations
+    for level, more in (("radiosity", []), ("auto", ["fit.optimizer=none", "photon.outer_iterations=0"])):
         assert (
             main(
                 [
