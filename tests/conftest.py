@@ -3,12 +3,19 @@ the exact local model (so closed forms and fits can be checked against known par
 
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
-import numpy as np
-import pytest
-import torch
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # set before numpy and torch load: each xdist worker has about a core, so BLAS pools of one thread, and OpenMP
+    # threads that sleep instead of spinning while the other worker holds the core
+    for name, value in (("OPENBLAS_NUM_THREADS", "1"), ("MKL_NUM_THREADS", "1"), ("OMP_WAIT_POLICY", "PASSIVE")):
+        os.environ.setdefault(name, value)
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
