@@ -181,3 +181,27 @@ def test_next_best_errors_are_named(tmp_path, capsys, argv, expected):
     assert main([*args, "--out", str(tmp_path / "out")]) == 2
     assert expected in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_run_whose_config_file_named_its_capture_relatively_is_planned_from_any_folder(
+    tiny_fold_run, tmp_path, monkeypatch
+):
+    """capture.path relative to the config file's folder: the run folder's config.yaml records it absolute, so a
+    reader of the run (the planner here) finds the capture from another working folder."""
+    import yaml
+
+    from torchrefl.train import main as train
+
+    (tmp_path / "scan").symlink_to(tiny_fold_run / "capture", target_is_directory=True)
+    data = yaml.safe_load((tiny_fold_run / "config.yaml").read_text())
+    data["capture"].update(kind="cylindrical_scan", path="../scan")
+    data["output"]["dir"] = str(tmp_path / "run")
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "configs" / "fold.yaml").write_text(yaml.safe_dump(data))
+    assert train([str(tmp_path / "configs" / "fold.yaml"), "fit.model=local", "--quiet"]) == 0
+    recorded = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["capture"]["path"]
+    assert recorded == str(tmp_path / "configs" / ".." / "scan")
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    assert main([str(tmp_path / "run"), "--lights", "1", "--out", str(tmp_path / "next.json")]) == 0
+    assert len(json.loads((tmp_path / "next.json").read_text())["chosen"]) == 1

@@ -424,6 +424,21 @@ def to_dict(cfg) -> dict:
     return out
 
 
+def run_config_text(cfg: Config) -> str:
+    """The YAML of a run folder's config.yaml: the config with its relative paths (PATH_KEYS, fit.init_from) made
+    absolute against the config file's folder, so that the run folder names the same data wherever it is read from."""
+    data = to_dict(cfg)
+    for key in (*PATH_KEYS, "fit.init_from"):
+        *sections, name = key.split(".")
+        where = data
+        for section in sections:
+            where = where[section]
+        value = where[name]
+        if isinstance(value, str) and value and not Path(value).is_absolute():
+            where[name] = str(Path(cfg.config_dir) / value)
+    return yaml.safe_dump(data, sort_keys=False)
+
+
 def dump_config(cfg: Config, path: str | Path) -> None:
     """Write the resolved config as YAML."""
     Path(path).write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))

@@ -15,10 +15,9 @@ import time
 from pathlib import Path
 
 import torch
-import yaml
 
 from torchrefl.capture.base import Capture, loader_for
-from torchrefl.config import Config, load_config, resolve_path, to_dict
+from torchrefl.config import Config, load_config, resolve_path, run_config_text
 from torchrefl.core.atomic_files import atomic_write_text
 from torchrefl.core.checkpoints import Checkpoints
 from torchrefl.core.memory import reset_peak
@@ -111,7 +110,7 @@ def run(cfg: Config, quiet: bool = False, overwrite: bool = False, resume: bool 
     target = output_folder(cfg.output.dir)
     if cfg.capture.kind not in SYNTHETIC_KINDS:
         loader_for(cfg.capture.kind)  # an unknown kind is refused before the staging folder is made
-    config_text = yaml.safe_dump(to_dict(cfg), sort_keys=False)
+    config_text = run_config_text(cfg)
     resumable = resumable_run(target, config_text) if resume else Resumable(None, "")
     staged = StagedRunFolder(target, overwrite, resumable.folder)
     reset_peak()  # metrics.json's peak_memory_mb: this run's, not the process's earlier work

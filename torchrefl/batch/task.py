@@ -7,11 +7,9 @@ import time
 import traceback
 from pathlib import Path
 
-import yaml
-
 from torchrefl.batch.batch_file import BatchTask
 from torchrefl.batch.summary import Row, row_of
-from torchrefl.config import Config, load_config, to_dict
+from torchrefl.config import Config, load_config, run_config_text
 from torchrefl.errors import RunFolderError, TorchReflError
 from torchrefl.report.run_marker import CONFIG, verify_run_folder
 from torchrefl.run import run
@@ -29,7 +27,7 @@ def completed_row(task: BatchTask, cfg: Config) -> Row | None:
         verify_run_folder(task.output)
     except RunFolderError:
         return None
-    text = yaml.safe_dump(to_dict(cfg), sort_keys=False)
+    text = run_config_text(cfg)
     if (task.output / CONFIG).read_text(encoding="utf-8") != text:
         return None
     metrics = json.loads((task.output / "metrics.json").read_text())
