@@ -9,14 +9,11 @@ For camera c with centre C and texel t at X with normal n, area a (side s = sqrt
 - footprint: the texel is a parallelogram on the surface, spanned by the 3-D steps of one texel column and one
   texel row (the face's atlas Jacobian). The pixel value is the mean of bilinear interpolations (pixel centres at
   integer (u, v)) at m x m points spread over the part of the parallelogram whose pixels lie wholly inside the
-  texel's projection: a bilinear value reaches SUPPORT_PX = 1.5
-#: a texel narrower than this (px) along one of its steps is left out of the image: its centre's four bilinear
-#: pixels reach past its edges by more than half a pixel, so its value mixes its neighbours'
-NARROW_PX = 2.0 px (its farthest pixel, and that pixel's own
+  texel's projection: a bilinear value reaches SUPPORT_PX = 1.5 px (its farthest pixel, and that pixel's own
   area), so the samples keep that far from the texel's projected edges, and the value carries no neighbour's
   reflectance (a material border on a texel edge stays out of it). m is the inset part's projected length in
   pixels (at most MAX_SAMPLES), 1 (the centre) where that part is under a pixel across; a texel whose projection
-  is narrower than NARROW_PX = 2 px along one of its steps is left out of the image (even its centre's value
+  is narrower than NARROW_PX = 2.5 px along one of its steps is left out of the image (even its centre's value
   mixes its neighbours': the image does not resolve it; a closer or more frontal view may);
 - in frame: every sample lies within [0, W - 1] x [0, H - 1], so that its bilinear support is in the image;
 - silhouettes and depth steps: rays from C through four points offset from X perpendicular to the view by
@@ -42,8 +39,8 @@ MAX_SAMPLES = 8
 #: that pixel integrates over
 SUPPORT_PX = 1.5
 #: a texel narrower than this (px) along one of its steps is left out of the image: its centre's four bilinear
-#: pixels reach past its edges by more than half a pixel, so its value mixes its neighbours'
-NARROW_PX = 2.0
+#: pixels (SUPPORT_PX) reach past its edges by more than a quarter of a pixel, so its value mixes its neighbours'
+NARROW_PX = 2.5
 
 
 @dataclass
@@ -67,7 +64,10 @@ OUTSIDE = "outside the image (or behind the camera)"
 AWAY = "facing away from the camera or seen at grazing view (n.v at or below reflectance.min_cos_view)"
 OCCLUDED = "occluded from the camera (the first hit is another surface)"
 EDGE = "at a silhouette or depth step in the image (mixed pixels)"
-SMALL = "narrower than 2 px in the image (its value mixes its neighbours'; capture.texture_size finer than the image)"
+SMALL = (
+    f"narrower than {NARROW_PX:g} px in the image (its value mixes its neighbours'; capture.texture_size finer than "
+    "the image)"
+)
 #: each reason's short name (metrics.json: capture.not_seen_<name>_observations)
 REASON_KEYS = {OUTSIDE: "outside", AWAY: "facing_away", OCCLUDED: "occluded", SMALL: "narrow", EDGE: "silhouette"}
 
@@ -173,7 +173,7 @@ def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, n
         inset = np.clip(np.nan_to_num(1.0 - 2.0 * SUPPORT_PX / length), 0.0, 1.0)
     m = np.clip(np.ceil((inset * length).max(axis=1)), 1, MAX_SAMPLES).astype(np.int64)
     m[(inset * length).max(axis=1) <= 1.0] = 1
-    narrow = steps.any(axis=(1, 2)) & (length < 2.5).any(axis=1)
+    narrow = steps.any(axis=(1, 2)) & (length < NARROW_PX).any(axis=1)
     return inset, m, narrow
 
 
