@@ -43,7 +43,8 @@ def _pair(text: str, what: str, n=(2, 3)) -> list[float]:
     return vals
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _common_options() -> argparse.ArgumentParser:
+    """The options every subcommand takes (settings, port, dry run, output)."""
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--config", default=None, help="rig settings YAML (e.g. configs/rig.yaml); defaults otherwise")
     common.add_argument(
@@ -68,6 +69,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.01,
         help="dry run: simulated motion time / real motion time (default 0.01)",
     )
+    return common
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = _common_options()
     p = argparse.ArgumentParser(
         prog="python -m torchrefl.rig",
         description=__doc__.split("\n\n")[0],
@@ -82,6 +88,13 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--mm", nargs=2, type=float, metavar=("LATERAL", "VERTICAL"), help="head-frame position, mm")
     mv.add_argument("--no-home", action="store_true", help="do not home first (the controller must be unlocked)")
     cap = sub.add_parser("capture", parents=[common], help="run a capture plan into a folder")
+    _capture_options(cap)
+    _adaptive_options(cap)
+    return p
+
+
+def _capture_options(cap: argparse.ArgumentParser) -> None:
+    """capture: what to capture (a plan, positions, grid nodes, the adaptive loop), where, and the dry run's scene."""
     what = cap.add_mutually_exclusive_group(required=True)
     what.add_argument(
         "--plan", help="plan file: YAML/JSON with positions_mm or grid, or a mesh_views plan (selection.json works)"
@@ -110,6 +123,10 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="dry run: override a key of the scene config, e.g. synthetic.rows=64",
     )
+
+
+def _adaptive_options(cap: argparse.ArgumentParser) -> None:
+    """capture --adaptive: the loop's rounds, budget, stopping rule and fits."""
     ad = AdaptiveSettings()
     cap.add_argument("--start", type=int, default=ad.start, help=f"--adaptive: lights of the first round ({ad.start})")
     cap.add_argument(
@@ -138,7 +155,6 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="--adaptive: override a key of every round's fit config, e.g. fit.iterations=30",
     )
-    return p
 
 
 def _stderr(msg: str) -> None:
