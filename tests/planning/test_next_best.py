@@ -181,3 +181,23 @@ def test_the_reachable_share_is_the_share_with_every_candidate_added():
     assert Planner(scene, candidates).reachable() == 1.0 == choose(scene, candidates, 4).both_known[-1]
     # the ceiling leaves out a candidate at one of the run's lights (its image is already captured)
     assert Planner(scene, np.stack([MIRROR, BELOW])).reachable() == 0.5
+
+
+def test_a_near_repeat_highlight_gains_less_than_a_first_highlight_elsewhere():
+    """The score is the Bayesian posterior whatever a texel's count of highlights (module docstring). The run has one
+    highlight on the upward group (light UP) and a light to the side; the tilted group has none. Repeating UP adds
+    its information H again: the precision A = P0 + H + D (prior, UP, side light) becomes A + H <= 2 A (H <= A), so
+    no marginal variance falls below half, and each of the 8 texels gains at most 2 log 2 (two parameters): the
+    repeat's gain is at most 16 log 2 = 11.1, a candidate 1 mm from UP (a near-repeat) likewise. The old rule
+    counted the repeat as the upward group's second highlight, switched its Ps and sigma from the broad prior to the
+    posterior and scored it about 29, and the mirror light, whose highlights are the tilted group's first, 0."""
+    side = np.array([400.0, 0.0, 300.0])
+    scene = FlatScene(np.stack([UP, side]), torch.tensor([1] * 4 + [0] * 4), torch.zeros(8, dtype=torch.bool))
+    planner = Planner(scene, np.stack([UP + [1.0, 0.0, 0.0], MIRROR]))
+    state = TexelState(scene, planner.info.clone())
+    bound = 16 * math.log(2.0)
+    repeat = light_information(scene, UP[None])
+    assert 0.0 < state.gain(repeat, 0) <= bound
+    assert 0.0 < state.gain(planner.light, 0) <= bound  # the near-repeat
+    assert state.gain(planner.light, 1) > bound
+    assert planner.choose(1).chosen == [1]

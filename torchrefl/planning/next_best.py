@@ -9,10 +9,15 @@ its half-angle is at most reflectance.theta_specular_deg. Its Fisher information
 noise^2 with J = d(255 i_hat) / d(Pd, Ps, sigma) of the texel's own parameters at the estimate.
 
 A texel's information now is that of the run's own fitted lights, recomputed the same way at the estimate (the
-expected information: the run's stds without its robust-loss weights). Its covariance is fit.uncertainty's
-texel_covariance: the whole block where its lobe is measured, else Ps and sigma at the broad prior. A lobe counts as
-measured after the candidates when it was (the run's lobe_measured) or when the candidates' T_spec observations
-bring the texel's count (the run's n_specular plus theirs) to the two the closed form needs (fit.initialise).
+expected information: the run's stds without its robust-loss weights). The score uses the Bayesian posterior
+covariance (information + the broad prior's precision)^-1 whatever the texel's count of highlights, so a light is
+worth what its observations say about Ps and sigma, directions included: a second highlight from (nearly) the
+light of the first adds little, one from another direction separates Ps from sigma. The determined shares
+(known_shares: the report and the adaptive loop's stopping rule) say what the fitter would deliver: there the
+covariance is fit.uncertainty's texel_covariance, the whole block where the lobe is measured, else Ps and sigma at
+the broad prior; a lobe counts as measured after the candidates when it was (the run's lobe_measured) or when the
+candidates' T_spec observations bring the texel's count (the run's n_specular plus theirs) to the two the closed
+form needs (fit.initialise).
 
 The score of a texel is  u = log r_Ps^2 + log r_sigma^2,  r the relative std (std / value; Ps: the largest over
 its channels, as report.uncertainty); a light's gain is the sum over texels of the decrease of u, i.e. of
@@ -20,8 +25,8 @@ log(var_before / var_after) over the texels and the two parameters: the expected
 variance (D-optimal design per texel and parameter, on the marginal variances). Relative to the value, so that Ps
 and sigma weigh alike and a texel counts the same whatever its parameters' scale; halving a std is worth log 4
 wherever it happens, so the score keeps rewarding precision on the texels already known to 10 % (the typical texels
-that set the median relative error), and a texel's first measured lobe is worth log(prior variance / variance after)
-(large but finite: the broad prior bounds it). Why not a saturating score such as log(1 + r^2 / 0.1^2): it pays
+that set the median relative error), and a texel's lobe is worth what its information adds to the broad prior's
+(large but finite: the prior bounds it). Why not a saturating score such as log(1 + r^2 / 0.1^2): it pays
 almost nothing for texels already known better than 10 %, so a light that halves the std of thousands of such
 texels lost to one that gives a few texels their second highlight, and the median error lagged (docs/results/
 next_best.md). Why not the trace of relative variances (A-optimal): it is dominated by the few texels with Ps near
@@ -45,7 +50,7 @@ import torch
 from torchrefl.core.observation_classes import T_SPEC, classify
 from torchrefl.core.observations import Observations
 from torchrefl.errors import ConfigError
-from torchrefl.fit.uncertainty import information, jacobian, texel_covariance
+from torchrefl.fit.uncertainty import covariance, information, jacobian, texel_covariance
 from torchrefl.planning.run_scene import RunScene
 from torchrefl.planning.scenes import load_planning_scene
 from torchrefl.report.uncertainty import RELATIVE_PRECISION
@@ -167,27 +172,27 @@ class TexelState:
         self.info = info
         self.added_spec = torch.zeros(len(info), dtype=torch.int64)
         self.prior_var = scene.ranges.prior_var(scene.ps.shape[1])
-        self.scores = self.score(torch.arange(len(info)), info, self.added_spec)
+        self.scores = self.score(torch.arange(len(info)), info)
 
-    def covariance(self, idx: torch.Tensor, info: torch.Tensor, added_spec: torch.Tensor) -> torch.Tensor:
-        """(N, K, K) the covariance of texels idx (N,) with information info (N, K, K) and added_spec (N,) T_spec
-        observations more than the run's."""
+    def lobe(self, idx: torch.Tensor, added_spec: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: the fitter would estimate the lobe of texels idx (N,) with added_spec (N,) T_spec observations
+        more than the run's: it did, or they bring its count to the closed form's two."""
         s = self.scene
-        lobe = s.lobe_measured[idx] | ((added_spec > 0) & (s.n_specular[idx] + added_spec >= 2))
-        return texel_covariance(info, self.prior_var, lobe)
+        return s.lobe_measured[idx] | ((added_spec > 0) & (s.n_specular[idx] + added_spec >= 2))
 
-    def relative_var(self, idx, info, added_spec) -> tuple[torch.Tensor, torch.Tensor]:
-        """(N,) squared relative stds of Ps (largest channel) and sigma of texels idx."""
+    def relative_var(self, idx: torch.Tensor, cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(N,) squared relative stds of Ps (largest channel) and sigma of texels idx (N,) with covariance cov."""
         s = self.scene
-        var = torch.diagonal(self.covariance(idx, info, added_spec), dim1=1, dim2=2)
+        var = torch.diagonal(cov, dim1=1, dim2=2)
         C = s.ps.shape[1]
         ps, sigma = s.ps[idx].double(), s.sigma[idx].double()
         ps_rel = (var[:, 3 : 3 + C] / ps.clamp_min(PS_FLOOR).square()).amax(1)
         return ps_rel, var[:, -1] / sigma.clamp_min(s.ranges.sigma_min).square()
 
-    def score(self, idx, info, added_spec) -> torch.Tensor:
-        """(N,) the score u of texels idx (module docstring)."""
-        ps_rel, sg_rel = self.relative_var(idx, info, added_spec)
+    def score(self, idx: torch.Tensor, info: torch.Tensor) -> torch.Tensor:
+        """(N,) the score u of texels idx (N,) with information info (N, K, K): of the Bayesian posterior
+        (info + prior precision)^-1 whatever the texel's count of highlights (module docstring)."""
+        ps_rel, sg_rel = self.relative_var(idx, covariance(info, self.prior_var))
         return torch.log(ps_rel) + torch.log(sg_rel)
 
     def relevant(self, light: LightInformation) -> LightInformation:
@@ -207,21 +212,22 @@ class TexelState:
         idx = light.texels[m]
         if not len(idx):
             return 0.0
-        new = self.score(idx, self.info[idx] + light.info[m], self.added_spec[idx] + light.specular[m])
+        new = self.score(idx, self.info[idx] + light.info[m])
         return float((self.scores[idx] - new).sum())
 
     def add(self, light: LightInformation, m: int) -> None:
         idx = light.texels[m]
         self.info[idx] += light.info[m]
         self.added_spec[idx] += light.specular[m]
-        self.scores[idx] = self.score(idx, self.info[idx], self.added_spec[idx])
+        self.scores[idx] = self.score(idx, self.info[idx])
 
     def known_shares(self) -> tuple[float, float]:
         """The shares of the estimated texels with sigma, and with Ps and sigma, known to RELATIVE_PRECISION."""
         e = torch.nonzero(self.scene.estimated).squeeze(1)
         if not len(e):
             return 0.0, 0.0
-        ps_rel, sg_rel = self.relative_var(e, self.info[e], self.added_spec[e])
+        cov = texel_covariance(self.info[e], self.prior_var, self.lobe(e, self.added_spec[e]))
+        ps_rel, sg_rel = self.relative_var(e, cov)
         tau2 = RELATIVE_PRECISION**2
         sigma_ok = sg_rel <= tau2
         return float(sigma_ok.double().mean()), float((sigma_ok & (ps_rel <= tau2)).double().mean())
