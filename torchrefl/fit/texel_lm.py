@@ -18,25 +18,15 @@ import torch
 
 from torchrefl.core.params import TexelParams, softplus_b
 from torchrefl.errors import FitError
+from torchrefl.fit.fitted_problem import FittedEntries, FittedProblem, irls_weight
 from torchrefl.fit.refine import _LOG_EPS, Objective, robust_loss
+from torchrefl.transport.texel_model import TexelModel
 
 #: the iterations stop once one lowers the total cost by less than this fraction
 TOLERANCE = 1e-3
 _LAMBDA0, _LAMBDA_MIN, _LAMBDA_MAX = 1e-2, 1e-7, 1e7
 #: fitted observations per chunk of the normal equations' sums (bounds their float64 temporaries: ~100 MB at K = 7)
 _CHUNK = 1 << 18
-
-
-def irls_weight(r: torch.Tensor, kind: str, scale: float) -> torch.Tensor:
-    """w(r) with rho'(r) = w(r) r for the robust losses of torchrefl.fit.refine.robust_loss."""
-    if kind == "l2":
-        return torch.ones_like(r)
-    if kind == "huber":
-        a = r.abs()
-        return torch.where(a <= scale, torch.ones_like(r), scale / a.clamp_min(1e-30))
-    if kind == "cauchy":
-        return 1.0 / (1.0 + (r / scale) ** 2)
-    raise FitError(f"fit.loss: unknown robust loss '{kind}', expected l2, huber or cauchy")
 
 
 class _TexelProblem:
@@ -74,6 +64,9 @@ class _TexelProblem:
         o = self.objective
         return robust_loss(r, o.loss, o.loss_scale_8bit).sum((0, 2)) + 0.5 * (pulls * pulls).sum(1)
 
+    def normal_equations(self, x: list, columns: list) -> tuple:
+        return _normal_equations(self, x, columns)
+
 
 def levenberg_marquardt(
     params: TexelParams,
@@ -107,6 +100,7 @@ def levenberg_marquardt(
     active = torch.ones(T, dtype=torch.bool, device=device) if skip is None else ~skip
     refit = active.nonzero()[:, 0]
     cost_all = None  # (T,) each texel's cost at x; a texel no longer evaluated keeps its last
+    entries = None  # the refit texels' specular entries at their fitted observations (closed-form models)
     if not bool(active.all()):
         with torch.no_grad():
             full = _TexelProblem(params, objective, texel_model(softplus_b(x[0])))
@@ -116,11 +110,8 @@ def levenberg_marquardt(
         if not len(index):
             break
         part = [q.index_select(0, index) for q in x]
-        model = None if texels_model is None else texels_model(softplus_b(x[0]), index)
-        if model is None:
-            model = _texels_of(texel_model(softplus_b(x[0])), params, x, index)
-        problem = _TexelProblem(params, objective, model, index)
-        H, g, r, pulls = _normal_equations(problem, part, columns)
+        problem, entries = _problem(params, objective, texel_model, texels_model, x, index, entries)
+        H, g, r, pulls = problem.normal_equations(part, columns)
         cost = problem.cost(r, pulls)
         if cost_all is None:
             cost_all = cost.clone()
@@ -160,6 +151,21 @@ def levenberg_marquardt(
     if not all(v == v and abs(v) != float("inf") for v in history):
         raise FitError("the lm refinement diverged (loss became NaN or inf)")
     return history
+
+
+def _problem(params, objective, texel_model, texels_model, x: list, index: torch.Tensor, entries):
+    """(the problem of the texels index at the raw values x, the refit's FittedEntries): closed form where the
+    level's model of them is a TexelModel in closed form (torchrefl.fit.fitted_problem), else forward-mode
+    derivatives of its images. entries: the refit's, built on the first call (whose texels are all the refit's,
+    the later ones a subset)."""
+    model = None if texels_model is None else texels_model(softplus_b(x[0]), index)
+    if isinstance(model, TexelModel) and model.closed_form:
+        if entries is None:
+            entries = FittedEntries(model, objective.weight, index)
+        return FittedProblem(params, objective, model, index, entries), entries
+    if model is None:
+        model = _texels_of(texel_model(softplus_b(x[0])), params, x, index)
+    return _TexelProblem(params, objective, model, index), entries
 
 
 def _stepped(x: list, step: torch.Tensor, columns: list) -> list:

@@ -66,6 +66,7 @@ from torchrefl.errors import ConfigError
 from torchrefl.transport.photon_density import apply_on_grid, smoothing_matrix, spread_on_grid
 from torchrefl.transport.photon_trace import PhotonHits
 from torchrefl.transport.specular_bins import BIN_PER_SIGMA, THETA_BIN, spread_and_merge
+from torchrefl.transport.texel_model import SpecularEntries
 
 LOBE_CUTOFF = 1e-7
 
@@ -455,6 +456,13 @@ def texel_cache(cache: PhotonCache, texels: torch.Tensor) -> PhotonCache:
         cache.entry_theta_h.index_select(0, keep),
         cache.entry_weight.index_select(0, keep),
     )
+
+
+def texel_entries(cache: PhotonCache, kappa: torch.Tensor, texels: torch.Tensor) -> SpecularEntries:
+    """The cached specular light per unit Ps of the texels (n,) long as SpecularEntries (obs p * n + j, the weights
+    times kappa): what specular_per_unit_ps(texel_cache(cache, texels), kappa, sigma) sums."""
+    sub = texel_cache(cache, texels)
+    return SpecularEntries(sub.entry_obs, sub.entry_theta_h, sub.entry_weight * kappa.to(sub.entry_weight))
 
 
 def indirect_radiance_reference(
