@@ -42,17 +42,37 @@ def merge_entries(
     sum_k w_k D(theta_k) by < 0.5 % (second order in the spread within a bin). Returns (entry_obs (E,), the
     weight-averaged theta_h (E,), summed weight (E, 3)), sorted by observation and bin."""
     bins = theta_bins(theta_h, np.take(np.asarray(sigma, dtype=np.float64), e_obs % T), theta_bin, bin_per_sigma)
-    key = e_obs * (int(math.pi / 2 / theta_bin) + 2) + bins
-    uniq, inv = torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)
-    uniq, inv = uniq.numpy(), inv.numpy()
+    inv = sorted_inverse(e_obs, bins)  # each entry's merged entry, in the order of (observation, bin)
+    count = int(inv.max()) + 1 if inv.size else 0
     m = weight.mean(0)
-    wsum = np.stack([np.bincount(inv, weights=weight[c], minlength=len(uniq)) for c in range(3)], -1)
-    msum = np.bincount(inv, weights=m, minlength=len(uniq))
-    tsum = np.bincount(inv, weights=m * theta_h, minlength=len(uniq))
-    first = np.zeros(len(uniq), dtype=np.int64)
+    wsum = np.stack([np.bincount(inv, weights=weight[c], minlength=count) for c in range(3)], -1)
+    msum = np.bincount(inv, weights=m, minlength=count)
+    tsum = np.bincount(inv, weights=m * theta_h, minlength=count)
+    first = np.zeros(count, dtype=np.int64)
     first[inv[::-1]] = np.arange(len(inv))[::-1]
     mean_theta = np.where(msum > 0, tsum / np.where(msum > 0, msum, 1.0), np.take(theta_h, first))
     return np.take(e_obs, first), mean_theta, wsum
+
+
+#: sorted_inverse counts the (observation, bin) slots densely while they are at most this many per entry
+DENSE_SLOTS_PER_ENTRY = 8
+
+
+def sorted_inverse(obs: np.ndarray, bins: np.ndarray) -> np.ndarray:
+    """(M,) int64 the rank of each entry's (obs, bin) (M,) int64 among the distinct ones in sorted order (what
+    torch.unique(sorted=True, return_inverse=True) gives for the key obs * nb + bin, nb > every bin). Counted over
+    the dense slots of (obs - min obs, bin) where they are few (one light's entries: texels x the bins in use),
+    sorted otherwise."""
+    if not obs.size:
+        return np.zeros(0, dtype=np.int64)
+    lo, nb = int(obs.min()), int(bins.max()) + 1
+    slots = (int(obs.max()) - lo + 1) * nb
+    key = (obs - lo) * nb + bins
+    if slots > DENSE_SLOTS_PER_ENTRY * obs.size + (1 << 16):
+        return torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)[1].numpy()
+    present = np.zeros(slots, dtype=bool)
+    present[key] = True
+    return np.take(np.cumsum(present, dtype=np.int64) - 1, key)
 
 
 def spread_and_merge(e_obs, theta_h, weight, spread, sigma, T: int, theta_bin: float, bin_per_sigma: float):
