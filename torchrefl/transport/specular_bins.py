@@ -54,8 +54,9 @@ def merge_entries(
     return np.take(e_obs, first), mean_theta, wsum
 
 
-#: sorted_inverse counts the (observation, bin) slots densely while they are at most this many per entry
-DENSE_SLOTS_PER_ENTRY = 8
+#: sorted_inverse counts the (observation, bin) slots densely while they are at most this many per entry (5 bytes a
+#: slot: no more memory than the sort's)
+DENSE_SLOTS_PER_ENTRY = 4
 
 
 def sorted_inverse(obs: np.ndarray, bins: np.ndarray) -> np.ndarray:
@@ -72,7 +73,8 @@ def sorted_inverse(obs: np.ndarray, bins: np.ndarray) -> np.ndarray:
         return torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)[1].numpy()
     present = np.zeros(slots, dtype=bool)
     present[key] = True
-    return np.take(np.cumsum(present, dtype=np.int64) - 1, key)
+    rank = np.cumsum(present, dtype=np.int32 if slots < 2**31 else np.int64)
+    return np.take(rank, key).astype(np.int64) - 1
 
 
 def spread_and_merge(e_obs, theta_h, weight, spread, sigma, T: int, theta_bin: float, bin_per_sigma: float):
