@@ -60,17 +60,29 @@ DENSE_SLOTS_PER_ENTRY = 4
 
 
 def sorted_inverse(obs: np.ndarray, bins: np.ndarray) -> np.ndarray:
-    """(M,) int64 the rank of each entry's (obs, bin) (M,) int64 among the distinct ones in sorted order (what
-    torch.unique(sorted=True, return_inverse=True) gives for the key obs * nb + bin, nb > every bin). Counted over
-    the dense slots of (obs - min obs, bin) where they are few (one light's entries: texels x the bins in use),
-    sorted otherwise."""
+    """(M,) int64 the rank of each entry's (obs, bin) (M,) int64 among the distinct pairs in sorted order (obs, then
+    bin). Counted over the dense slots of (obs - min obs, bin - min bin) where they are few (one light's entries:
+    its texels x the bins in use), by a sort otherwise. (A merged entry's mean theta_h can leave [0, pi / 2] where
+    its photons' weights have both signs: its bin is then negative or past the last, which the key
+    obs * BINS_PER_OBSERVATION + bin once ran into the neighbouring observation's bins.)"""
     if not obs.size:
         return np.zeros(0, dtype=np.int64)
-    lo, nb = int(obs.min()), int(bins.max()) + 1
+    lo, b0 = int(obs.min()), int(bins.min())
+    nb = int(bins.max()) - b0 + 1
     slots = (int(obs.max()) - lo + 1) * nb
-    key = (obs - lo) * nb + bins
-    if slots > DENSE_SLOTS_PER_ENTRY * obs.size + (1 << 16):
-        return torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)[1].numpy()
+    if slots > DENSE_SLOTS_PER_ENTRY * obs.size + (1 << 16) and slots < 2**62:
+        key = torch.from_numpy((obs - lo) * nb + (bins - b0))
+        return torch.unique(key, sorted=True, return_inverse=True)[1].numpy()
+    if slots > DENSE_SLOTS_PER_ENTRY * obs.size + (1 << 16):  # keys past int64: sort the pairs
+        order = np.lexsort((bins, obs))
+        o, b = np.take(obs, order), np.take(bins, order)
+        new = np.empty(obs.size, dtype=bool)
+        new[0] = False
+        new[1:] = (o[1:] != o[:-1]) | (b[1:] != b[:-1])
+        inv = np.empty(obs.size, dtype=np.int64)
+        inv[order] = np.cumsum(new)
+        return inv
+    key = (obs - lo) * nb + (bins - b0)
     present = np.zeros(slots, dtype=bool)
     present[key] = True
     rank = np.cumsum(present, dtype=np.int32 if slots < 2**31 else np.int64)
