@@ -41,6 +41,28 @@ def irls_weight(r: torch.Tensor, kind: str, scale: float) -> torch.Tensor:
     raise FitError(f"fit.loss: unknown robust loss '{kind}', expected l2, huber or cauchy")
 
 
+def texel_priors(objective: Objective, index: torch.Tensor | None) -> list:
+    """The objective's active priors of the texels index (None: all) as (mask, ps, sigma, root) for prior_pulls: the
+    objective is (sum of robust losses + sum of prior pulls) / count, so per texel, in units of the robust loss, a
+    prior of weight w over n texels pulls with w * count / n (root: the square root of twice that)."""
+    pick = (lambda x: x) if index is None else (lambda x: x.index_select(0, index))
+    return [
+        (pick(q.mask), pick(q.ps), pick(q.sigma), (2.0 * q.weight * objective._count / int(q.mask.sum())) ** 0.5)
+        for q in objective._active_priors()
+    ]
+
+
+def prior_pulls(priors: list, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+    """(n, m (C + 1)) the m priors' residuals (texel_priors) at ps (n, C), sigma (n,): root times the log ratios."""
+    pulls = [ps.new_zeros(ps.shape[0], 0)]
+    for mask, prior_ps, prior_sigma, root in priors:
+        m = mask.to(ps.dtype)[:, None] * root
+        d_ps = torch.log(ps + _LOG_EPS) - torch.log(prior_ps + _LOG_EPS)
+        d_sigma = torch.log(sigma / prior_sigma)[:, None]
+        pulls.append(torch.cat([d_ps, d_sigma], 1) * m)
+    return torch.cat(pulls, 1)
+
+
 def row_sums(crow: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
     """(R, m) sums of the consecutive runs of rows of values (N, m): run r is rows crow[r]:crow[r + 1] (crow (R + 1,)
     long, non-decreasing, from 0 to N). A CSR product: a deterministic sum, several times faster than index_add."""
@@ -119,11 +141,7 @@ class FittedProblem:
             self.e_theta, self.e_weight = entries.theta_h.index_select(0, live), entries.weight.index_select(0, live)
         self.e_texel = self.t.index_select(0, self.e_row)
         self.e_crow = runs(self.e_row, len(flat))
-        pick = lambda x: x.index_select(0, index)  # noqa: E731
-        self.priors = [
-            (pick(q.mask), pick(q.ps), pick(q.sigma), (2.0 * q.weight * objective._count / int(q.mask.sum())) ** 0.5)
-            for q in objective._active_priors()
-        ]
+        self.priors = texel_priors(objective, index)
 
     def _lobes(self, sigma: torch.Tensor, derivative: bool):
         """(D, S) at the observations (N,), (N, 3), and with derivative their d / dsigma too."""
@@ -149,14 +167,7 @@ class FittedProblem:
         return softplus_b(raw_pd), p.ps_of(raw_ps), p.sigma_of(raw_sigma)
 
     def _pulls(self, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
-        """(n, m (C + 1)) the m priors' residuals (as torchrefl.fit.texel_lm._TexelProblem)."""
-        pulls = [ps.new_zeros(ps.shape[0], 0)]
-        for mask, prior_ps, prior_sigma, root in self.priors:
-            m = mask.to(ps.dtype)[:, None] * root
-            d_ps = torch.log(ps + _LOG_EPS) - torch.log(prior_ps + _LOG_EPS)
-            d_sigma = torch.log(sigma / prior_sigma)[:, None]
-            pulls.append(torch.cat([d_ps, d_sigma], 1) * m)
-        return torch.cat(pulls, 1)
+        return prior_pulls(self.priors, ps, sigma)
 
     def residuals(self, raw_pd, raw_ps, raw_sigma) -> tuple[torch.Tensor, torch.Tensor]:
         """(N, 3) the fitted observations' residuals in 8-bit DN, and (n, m (C + 1)) the priors' residuals."""

@@ -7,7 +7,9 @@ problems of 5 or 7 unknowns. Each iteration takes one Gauss-Newton step per texe
 (unconstrained) tensors, with iteratively reweighted residuals for the robust loss and a damping
 lambda of its own: the step is kept where the texel's cost fell (lambda / 3), refused where not
 (lambda * 4). The indirect light is re-evaluated at the new Pd before the next iteration. Why not
-joint LBFGS steps: docs/results/fold.md.
+joint LBFGS steps: docs/results/fold.md. Where the level's model of the texels is a TexelModel in closed form
+(every level's), the residuals and the Jacobian are evaluated at the fitted observations only, the Jacobian in
+closed form (torchrefl.fit.fitted_problem); a plain model callable gets forward-mode derivatives of its images.
 """
 
 from __future__ import annotations
@@ -18,8 +20,8 @@ import torch
 
 from torchrefl.core.params import TexelParams, softplus_b
 from torchrefl.errors import FitError
-from torchrefl.fit.fitted_problem import FittedEntries, FittedProblem, irls_weight
-from torchrefl.fit.refine import _LOG_EPS, Objective, robust_loss
+from torchrefl.fit.fitted_problem import FittedEntries, FittedProblem, irls_weight, prior_pulls, texel_priors
+from torchrefl.fit.refine import Objective, robust_loss
 from torchrefl.transport.texel_model import TexelModel
 
 #: the iterations stop once one lowers the total cost by less than this fraction
@@ -39,25 +41,14 @@ class _TexelProblem:
         self.weight = pick(objective.weight, 1)
         self.intensity = pick(objective.intensity, 1)
         self.mask = self.weight.to(objective.intensity.dtype)[..., None]
-        # the objective is (sum of robust losses + sum of prior pulls) / count: per texel, in units of the robust
-        # loss, a prior of weight w over n texels pulls with w * count / n
-        self.priors = [
-            (pick(p.mask), pick(p.ps), pick(p.sigma), (2.0 * p.weight * objective._count / int(p.mask.sum())) ** 0.5)
-            for p in objective._active_priors()
-        ]
+        self.priors = texel_priors(objective, texels)
 
     def residuals(self, raw_pd, raw_ps, raw_sigma) -> tuple[torch.Tensor, torch.Tensor]:
         """(P, n, 3) data residuals in 8-bit DN (0 where not fitted), and (n, m (C + 1)) the m priors' residuals."""
         p = self.params
         pd, ps, sigma = softplus_b(raw_pd), p.ps_of(raw_ps), p.sigma_of(raw_sigma)
         r = (self.model(pd, ps, sigma) - self.intensity) * 255.0 * self.mask
-        pulls = [r.new_zeros(r.shape[1], 0)]
-        for mask, prior_ps, prior_sigma, root in self.priors:
-            m = mask.to(r.dtype)[:, None] * root
-            d_ps = torch.log(ps + _LOG_EPS) - torch.log(prior_ps + _LOG_EPS)
-            d_sigma = torch.log(sigma / prior_sigma)[:, None]
-            pulls.append(torch.cat([d_ps, d_sigma], 1) * m)
-        return r, torch.cat(pulls, 1)
+        return r, prior_pulls(self.priors, ps, sigma)
 
     def cost(self, r: torch.Tensor, pulls: torch.Tensor) -> torch.Tensor:
         """(n,) each texel's cost: its robust losses plus half its squared prior residuals."""
