@@ -40,6 +40,7 @@ def problem_and_objective(T=16, seed=5, C=3, loss="huber"):
     prior = Prior(torch.arange(T) % 2 == 0, torch.full((T, C), 0.3, dtype=torch.float64), torch.full((T,), 0.2), 0.5)
     weight = obs.valid.clone()
     weight[::3, ::2] = False  # some observations not fitted: the entries there are left out
+    weight[:, 3] = False  # a texel without fitted observations (and without a prior): no step, no error
     objective = Objective(model, obs.intensity, weight, loss=loss, loss_scale_8bit=2.0, priors=[prior])
     index = torch.arange(T)
     return params, objective, model, index
