@@ -11,6 +11,7 @@ from torchrefl.core.texel_grid import TexelGrid
 from torchrefl.transport.photon_density import (
     KERNEL_PHOTONS,
     SLOPE_RIDGE,
+    SpreadKernel,
     apply_on_grid,
     kernel_std,
     smooth_on_grid,
@@ -147,3 +148,39 @@ def test_on_an_atlas_the_kernel_gathers_on_the_surface_not_from_charts_beside_it
     obs = np.arange(s.num_texels)
     to, src, _ = spread_on_grid(obs, s.num_texels, s.neighbours, 1.0)
     assert np.linalg.norm(p[to] - p[obs[src]], axis=1).max() <= np.sqrt(2) + 1e-9
+
+
+def test_the_spread_kernel_built_once_gives_the_copies_of_a_walk_over_the_window():
+    """SpreadKernel (spread_on_grid's kernel built once for every refresh) against the spread by hand: for each
+    window offset in turn, every entry's copy at that neighbour, weighted by the Gaussian times the normal test and
+    divided by the receiving texel's total weight; the same copies in the same order (the merge sums them in that
+    order), the weights to rounding."""
+    rng = np.random.default_rng(4)
+    H, W = 9, 11
+    grid = TexelGrid(np.flatnonzero(rng.random(H * W) > 0.2), (H, W))
+    T, sigma, ns = grid.num_texels, 1.4, 0.3
+    normals = rng.normal(size=(T, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    obs = rng.integers(0, 3 * T, 40)
+    offsets = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]  # radius round(1.4) = 1
+
+    def weight(t, u, dy, dx):
+        d = normals[t] - normals[u]
+        return np.exp(-(dy * dy + dx * dx) / (2 * sigma**2)) * np.exp(-(d @ d) / (2 * ns**2))
+
+    mass = np.zeros(T)
+    for t in range(T):
+        for dy, dx in offsets:
+            u = int(grid.neighbour(np.array([t]), dy, dx)[0])
+            if u >= 0:
+                mass[u] += weight(t, u, dy, dx)
+    expected = []
+    for dy, dx in offsets:
+        for i, o in enumerate(obs):
+            t, p = int(o % T), int(o // T)
+            u = int(grid.neighbour(np.array([t]), dy, dx)[0])
+            if u >= 0:
+                expected.append((p * T + u, i, weight(t, u, dy, dx) / mass[u]))
+    to, src, w = SpreadKernel(grid, sigma, normals, ns)(obs, T)
+    assert to.tolist() == [e[0] for e in expected] and src.tolist() == [e[1] for e in expected]
+    np.testing.assert_allclose(w, [e[2] for e in expected], rtol=1e-12)

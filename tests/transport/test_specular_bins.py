@@ -2,12 +2,13 @@
 merge (photon_cache.build_cache) against the all-at-once one."""
 
 import numpy as np
+import pytest
 import torch
 from conftest import fold_surface
 
 from torchrefl.core.brdf import specular_lobe
 from torchrefl.transport.photon_density import spread_on_grid
-from torchrefl.transport.specular_bins import merge_entries, spread_and_merge, theta_bins
+from torchrefl.transport.specular_bins import merge_entries, sorted_inverse, spread_and_merge, theta_bins
 
 
 def test_entries_of_one_bin_merge_into_their_sum_at_the_weighted_mean_angle():
@@ -63,3 +64,17 @@ def test_specular_entries_are_spread_and_merged_per_light_as_all_at_once():
     assert count == M
     np.testing.assert_array_equal(obs, ref[0])
     np.testing.assert_allclose(w, ref[2], rtol=1e-12)
+
+
+@pytest.mark.parametrize("spread", [3, 400_000, 2**60])
+def test_sorted_inverse_is_the_rank_among_the_sorted_distinct_pairs(spread):
+    """Dense slots (few observations) and the sort (observations spread wide) give the rank of (obs, bin) among the
+    distinct pairs, bins below 0 and past the last included (a merged entry's mean angle can leave [0, pi / 2])."""
+    rng = np.random.default_rng(spread)
+    obs = 1000 + rng.integers(0, spread, 5000)
+    bins = rng.integers(-3, 40, 5000)
+    bins[:3] = [500, -700, 393]
+    pairs = sorted(set(zip(obs.tolist(), bins.tolist())))
+    rank = {pair: i for i, pair in enumerate(pairs)}
+    expected = [rank[pair] for pair in zip(obs.tolist(), bins.tolist())]
+    np.testing.assert_array_equal(sorted_inverse(obs, bins), expected)

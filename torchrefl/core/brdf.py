@@ -105,6 +105,26 @@ def specular_lobe(model: str, theta_h: torch.Tensor, sigma: torch.Tensor) -> tor
     raise ConfigError(f"fit.brdf: unknown BRDF '{model}', expected one of {', '.join(BRDF_NAMES)}")
 
 
+def specular_lobe_dsigma(model: str, theta_h: torch.Tensor, sigma: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(D, dD/dsigma) of specular_lobe, the derivative in closed form (0 where sigma < SIGMA_EPS, the clamp):
+    torrance_sparrow D theta_h^2 / sigma^3, ward* D (2 tan^2 theta_h / sigma^3 - 2 / sigma)."""
+    sig = sigma.clamp_min(SIGMA_EPS)
+    live = (sigma >= SIGMA_EPS).to(sig.dtype)
+    if model == "torrance_sparrow":
+        t2 = theta_h * theta_h
+        D = torch.exp(-t2 / (2.0 * sig * sig))
+        return D, D * t2 * live / (sig * sig * sig)
+    if model in ("ward", "ward_normalised"):
+        c = torch.cos(theta_h).clamp_min(COS_EPS)
+        tan2 = (torch.sin(theta_h) / c) ** 2
+        D = torch.exp(-tan2 / (sig * sig)) / (4.0 * math.pi * sig * sig)
+        return D, D * (2.0 * tan2 / (sig * sig) - 2.0) * live / sig
+    if model == "lambertian":
+        zero = torch.zeros_like(theta_h + sig)
+        return zero, zero
+    raise ConfigError(f"fit.brdf: unknown BRDF '{model}', expected one of {', '.join(BRDF_NAMES)}")
+
+
 def specular_geometry(model: str, cos_l: torch.Tensor, cos_v: torch.Tensor) -> torch.Tensor:
     """The factor G such that the specular part of f * max(cos_l, 0) equals Ps * D * G.
 

@@ -7,7 +7,9 @@ problems of 5 or 7 unknowns. Each iteration takes one Gauss-Newton step per texe
 (unconstrained) tensors, with iteratively reweighted residuals for the robust loss and a damping
 lambda of its own: the step is kept where the texel's cost fell (lambda / 3), refused where not
 (lambda * 4). The indirect light is re-evaluated at the new Pd before the next iteration. Why not
-joint LBFGS steps: docs/results/fold.md.
+joint LBFGS steps: docs/results/fold.md. Where the level's model of the texels is a TexelModel in closed form
+(every level's), the residuals and the Jacobian are evaluated at the fitted observations only, the Jacobian in
+closed form (torchrefl.fit.fitted_problem); a plain model callable gets forward-mode derivatives of its images.
 """
 
 from __future__ import annotations
@@ -18,25 +20,15 @@ import torch
 
 from torchrefl.core.params import TexelParams, softplus_b
 from torchrefl.errors import FitError
-from torchrefl.fit.refine import _LOG_EPS, Objective, robust_loss
+from torchrefl.fit.fitted_problem import FittedEntries, FittedProblem, irls_weight, prior_pulls, texel_priors
+from torchrefl.fit.refine import Objective, robust_loss
+from torchrefl.transport.texel_model import TexelModel
 
 #: the iterations stop once one lowers the total cost by less than this fraction
 TOLERANCE = 1e-3
 _LAMBDA0, _LAMBDA_MIN, _LAMBDA_MAX = 1e-2, 1e-7, 1e7
 #: fitted observations per chunk of the normal equations' sums (bounds their float64 temporaries: ~100 MB at K = 7)
 _CHUNK = 1 << 18
-
-
-def irls_weight(r: torch.Tensor, kind: str, scale: float) -> torch.Tensor:
-    """w(r) with rho'(r) = w(r) r for the robust losses of torchrefl.fit.refine.robust_loss."""
-    if kind == "l2":
-        return torch.ones_like(r)
-    if kind == "huber":
-        a = r.abs()
-        return torch.where(a <= scale, torch.ones_like(r), scale / a.clamp_min(1e-30))
-    if kind == "cauchy":
-        return 1.0 / (1.0 + (r / scale) ** 2)
-    raise FitError(f"fit.loss: unknown robust loss '{kind}', expected l2, huber or cauchy")
 
 
 class _TexelProblem:
@@ -49,30 +41,22 @@ class _TexelProblem:
         self.weight = pick(objective.weight, 1)
         self.intensity = pick(objective.intensity, 1)
         self.mask = self.weight.to(objective.intensity.dtype)[..., None]
-        # the objective is (sum of robust losses + sum of prior pulls) / count: per texel, in units of the robust
-        # loss, a prior of weight w over n texels pulls with w * count / n
-        self.priors = [
-            (pick(p.mask), pick(p.ps), pick(p.sigma), (2.0 * p.weight * objective._count / int(p.mask.sum())) ** 0.5)
-            for p in objective._active_priors()
-        ]
+        self.priors = texel_priors(objective, texels)
 
     def residuals(self, raw_pd, raw_ps, raw_sigma) -> tuple[torch.Tensor, torch.Tensor]:
         """(P, n, 3) data residuals in 8-bit DN (0 where not fitted), and (n, m (C + 1)) the m priors' residuals."""
         p = self.params
         pd, ps, sigma = softplus_b(raw_pd), p.ps_of(raw_ps), p.sigma_of(raw_sigma)
         r = (self.model(pd, ps, sigma) - self.intensity) * 255.0 * self.mask
-        pulls = [r.new_zeros(r.shape[1], 0)]
-        for mask, prior_ps, prior_sigma, root in self.priors:
-            m = mask.to(r.dtype)[:, None] * root
-            d_ps = torch.log(ps + _LOG_EPS) - torch.log(prior_ps + _LOG_EPS)
-            d_sigma = torch.log(sigma / prior_sigma)[:, None]
-            pulls.append(torch.cat([d_ps, d_sigma], 1) * m)
-        return r, torch.cat(pulls, 1)
+        return r, prior_pulls(self.priors, ps, sigma)
 
     def cost(self, r: torch.Tensor, pulls: torch.Tensor) -> torch.Tensor:
         """(n,) each texel's cost: its robust losses plus half its squared prior residuals."""
         o = self.objective
         return robust_loss(r, o.loss, o.loss_scale_8bit).sum((0, 2)) + 0.5 * (pulls * pulls).sum(1)
+
+    def normal_equations(self, x: list, columns: list) -> tuple:
+        return _normal_equations(self, x, columns)
 
 
 def levenberg_marquardt(
@@ -107,6 +91,7 @@ def levenberg_marquardt(
     active = torch.ones(T, dtype=torch.bool, device=device) if skip is None else ~skip
     refit = active.nonzero()[:, 0]
     cost_all = None  # (T,) each texel's cost at x; a texel no longer evaluated keeps its last
+    entries = None  # the refit texels' specular entries at their fitted observations (closed-form models)
     if not bool(active.all()):
         with torch.no_grad():
             full = _TexelProblem(params, objective, texel_model(softplus_b(x[0])))
@@ -116,11 +101,8 @@ def levenberg_marquardt(
         if not len(index):
             break
         part = [q.index_select(0, index) for q in x]
-        model = None if texels_model is None else texels_model(softplus_b(x[0]), index)
-        if model is None:
-            model = _texels_of(texel_model(softplus_b(x[0])), params, x, index)
-        problem = _TexelProblem(params, objective, model, index)
-        H, g, r, pulls = _normal_equations(problem, part, columns)
+        problem, entries = _problem(params, objective, texel_model, texels_model, x, index, entries)
+        H, g, r, pulls = problem.normal_equations(part, columns)
         cost = problem.cost(r, pulls)
         if cost_all is None:
             cost_all = cost.clone()
@@ -160,6 +142,21 @@ def levenberg_marquardt(
     if not all(v == v and abs(v) != float("inf") for v in history):
         raise FitError("the lm refinement diverged (loss became NaN or inf)")
     return history
+
+
+def _problem(params, objective, texel_model, texels_model, x: list, index: torch.Tensor, entries):
+    """(the problem of the texels index at the raw values x, the refit's FittedEntries): closed form where the
+    level's model of them is a TexelModel in closed form (torchrefl.fit.fitted_problem), else forward-mode
+    derivatives of its images. entries: the refit's, built on the first call (whose texels are all the refit's,
+    the later ones a subset)."""
+    model = None if texels_model is None else texels_model(softplus_b(x[0]), index)
+    if isinstance(model, TexelModel) and model.closed_form:
+        if entries is None:
+            entries = FittedEntries(model, objective.weight, index)
+        return FittedProblem(params, objective, model, index, entries), entries
+    if model is None:
+        model = _texels_of(texel_model(softplus_b(x[0])), params, x, index)
+    return _TexelProblem(params, objective, model, index), entries
 
 
 def _stepped(x: list, step: torch.Tensor, columns: list) -> list:

@@ -63,9 +63,10 @@ from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.lobe_sampling import column_dot
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import ConfigError
-from torchrefl.transport.photon_density import apply_on_grid, smoothing_matrix, spread_on_grid
+from torchrefl.transport.photon_density import SpreadKernel, apply_on_grid, smoothing_matrix
 from torchrefl.transport.photon_trace import PhotonHits
 from torchrefl.transport.specular_bins import BIN_PER_SIGMA, THETA_BIN, spread_and_merge
+from torchrefl.transport.texel_model import SpecularEntries
 
 LOBE_CUTOFF = 1e-7
 
@@ -223,6 +224,7 @@ def build_cache(
     specular_smoothing: float = 0.0,
     diffuse_paths: bool = True,
     specular_paths_only: bool = False,
+    spreader: SpreadKernel | None = None,
 ) -> PhotonCache:
     """Reduce photon hits to the cache.
 
@@ -235,7 +237,8 @@ def build_cache(
     specular entries over surface neighbours (spread_on_grid; 0 = per texel); theta_bin, bin_per_sigma: merged
     photons' theta_h bins are max(theta_bin, bin_per_sigma * sigma_t) wide; threads: worker threads;
     smoother: smoothing_matrix(neighbours, smoothing, normals, smoothing_normal) built by the caller
-    once for many caches (built here when None);
+    once for many caches (built here when None); spreader: the specular spread's SpreadKernel(neighbours,
+    specular_smoothing, normals, smoothing_normal), likewise;
     emitter_pd (T, 3): the Pd the photons were traced with; with it (and hits.emitter) H is linear in Pd;
     diffuse_paths: False leaves the photons whose paths were diffuse at every scattering (hits.specular_path
     False) out of H, for a caller that adds those paths' irradiance from the radiosity level (their
@@ -261,8 +264,10 @@ def build_cache(
             raise ConfigError("photon.specular_smoothing > 0 needs the texel neighbours (grid = (neighbours,))")
         spread = None
         if specular_smoothing > 0:
-            nbrs, gnormals = _grid_parts(grid)
-            spread = lambda obs: spread_on_grid(obs, T, nbrs, specular_smoothing, gnormals, smoothing_normal)
+            if spreader is None:
+                nbrs, gnormals = _grid_parts(grid)
+                spreader = SpreadKernel(nbrs, specular_smoothing, gnormals, smoothing_normal)
+            spread = lambda obs: spreader(obs, T)  # noqa: E731
         if e_obs.size:
             merged, count = spread_and_merge(e_obs, theta_h, weight, spread, sigma, T, theta_bin, bin_per_sigma)
             empty = (torch.from_numpy(merged[0]), *(torch.from_numpy(x).to(dtype) for x in merged[1:]))
@@ -455,6 +460,13 @@ def texel_cache(cache: PhotonCache, texels: torch.Tensor) -> PhotonCache:
         cache.entry_theta_h.index_select(0, keep),
         cache.entry_weight.index_select(0, keep),
     )
+
+
+def texel_entries(cache: PhotonCache, kappa: torch.Tensor, texels: torch.Tensor) -> SpecularEntries:
+    """The cached specular light per unit Ps of the texels (n,) long as SpecularEntries (obs p * n + j, the weights
+    times kappa): what specular_per_unit_ps(texel_cache(cache, texels), kappa, sigma) sums."""
+    sub = texel_cache(cache, texels)
+    return SpecularEntries(sub.entry_obs, sub.entry_theta_h, sub.entry_weight * kappa.to(sub.entry_weight))
 
 
 def indirect_radiance_reference(

@@ -172,18 +172,45 @@ def spread_on_grid(
     kernel of smooth_on_grid (Gaussian of std `sigma` texels, truncated at radius max(1, round(sigma)) to bound the
     number of copies, times the normal test)
     normalised at each receiving texel (normalised convolution: a constant field stays constant).
-    Returns (obs of the copies, index of the entry each copy comes from, weight of each copy)."""
-    n = neighbours.num_texels
-    kernel = _grid_neighbours(neighbours, sigma, max(1, int(round(sigma))), normals, normal_sigma)
-    mass = np.zeros(n)
-    for to, w in kernel(np.arange(n)):
-        mass += np.bincount(np.maximum(to, 0), weights=np.where(to >= 0, w, 0.0), minlength=n)
-    t_e, p_e = obs % T, obs // T
-    out_obs, out_src, out_w = [], [], []
-    for to, w in kernel(t_e):
-        keep = np.flatnonzero((to >= 0) & (w > 0))
-        dest = np.take(to, keep)
-        out_obs.append(np.take(p_e, keep) * T + dest)
-        out_src.append(keep)
-        out_w.append(np.take(w, keep) / np.take(mass, dest))
-    return np.concatenate(out_obs), np.concatenate(out_src), np.concatenate(out_w)
+    Returns (obs of the copies, index of the entry each copy comes from, weight of each copy). SpreadKernel is the
+    same built once, for many calls."""
+    return SpreadKernel(neighbours, sigma, normals, normal_sigma)(obs, T)
+
+
+class SpreadKernel:
+    """spread_on_grid's kernel built once (the weights of every texel's copies, normalised at their receivers), applied
+    to many entries without recomputing it: the same copies, in the same order, with the same weights to the bit."""
+
+    def __init__(self, neighbours: TexelNeighbours, sigma: float, normals=None, normal_sigma: float = 0.0):
+        n = neighbours.num_texels
+        kernel = _grid_neighbours(neighbours, sigma, max(1, int(round(sigma))), normals, normal_sigma)
+        mass = np.zeros(n)
+        src, to, weight, offset = [], [], [], []
+        for k, (t_to, w) in enumerate(kernel(np.arange(n))):
+            mass += np.bincount(np.maximum(t_to, 0), weights=np.where(t_to >= 0, w, 0.0), minlength=n)
+            keep = np.flatnonzero((t_to >= 0) & (w > 0))
+            src.append(keep)
+            to.append(np.take(t_to, keep))
+            weight.append(np.take(w, keep))
+            offset.append(np.full(keep.size, k, dtype=np.int16))
+        src = np.concatenate(src)
+        order = np.argsort(src, kind="stable")  # texel by texel, each texel's copies in the window's order
+        self.to = np.take(np.concatenate(to), order)
+        self.weight = np.take(np.concatenate(weight), order) / np.take(mass, self.to)
+        self.offset = np.take(np.concatenate(offset), order)
+        self.start = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=n))])
+
+    def __call__(self, obs: np.ndarray, T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(obs of the copies, index of the entry each copy comes from, weight of each copy) of the entries at flat
+        observations obs (M,) = p T + t, window offset by window offset (spread_on_grid's order)."""
+        obs = np.asarray(obs, dtype=np.int64)
+        t_e, p_e = obs % T, obs // T
+        first = np.take(self.start, t_e)
+        count = np.take(self.start, t_e + 1) - first
+        entry = np.repeat(np.arange(obs.size), count)
+        base = np.cumsum(count) - count  # where each entry's copies begin among all copies
+        pos = np.repeat(first - base, count) + np.arange(entry.size)
+        order = np.argsort(np.take(self.offset, pos), kind="stable")  # offset by offset, entries in order
+        pos, entry = np.take(pos, order), np.take(entry, order)
+        dest = np.take(self.to, pos)
+        return np.take(p_e, entry) * T + dest, entry, np.take(self.weight, pos)

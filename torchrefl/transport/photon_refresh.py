@@ -19,7 +19,7 @@ import torch
 
 from torchrefl.core.progress import bar
 from torchrefl.transport.photon_cache import LightSources, PhotonCache, build_cache
-from torchrefl.transport.photon_density import smoothing_matrix
+from torchrefl.transport.photon_density import SpreadKernel, smoothing_matrix
 from torchrefl.transport.photon_material import TexelMaterial
 from torchrefl.transport.photon_trace import PhotonHits, PhotonTracer
 from torchrefl.transport.specular_gather import SpecularGather
@@ -70,6 +70,15 @@ class PhotonRefresh:
                 self.smoothing_normal,
             )
         return self._smoother
+
+    def spreader(self) -> SpreadKernel | None:
+        """The specular entries' spread (photon_density.SpreadKernel), built on first use and kept for every refresh."""
+        if self.specular_smoothing <= 0 or self.grid is None:
+            return None
+        if getattr(self, "_spreader", None) is None:
+            normals = self.grid[1] if len(self.grid) > 1 else None
+            self._spreader = SpreadKernel(self.grid[0], self.specular_smoothing, normals, self.smoothing_normal)
+        return self._spreader
 
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
@@ -122,6 +131,7 @@ class PhotonRefresh:
             specular_smoothing=self.specular_smoothing,
             threads=self.tracer.tracer.threads,
             smoother=self.smoother(),
+            spreader=self.spreader(),
             diffuse_paths=self.radiosity_irradiance is None,
             specular_paths_only=self.specular_gather is not None,
         )

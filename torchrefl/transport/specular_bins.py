@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 
 THETA_BIN = 0.004  # radians; merged photons differ in theta_h by less than this, or by
 BIN_PER_SIGMA = 0.25  # less than this fraction of the receiving texel's current roughness where that is wider
@@ -41,18 +40,66 @@ def merge_entries(
     roughness sigma (T,); merging entries whose theta_h differ by a fraction of the lobe's width changes
     sum_k w_k D(theta_k) by < 0.5 % (second order in the spread within a bin). Returns (entry_obs (E,), the
     weight-averaged theta_h (E,), summed weight (E, 3)), sorted by observation and bin."""
-    bins = theta_bins(theta_h, np.take(np.asarray(sigma, dtype=np.float64), e_obs % T), theta_bin, bin_per_sigma)
-    key = e_obs * (int(math.pi / 2 / theta_bin) + 2) + bins
-    uniq, inv = torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)
-    uniq, inv = uniq.numpy(), inv.numpy()
+    # theta_bins with the bin widths taken per texel (the same values, a pass fewer over the entries)
+    width = np.maximum(theta_bin, bin_per_sigma * np.asarray(sigma, dtype=np.float64))
+    bins = np.floor(np.asarray(theta_h) / np.take(width, _texel_of(e_obs, T))).astype(np.int64)
+    inv = sorted_inverse(e_obs, bins)  # each entry's merged entry, in the order of (observation, bin)
+    count = int(inv.max()) + 1 if inv.size else 0
     m = weight.mean(0)
-    wsum = np.stack([np.bincount(inv, weights=weight[c], minlength=len(uniq)) for c in range(3)], -1)
-    msum = np.bincount(inv, weights=m, minlength=len(uniq))
-    tsum = np.bincount(inv, weights=m * theta_h, minlength=len(uniq))
-    first = np.zeros(len(uniq), dtype=np.int64)
+    wsum = np.stack([np.bincount(inv, weights=weight[c], minlength=count) for c in range(3)], -1)
+    msum = np.bincount(inv, weights=m, minlength=count)
+    tsum = np.bincount(inv, weights=m * theta_h, minlength=count)
+    first = np.zeros(count, dtype=np.int64)
     first[inv[::-1]] = np.arange(len(inv))[::-1]
     mean_theta = np.where(msum > 0, tsum / np.where(msum > 0, msum, 1.0), np.take(theta_h, first))
     return np.take(e_obs, first), mean_theta, wsum
+
+
+#: sorted_inverse counts the (observation, bin) slots densely while they are at most this many per entry (5 bytes a
+#: slot: no more memory than the sort's)
+DENSE_SLOTS_PER_ENTRY = 4
+
+
+def sorted_inverse(obs: np.ndarray, bins: np.ndarray) -> np.ndarray:
+    """(M,) int64 the rank of each entry's (obs, bin) (M,) int64 among the distinct pairs in sorted order (obs, then
+    bin). Counted over the dense slots of (obs - min obs, bin - min bin) where they are few (one light's entries:
+    its texels x the bins in use), by a stable sort otherwise (the cache average's: two sorted runs, which timsort
+    merges in linear time). (A merged entry's mean theta_h can leave [0, pi / 2] where
+    its photons' weights have both signs: its bin is then negative or past the last, which the key
+    obs * BINS_PER_OBSERVATION + bin once ran into the neighbouring observation's bins.)"""
+    if not obs.size:
+        return np.zeros(0, dtype=np.int64)
+    lo, b0 = int(obs.min()), int(bins.min())
+    nb = int(bins.max()) - b0 + 1
+    slots = (int(obs.max()) - lo + 1) * nb
+    if slots > DENSE_SLOTS_PER_ENTRY * obs.size + (1 << 16):
+        new = np.empty(obs.size, dtype=bool)
+        new[0] = False
+        if slots < 2**62:
+            # a stable sort (timsort) merges the sorted runs of merged entries (the cache average's two) in linear time
+            key = (obs - lo) * nb + (bins - b0)
+            order = np.argsort(key, kind="stable")
+            k = np.take(key, order)
+            np.not_equal(k[1:], k[:-1], out=new[1:])
+        else:  # keys past int64: sort the pairs
+            order = np.lexsort((bins, obs))
+            o, b = np.take(obs, order), np.take(bins, order)
+            new[1:] = (o[1:] != o[:-1]) | (b[1:] != b[:-1])
+        inv = np.empty(obs.size, dtype=np.int64)
+        inv[order] = np.cumsum(new)
+        return inv
+    key = (obs - lo) * nb + (bins - b0)
+    present = np.zeros(slots, dtype=bool)
+    present[key] = True
+    rank = np.cumsum(present, dtype=np.int32 if slots < 2**31 else np.int64)
+    return np.take(rank, key).astype(np.int64) - 1
+
+
+def _texel_of(obs: np.ndarray, T: int) -> np.ndarray:
+    """(M,) the texel t of flat observations obs = p T + t (a subtraction where they are all one light's)."""
+    if obs.size and int(obs.min()) // T == int(obs.max()) // T:
+        return obs - (int(obs.min()) // T) * T
+    return obs % T
 
 
 def spread_and_merge(e_obs, theta_h, weight, spread, sigma, T: int, theta_bin: float, bin_per_sigma: float):

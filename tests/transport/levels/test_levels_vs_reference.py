@@ -30,6 +30,7 @@ from reference.path_tracer import ReferenceRenderer, cosine_weighted_brdf, scatt
 from torchrefl.capture import cylindrical_scan
 from torchrefl.capture.base import Capture
 from torchrefl.config import Config
+from torchrefl.core.brdf import specular_lobe
 from torchrefl.core.params import TexelParams
 from torchrefl.core.progress import Stages
 from torchrefl.fit.pipeline import level_inputs
@@ -412,3 +413,9 @@ def test_texel_model_is_predict_with_the_indirect_light_held(fold, name):
         if terms is not None:  # restricted by the level (specular_of) and by slicing the whole factor
             for restricted in (terms.texels(index), IndirectTerms(terms.diffuse, terms.specular).texels(index)):
                 torch.testing.assert_close(restricted.specular(sigma1[index]), terms.specular(sigma1)[:, index])
+            # the same factor as entries (what the LM's closed form sums), through the restriction
+            e = terms.texels(index).entries_of(torch.arange(len(index)))
+            n = len(index)
+            lobe = specular_lobe(level.inputs.terms.brdf, e.theta_h, sigma1[index][e.obs % n])
+            summed = e.weight.new_zeros(terms.diffuse.shape[0] * n, 3).index_add(0, e.obs, lobe[:, None] * e.weight)
+            torch.testing.assert_close(summed.view(-1, n, 3), terms.specular(sigma1)[:, index])

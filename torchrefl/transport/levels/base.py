@@ -29,6 +29,7 @@ from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.core.surface import Surface
 from torchrefl.transport.local import LocalTerms, predict
+from torchrefl.transport.texel_model import SpecularEntries, TexelModel
 
 #: LocalTerms' tensors, in their constructor's order
 LOCAL_TENSORS = ("theta_h", "cos_l", "cos_v", "diffuse", "specular")
@@ -53,14 +54,19 @@ class LevelInputs:
     log: Callable[[str], None]
     initialise: Callable[[torch.Tensor], Any]
 
-    def local_predict(self, texels: Optional[torch.Tensor] = None) -> Callable:
-        """(pd, ps, sigma) -> (P, T, 3) direct light on the fit's device; texels (n,) long: of those texels only,
-        taking and giving their rows."""
+    def local_terms(self, texels: Optional[torch.Tensor] = None) -> LocalTerms:
+        """The local terms on the fit's device; texels (n,) long: of those texels only."""
         terms = self.terms if texels is None else self.terms.texels(texels)
         if self.device.type != "cpu":
             terms = LocalTerms(
                 terms.brdf, *(getattr(terms, k).to(self.device) for k in LOCAL_TENSORS), terms.diffuse_exponent
             )
+        return terms
+
+    def local_predict(self, texels: Optional[torch.Tensor] = None) -> Callable:
+        """(pd, ps, sigma) -> (P, T, 3) direct light on the fit's device; texels (n,) long: of those texels only,
+        taking and giving their rows."""
+        terms = self.local_terms(texels)
         return lambda pd, ps, sigma: predict(terms, pd, ps, sigma)
 
 
@@ -75,6 +81,8 @@ class IndirectTerms:
     specular: Callable[[torch.Tensor], torch.Tensor]
     #: index (n,) long -> the specular factor of those texels only, sigma (n,) -> (P, n, 3) (None: specular sliced)
     specular_of: Optional[Callable[[torch.Tensor], Callable[[torch.Tensor], torch.Tensor]]] = None
+    #: index (n,) long -> the specular factor of those texels as SpecularEntries (None: not of that form)
+    entries_of: Optional[Callable[[torch.Tensor], SpecularEntries]] = None
 
     def texels(self, index: torch.Tensor) -> "IndirectTerms":
         """The terms of the texels index (n,) long only; their specular factor takes sigma per texel of the subset
@@ -82,8 +90,9 @@ class IndirectTerms:
         subset's mean sigma: a texel's factor depends on its own sigma only)."""
         index = index.to(self.diffuse.device)
         diffuse = self.diffuse.index_select(1, index)
+        entries_of = None if self.entries_of is None else (lambda sub: self.entries_of(index.index_select(0, sub)))
         if self.specular_of is not None:
-            return IndirectTerms(diffuse, self.specular_of(index))
+            return IndirectTerms(diffuse, self.specular_of(index), entries_of=entries_of)
         T, full = self.diffuse.shape[1], self.specular
 
         def specular(sigma: torch.Tensor) -> torch.Tensor:
@@ -92,7 +101,7 @@ class IndirectTerms:
                 sigma = sigma.mean().expand(T).index_put((index,), sigma)
             return full(sigma).index_select(1, index)
 
-        return IndirectTerms(diffuse, specular)
+        return IndirectTerms(diffuse, specular, entries_of=entries_of)
 
 
 @dataclass
@@ -149,14 +158,18 @@ class TransportLevel(ABC):
         that each texel's images depend on its own parameters only; equals predict at pd (the per-texel solver's
         model, torchrefl.fit.texel_lm). texels: (n,) long, the model of those texels only, taking and giving their
         rows ((n, 3), ... -> (P, n, 3)); None where the level cannot give it (no indirect terms: predict is texel by
-        texel but need not be the local model, unless the level says so by overriding this)."""
+        texel but need not be the local model, unless the level says so by overriding this). A TexelModel, in
+        parts, where the level has indirect terms."""
         terms = self.indirect_terms(pd)
         if terms is None:  # no indirect light: predict itself is texel by texel
             return self.predict if texels is None else None
-        local = self.inputs.local_predict(texels)
         if texels is not None:
             terms = terms.texels(texels)
-        return lambda pd, ps, sigma: local(pd, ps, sigma) + pd[None] * terms.diffuse + ps[None] * terms.specular(sigma)
+        entries_of, n = terms.entries_of, terms.diffuse.shape[1]
+        entries = None
+        if entries_of is not None:
+            entries = lambda: entries_of(torch.arange(n, device=terms.diffuse.device))  # noqa: E731
+        return TexelModel(self.inputs.local_terms(texels), terms.diffuse, terms.specular, entries)
 
     def refresh(self, params, k: int) -> None:
         """Update the level's state for the parameters after k refits (default: nothing to refresh)."""

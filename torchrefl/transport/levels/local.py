@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Callable, Optional
+from typing import Optional
 
 import torch
 
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
+from torchrefl.transport.texel_model import TexelModel
 
 
 class LocalLevel(TransportLevel):
@@ -24,6 +25,6 @@ class LocalLevel(TransportLevel):
     def predict(self, pd, ps, sigma):
         return self._predict(pd, ps, sigma)
 
-    def texel_model(self, pd: torch.Tensor, texels: Optional[torch.Tensor] = None) -> Callable:
+    def texel_model(self, pd: torch.Tensor, texels: Optional[torch.Tensor] = None) -> TexelModel:
         """predict, which is the local model: of the texels (n,) long only where given."""
-        return self.predict if texels is None else self.inputs.local_predict(texels)
+        return TexelModel(self.inputs.local_terms(texels))

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 import time
-from functools import partial
 
 import torch
 
@@ -32,6 +31,7 @@ from torchrefl.transport.photon_cache import (
     light_sources,
     specular_per_unit_ps,
     texel_cache,
+    texel_entries,
 )
 from torchrefl.transport.photon_density import (
     KERNEL_PHOTONS,
@@ -52,6 +52,20 @@ FINAL_TRACES = 4
 #: from this refresh on the cache averages the new trace with the previous one (the first refits move the
 #: parameters far, so refresh 1's trace would mix in the start's light)
 AVERAGE_FROM = 2
+
+
+class _LazySpecular:
+    """sigma (n,) -> (P, n, 3) the specular factor of some texels (specular_per_unit_ps), their cache (texel_cache)
+    cut on the first call: a model whose factor is never evaluated (the LM's closed form takes the entries) cuts
+    none."""
+
+    def __init__(self, cache, kappa: torch.Tensor, texels: torch.Tensor):
+        self.cache, self.kappa, self.texels, self.sub = cache, kappa, texels, None
+
+    def __call__(self, sigma: torch.Tensor) -> torch.Tensor:
+        if self.sub is None:
+            self.sub = texel_cache(self.cache, self.texels)
+        return specular_per_unit_ps(self.sub, self.kappa, sigma)
 
 
 def image_score(pred: torch.Tensor, intensity: torch.Tensor, mask: torch.Tensor) -> float:
@@ -208,7 +222,8 @@ class PhotonLevel(TransportLevel):
         return IndirectTerms(
             diffuse,
             lambda sigma: specular_per_unit_ps(cache, kappa, sigma),
-            lambda texels: partial(specular_per_unit_ps, texel_cache(cache, texels), kappa),
+            lambda texels: _LazySpecular(cache, kappa, texels),
+            lambda texels: texel_entries(cache, kappa, texels),
         )
 
     def steps(self, k: int) -> list[RefitStep]:

@@ -28,6 +28,7 @@ from torchrefl.transport.radiosity_level import (
     inverse_radiosity,
     reflected_indirect,
 )
+from torchrefl.transport.texel_model import SpecularEntries
 
 #: a patch's texels stay within this angle of one another's normals: a block straddling a fold is split per side
 #: (a shared patch gave Object E +3 % Pd within 2 mm of the fold: docs/results/object_e.md)
@@ -226,4 +227,6 @@ class RadiosityLevel(TransportLevel):
         with torch.no_grad():
             diffuse = reflected_indirect(kappa, torch.ones_like(pd), self.indirect(pd))
         zero = torch.zeros_like(diffuse)
-        return IndirectTerms(diffuse, lambda sigma: zero)
+        return IndirectTerms(
+            diffuse, lambda sigma: zero, entries_of=lambda texels: SpecularEntries.empty(zero.dtype, zero.device)
+        )
