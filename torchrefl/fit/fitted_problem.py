@@ -47,8 +47,8 @@ def texel_priors(objective: Objective, index: torch.Tensor | None) -> list:
     prior of weight w over n texels pulls with w * count / n (root: the square root of twice that)."""
     pick = (lambda x: x) if index is None else (lambda x: x.index_select(0, index))
     return [
-        (pick(q.mask), pick(q.ps), pick(q.sigma), (2.0 * q.weight * objective._count / int(q.mask.sum())) ** 0.5)
-        for q in objective._active_priors()
+        (pick(q.mask), pick(q.ps), pick(q.sigma), (2.0 * q.weight * objective.count / int(q.mask.sum())) ** 0.5)
+        for q in objective.active_priors()
     ]
 
 

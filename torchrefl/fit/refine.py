@@ -90,13 +90,19 @@ class Objective:
         its priors."""
         pd, ps, sigma = params.values()
         out = self._data_loss(pd, ps, sigma).sum((0, 2)) / self._count
-        for prior in self._active_priors():
+        for prior in self.active_priors():
             out = out.index_add(
                 0, prior.mask.nonzero()[:, 0], prior.weight * _pull(prior, ps, sigma) / int(prior.mask.sum())
             )
         return out
 
-    def _active_priors(self) -> list:
+    @property
+    def count(self) -> float:
+        """The number of fitted observation channels: the data term is the sum of their robust losses over it."""
+        return self._count
+
+    def active_priors(self) -> list:
+        """The priors that pull (a positive weight on at least one texel)."""
         return [p for p in self.priors if p.weight > 0 and bool(p.mask.any())]
 
     def _data_loss(self, pd, ps, sigma) -> torch.Tensor:
@@ -107,7 +113,7 @@ class Objective:
     def __call__(self, params: TexelParams) -> torch.Tensor:
         pd, ps, sigma = params.values()
         total = self._data_loss(pd, ps, sigma).sum() / self._count
-        for prior in self._active_priors():
+        for prior in self.active_priors():
             total = total + prior.weight * _pull(prior, ps, sigma).mean()
         if self.couples_texels:
             i, j = self.neighbours[:, 0], self.neighbours[:, 1]

@@ -123,7 +123,7 @@ def levenberg_marquardt(
         before = float(cost_all.index_select(0, refit).sum())  # the skipped texels' cost is not this fit's
         kept = torch.where(better, new_cost, cost)
         cost_all = cost_all.index_copy(0, index, kept.to(cost_all.dtype))
-        total = float(cost_all.sum()) / objective._count
+        total = float(cost_all.sum()) / objective.count
         history.append(total)
         after = float(cost_all.index_select(0, refit).sum())
         typical = after / len(refit)
