@@ -93,6 +93,66 @@ def row(selector: str, seed: int, folder: Path) -> Row:
     )
 
 
+@dataclass
+class Paired:
+    """A planner run and coverage-greedy's reference run of the same seed on one set of texels: those whose lobe
+    both fitted from their own highlights (lobe_measured in both), estimated in both, glossy in the truth (Ps >
+    1e-3); the median relative errors of each run over that set (NaN where it is empty)."""
+
+    seed: int
+    lights: int
+    texels: int
+    ps: float
+    sigma: float
+    reference_ps: float
+    reference_sigma: float
+
+
+def paired_rows(out: Path, reference: int) -> list[Paired]:
+    """A Paired for every finished planner run in out/seed_S against out/seed_S/coverage_{reference}."""
+    rows = []
+    for seed_dir in sorted(out.glob("seed_*")):
+        ref_dir = seed_dir / f"coverage_{reference}"
+        if not (ref_dir / "run_complete.json").is_file():
+            continue
+        ref = load_run(ref_dir)
+        with np.load(ref_dir / "capture" / "truth.npz") as t:
+            tps, tsg = t["ps"].mean(-1), t["sigma"]
+        planned = [f for f in seed_dir.glob("planner_*") if (f / "run_complete.json").is_file()]
+        for folder in sorted(planned, key=lambda f: int(f.name.split("_")[1])):
+            run = load_run(folder)
+            both = ref.mask & run.mask & ref.lobe_measured & run.lobe_measured & (tps > 1e-3)
+            rel = lambda a, b: float(np.median(np.abs(a[both] - b[both]) / b[both])) if both.any() else np.nan
+            rows.append(
+                Paired(
+                    int(seed_dir.name.removeprefix("seed_")),
+                    int(folder.name.split("_")[1]),
+                    int(both.sum()),
+                    rel(run.ps.mean(-1), tps),
+                    rel(run.sigma, tsg),
+                    rel(ref.ps.mean(-1), tps),
+                    rel(ref.sigma, tsg),
+                )
+            )
+    return rows
+
+
+def paired_table(rows: list[Paired], reference: int) -> str:
+    """A markdown table of the Paired rows averaged over the seeds, one line per planner count."""
+    lines = [
+        f"median relative errors over the texels both the planner's run and coverage-greedy's {reference}-light run "
+        f"measured (glossy), mean of {len({r.seed for r in rows})} seed(s):",
+        f"| planner lights | texels | planner Ps | planner sigma | coverage-greedy@{reference} Ps | sigma |",
+        "|---:|---:|---:|---:|---:|---:|",
+    ]
+    for n in sorted({r.lights for r in rows}):
+        same = [r for r in rows if r.lights == n]
+        v = np.array([[r.ps, r.sigma, r.reference_ps, r.reference_sigma] for r in same])
+        cells = [f"{np.mean(c[np.isfinite(c)]):.2%}" if np.isfinite(c).any() else "-" for c in v.T]
+        lines.append(f"| {n} | {np.mean([r.texels for r in same]):.0f} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def compare_seed(args, seed: int, out: Path, log) -> list[Row]:
     """The coverage-greedy and planner fits of one noise seed (module docstring)."""
     base = [*args.overrides, f"synthetic.noise_seed={seed}"]
@@ -252,7 +312,9 @@ def main(argv=None) -> int:
             rows += compare_seed(args, seed, out / f"seed_{seed}", log)
             (out / "results.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
         plot(rows, args.reference, Path(args.plot) if args.plot else out / "next_best.png")
+        paired = paired_table(paired_rows(out, args.reference), args.reference)
     print(summary(rows, args.reference, len({r.seed for r in rows})))
+    print(paired)
     return 0
 
 

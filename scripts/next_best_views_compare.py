@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # next_best_compare beside this script
 
-from next_best_compare import ROOT, Row, fit, plot, row, summary  # noqa: E402
+from next_best_compare import ROOT, Row, fit, paired_rows, paired_table, plot, row, summary  # noqa: E402
 from tiny_mode import TINY_VIEWS  # noqa: E402
 
 from torchrefl.config import load_config  # noqa: E402
@@ -117,7 +117,9 @@ def main(argv=None) -> int:
     if args.tabulate:
         rows = [Row(**r) for path in args.tabulate for r in json.loads(Path(path).read_text())]
         plot(rows, args.reference, Path(args.tabulate[0]).with_name("next_best_views.png"))
+        paired = [p for path in args.tabulate for p in paired_rows(Path(path).parent, args.reference)]
         print(summary(rows, args.reference, len({r.seed for r in rows})))
+        print(paired_table(paired, args.reference))
         return 0
     with tempfile.TemporaryDirectory(prefix="next-best-views-") as tmp:
         out = Path(args.out) if args.out else Path(tmp)
@@ -126,7 +128,9 @@ def main(argv=None) -> int:
             rows += compare_seed(args, seed, out / f"seed_{seed}", log)
             (out / "results.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
         plot(rows, args.reference, out / "next_best_views.png")
+        paired = paired_table(paired_rows(out, args.reference), args.reference)
     print(summary(rows, args.reference, len({r.seed for r in rows})))
+    print(paired)
     return 0
 
 

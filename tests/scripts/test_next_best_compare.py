@@ -43,11 +43,21 @@ def test_the_planner_reaches_the_reference_where_both_errors_are_at_most_its():
     assert compare.planner_reach(compare.mean_curves(rows()), 4) == (None, None)
 
 
+def test_the_paired_table_averages_the_seeds_and_leaves_empty_sets_out():
+    P = compare.Paired
+    rows = [P(1, 6, 100, 0.02, 0.04, 0.03, 0.01), P(2, 6, 300, 0.04, 0.02, 0.01, 0.03), P(1, 7, 0, *[float("nan")] * 4)]
+    text = compare.paired_table(rows, 9)
+    assert "| 6 | 200 | 3.00% | 3.00% | 2.00% | 2.00% |" in text
+    assert "| 7 | 0 | - | - | - | - |" in text
+
+
 def test_tiny_mode_fits_both_selectors(tmp_path, capsys):
     out = tmp_path / "cmp"
     assert compare.main(["--tiny", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "| lights | coverage-greedy Ps |" in text and "the planner reaches" in text
+    assert "the texels both the planner's run and coverage-greedy's 3-light run measured" in text
+    assert len(compare.paired_rows(out, 3)) == 1 and "| 4 |" in text.split("measured (glossy)")[1]
     got = json.loads((out / "results.json").read_text())
     assert {(r["selector"], r["lights"]) for r in got} == {("coverage", 3), ("planner", 4)}
     assert (out / "next_best.png").stat().st_size > 0
