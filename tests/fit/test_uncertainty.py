@@ -235,3 +235,25 @@ def test_nearly_collinear_parameters_keep_a_positive_definite_block():
         info = information(J, torch.ones(40, 1, 3), torch.full((3,), 0.3, dtype=torch.float64))
         assert torch.linalg.cholesky_ex(info + torch.diag(1 / prior))[1].item() == 0
         assert torch.isfinite(covariance(info, prior)).all()
+
+
+@pytest.mark.parametrize("measured", [False, True])
+def test_noise_estimate_of_held_and_measured_lobes(measured):
+    """Residuals of 0.5 DN Gaussian noise where every observation shows the lobe (a broad lobe: its Jacobian
+    columns 20-100 DN per unit Ps on all 40 lights): the leverage-corrected estimate is 0.5 DN whether the lobe was
+    measured or held. A held lobe takes no leverage (not fitted); its broad-prior variance, counted, put h far over
+    1 on every observation and the cap's 1 / sqrt(1 - 0.9) tripled the estimate (the fold's photon run: 0.99
+    against 0.57 DN)."""
+    g = torch.Generator().manual_seed(3)
+    P, T = 40, 100
+    J = torch.zeros(P, T, 3, 7, dtype=torch.float64)
+    for c in range(3):
+        J[..., c, c] = 50 + 150 * torch.rand(P, T, generator=g, dtype=torch.float64)  # Pd
+        J[..., c, 3 + c] = 20 + 80 * torch.rand(P, T, generator=g, dtype=torch.float64)  # Ps
+    J[..., 6] = 100 * torch.rand(P, T, 3, generator=g, dtype=torch.float64) - 50  # sigma
+    r = 0.5 * torch.randn(P, T, 3, generator=g, dtype=torch.float64)
+    weight, mask = torch.ones(P, T, 3, dtype=torch.float64), torch.ones(P, T, dtype=torch.bool)
+    lobe = torch.full((T,), measured)
+    per_channel = uncertainty.channel_information(J, weight)
+    s = uncertainty.residual_noise(r, J, weight, per_channel, mask, RANGES.prior_var(3), lobe)
+    assert torch.allclose(s, torch.full((3,), 0.5, dtype=torch.float64), rtol=0.06)

@@ -15,8 +15,9 @@ larger) and keeps an undetermined one (sigma of a texel without a highlight) fin
 
 Noise: capture.noise_dn when given; else per channel from the fit's residuals, robustly and with the
 degrees of freedom accounted for: each residual is divided by sqrt(1 - h) (h its leverage, the hat matrix's
-diagonal w / s_c^2 J^T Cov J, at the raw residuals' MAD) and s_c = 1.4826 MAD of those (over an even stride of
-at most NOISE_TEXELS texels).
+diagonal w / s_c^2 J^T Cov J, at the raw residuals' MAD; a lobe not measured by the texel is held, not fitted, so
+its block of Cov counts zero) and s_c = 1.4826 MAD of those (over an even stride of at most NOISE_TEXELS
+texels).
 
 Texels whose Ps and sigma the fit did not estimate from their own observations (coverage other than "measured":
 the lobe of their colour, their neighbours' or the object's) have Ps, sigma std at the range's std, marked not
@@ -150,14 +151,17 @@ def mad_noise(r: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 
 def residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured) -> torch.Tensor:
     """(3,) per-channel noise in DN from the fit's residuals r (P, T, 3), leverage-corrected (module docstring):
-    the leverages at the raw residuals' MAD (they depend on the noise only through the broad prior's share); over
-    every k-th texel where there are more than NOISE_TEXELS."""
+    the leverages at the raw residuals' MAD (they depend on the noise only through the broad prior's share), those
+    of a texel whose lobe was not measured from its Pd block alone (its held lobe's broad-prior variance is no
+    leverage: counted, it put h far over 1 wherever the lobe shows, and the cap's 1 / sqrt(1 - 0.9) tripled those
+    residuals); over every k-th texel where there are more than NOISE_TEXELS."""
     step = -(-r.shape[1] // NOISE_TEXELS)
     if step > 1:
         r, J, weight, mask = r[:, ::step], J[:, ::step], weight[:, ::step], mask[:, ::step]
         per_channel, lobe_measured = per_channel[:, ::step], lobe_measured[::step]
     s = mad_noise(r, mask).clamp_min(1e-3)
     cov = texel_covariance(scaled(per_channel, s), prior_var, lobe_measured)
+    cov[~lobe_measured, 3:, 3:] = 0.0  # a held lobe was not fitted to these residuals: it takes no leverage
     h = leverage(J, weight, s, cov).clamp(0.0, MAX_LEVERAGE)
     return mad_noise(r.double() / torch.sqrt(1.0 - h), mask).clamp_min(1e-3)
 
