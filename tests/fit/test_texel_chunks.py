@@ -6,6 +6,7 @@ import importlib
 
 import torch
 
+import torchrefl.transport.memory_estimate as memory_estimate
 from torchrefl.capture.mesh_views import MeshViewsLoader
 from torchrefl.config import load_config
 from torchrefl.core.progress import Stages
@@ -54,8 +55,12 @@ def test_a_chunked_local_fit_equals_the_unchunked_one_and_runs_above_the_budget(
     logged: list[str] = []
     cap, dense = _fit(folder, lambda msg, echo=True: logged.append(msg))
     assert not any("chunks of texels" in m for m in logged)  # plenty of free memory: no chunks
-    # 0.3 MiB free: the dense estimate (400 bytes a pair) is above half of it, a chunk holds ~400 pairs
+    # 0.3 MiB free for the plan: the dense estimate (400 bytes a pair) is above half of it, a chunk holds ~400 pairs;
+    # 0.5 MiB free for the level's memory check, which refuses the dense estimate and passes the chunked one
     monkeypatch.setattr(texel_chunks, "free_mb", lambda: 0.3)
+    monkeypatch.setattr(memory_estimate, "free_mb", lambda: 0.5)
+    P, T = cap.obs.num_lights, cap.surface.num_texels
+    assert P * T * memory_estimate.FIT_BYTES_PER_OBSERVATION > 0.5 * 2**20
     logged.clear()
     _, chunked = _fit(folder, lambda msg, echo=True: logged.append(msg))
     said = [m for m in logged if "chunks of texels" in m]
