@@ -16,22 +16,22 @@ from torchrefl.fit.texel_chunks import plan_chunks
 texel_chunks = importlib.import_module("torchrefl.fit.texel_chunks")  # torchrefl.fit is also a function's name
 
 
-def test_chunks_cover_the_texels_in_order_with_the_images_that_observe_them():
+def test_chunks_cover_the_texels_grouped_by_the_images_that_observe_them():
     fitted = torch.zeros(3, 10, dtype=torch.bool)
     fitted[0, 0:4] = True  # image 0 sees texels 0-3, image 1 texels 4-5, image 2 texel 9; 6-8 unseen
     fitted[1, 4:6] = True
     fitted[2, 9] = True
     chunks = plan_chunks(fitted, max_pairs=4, block=2)
-    # blocks of one texel (4 pairs / 3 images); texels 0-3 share image 0 (4 pairs), texel 4 would make 2 images x 5
-    # texels; 4-7 are image 1's 4 pairs (6, 7 add no image), texel 8 would make 5 pairs; 8-9: image 2 only
-    assert [(c.start, c.stop) for c in chunks] == [(0, 4), (4, 8), (8, 10)]
-    assert [c.images.tolist() for c in chunks] == [[0], [1], [2]]
+    # ordered by their images (none; {2}; {1}; {0}): 6 7 8 9 | 4 5 | 0 1 2 3 in blocks of one texel (4 pairs / 3
+    # images): texel 4 would make 2 images x 5 texels, texel 0 2 images x 3 texels
+    assert [c.texels.tolist() for c in chunks] == [[6, 7, 8, 9], [4, 5], [0, 1, 2, 3]]
+    assert [c.images.tolist() for c in chunks] == [[2], [1], [0]]
     assert all(c.pairs <= 4 for c in chunks)
 
 
 def test_a_chunk_no_image_observes_still_has_one_image():
     chunks = plan_chunks(torch.zeros(2, 5, dtype=torch.bool), max_pairs=100)
-    assert [(c.start, c.stop, c.images.tolist()) for c in chunks] == [(0, 5, [0])]
+    assert [(c.texels.tolist(), c.images.tolist()) for c in chunks] == [([0, 1, 2, 3, 4], [0])]
 
 
 def _fit(folder, log):

@@ -4,12 +4,13 @@ A large mesh_views capture (issue 32 item 7: a million atlas texels, 48 images) 
 observation: each camera sees a part of the object, so 8 % of the (image, texel) pairs are observations, and the
 dense (P, T) temporaries of the local fit's per-texel stages (the closed forms, the sigma search, the lobe
 consensus's evaluations, the uncertainty's Jacobian) would not fit. Those stages are texel by texel (a texel's
-result depends on its own observations only), so they run here on chunks of consecutive texels in the surface's
-order (the atlas's rows within its charts, the scan's rows: texels close on the surface, seen by the same few
-images), each with the images that have a fitted observation of any of its texels; the others contribute nothing
-to a texel's sums. The stages that couple texels (the lobe consensus's neighbour medians, the lobe fill from
-texels of the same colour or window, the uncertainty's noise level, the LM's stop test) stay whole on the (T,)
-maps and see the same values as without chunks.
+result depends on its own observations only), so they run here on chunks of texels, each with the images that have
+a fitted observation of any of its texels; the others contribute nothing to a texel's sums. The texels are ordered
+by the set of images that observe them (texels seen by the same cameras and lights together: in atlas order a
+chunk of rows crosses every chart, and so most cameras), and a chunk is a run of that order. The stages that couple
+texels (the lobe consensus's neighbour medians, the lobe fill from texels of the same colour or window, the
+uncertainty's noise level, the LM's stop test) stay whole on the (T,) maps and see the same values as without
+chunks.
 
 The chunks are used when the dense estimate (transport.memory_estimate: FIT_BYTES_PER_OBSERVATION per pair) is
 above FREE_SHARE of the memory free now; a chunk then holds at most that share of the free memory (and
@@ -21,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Optional
 
+import numpy as np
 import torch
 
 from torchrefl.config import Config
@@ -50,42 +52,49 @@ _MB = 2.0**20
 
 @dataclass(frozen=True)
 class TexelChunk:
-    """Consecutive texels start..stop-1 and images (m,) long: those with a fitted observation of any of them."""
+    """Texels (n,) long and images (m,) long: those with a fitted observation of any of the texels."""
 
-    start: int
-    stop: int
+    texels: torch.Tensor
     images: torch.Tensor
 
     @property
     def pairs(self) -> int:
-        return (self.stop - self.start) * len(self.images)
+        return len(self.texels) * len(self.images)
+
+
+def observed_order(fitted: torch.Tensor) -> torch.Tensor:
+    """(T,) long the texels ordered by the images with a fitted observation of them (fitted (P, T) bool): the sets
+    of images in lexicographic order (image 0 first), texels with the same set in their own order."""
+    rows = fitted.cpu().numpy()
+    return torch.from_numpy(np.lexsort(rows[::-1], axis=0)).long() if len(rows) else torch.arange(fitted.shape[1])
 
 
 def plan_chunks(fitted: torch.Tensor, max_pairs: int, block: int = BLOCK) -> list[TexelChunk]:
-    """Chunks covering every texel in order, each (texels x its images) within max_pairs where a block allows:
-    runs of blocks of `block` texels (fewer where max_pairs / images is fewer), a block joining the chunk before it
-    while the union of their images times their texels stays within max_pairs. fitted: (P, T) bool."""
+    """Chunks covering every texel once, each (texels x its images) within max_pairs where a block allows: runs of
+    blocks of `block` texels (fewer where max_pairs / images is fewer) of observed_order, a block joining the chunk
+    before it while the union of their images times their texels stays within max_pairs. fitted: (P, T) bool."""
     P, T = fitted.shape
+    order = observed_order(fitted)
     block = max(1, min(block, max_pairs // max(P, 1)))
     nb = -(-T // block)
     pad = torch.zeros(P, nb * block, dtype=torch.bool)
-    pad[:, :T] = fitted.cpu()
+    pad[:, :T] = fitted.cpu().index_select(1, order)
     seen = pad.view(P, nb, block).any(2)  # (P, nb)
     chunks, start, images = [], 0, torch.zeros(P, dtype=torch.bool)
     for b in range(nb):
         stop = min(T, (b + 1) * block)
         both = images | seen[:, b]
         if b * block > start and int(both.sum()) * (stop - start) > max_pairs:
-            chunks.append(_chunk(start, b * block, images))
+            chunks.append(_chunk(order[start : b * block], images))
             start, both = b * block, seen[:, b].clone()
         images = both
-    chunks.append(_chunk(start, T, images))
+    chunks.append(_chunk(order[start:T], images))
     return chunks
 
 
-def _chunk(start: int, stop: int, images: torch.Tensor) -> TexelChunk:
+def _chunk(texels: torch.Tensor, images: torch.Tensor) -> TexelChunk:
     index = images.nonzero()[:, 0]
-    return TexelChunk(start, stop, index if len(index) else torch.zeros(1, dtype=torch.long))  # one image at least
+    return TexelChunk(texels, index if len(index) else torch.zeros(1, dtype=torch.long))  # one image at least
 
 
 def texel_chunks(cfg: Config, texels: int, fitted: torch.Tensor, log) -> Optional[list[TexelChunk]]:
@@ -117,7 +126,14 @@ def chunk_terms(terms: LocalTerms, chunk: TexelChunk) -> LocalTerms:
 
 def _pick(x: torch.Tensor, chunk: TexelChunk) -> torch.Tensor:
     """x (P, T, ...) at the chunk's images and texels."""
-    return x[:, chunk.start : chunk.stop].index_select(0, chunk.images.to(x.device))
+    return x.index_select(1, chunk.texels.to(x.device)).index_select(0, chunk.images.to(x.device))
+
+
+def _joined(parts: list[torch.Tensor], chunks: list[TexelChunk], dim: int = 0) -> torch.Tensor:
+    """The chunks' results parts (each with the chunk's texels along dim) as one tensor over all texels."""
+    index = torch.cat([c.texels for c in chunks]).to(parts[0].device)
+    joined = torch.cat(parts, dim)
+    return joined.index_copy(dim, index, joined)
 
 
 def chunked_lobes(
@@ -129,14 +145,16 @@ def chunked_lobes(
             chunk_terms(terms, c),
             _pick(intensity, c),
             _pick(cls, c),
-            n_spec[c.start : c.stop],
+            n_spec.index_select(0, c.texels.to(n_spec.device)),
             _pick(fit_mask, c),
             **options,
         )
         for c in chunks
     ]
     fields = TexelLobes.__dataclass_fields__
-    joined = {k: None if getattr(parts[0], k) is None else torch.cat([getattr(p, k) for p in parts]) for k in fields}
+    joined = {
+        k: None if getattr(parts[0], k) is None else _joined([getattr(p, k) for p in parts], chunks) for k in fields
+    }
     return TexelLobes(**joined)
 
 
@@ -151,8 +169,8 @@ def chunked_profile(
         out = []
         for c in chunks:
             profile = profiled_fit(chunk_terms(terms, c), _pick(intensity, c), _pick(mask, c), ps_channels, ps_max)
-            out.append(profile(sigma[c.start : c.stop]))
-        return tuple(torch.cat(x) for x in zip(*out))
+            out.append(profile(sigma.index_select(0, c.texels.to(sigma.device))))
+        return tuple(_joined(list(x), chunks) for x in zip(*out))
 
     return evaluate
 
@@ -175,7 +193,7 @@ def chunked_uncertainty(
     from every noise_stride-th texel over all images, as texel_uncertainty estimates it."""
     per_channel = []
     for c in chunks:
-        t = slice(c.start, c.stop)
+        t = c.texels.to(pd.device)
         ev = texel_evidence(
             TexelModel(chunk_terms(terms, c)),
             pd[t],
@@ -188,7 +206,7 @@ def chunked_uncertainty(
         )
         per_channel.append(ev.per_channel)
         del ev
-    per_channel = torch.cat(per_channel, 1)
+    per_channel = _joined(per_channel, chunks, 1)
     noise: Evidence | None = None
     if noise_dn is None:
         T = int(pd.shape[0])
