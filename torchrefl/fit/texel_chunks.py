@@ -43,8 +43,8 @@ from torchrefl.transport.texel_model import TexelModel
 
 #: the share of the free memory the fit's dense (image, texel) tensors may take before the texels go in chunks
 FREE_SHARE = 0.5
-#: (image, texel) pairs in one chunk at most (the uncertainty's Jacobian takes about 500 bytes a pair)
-CHUNK_PAIRS = 1 << 22
+#: (image, texel) pairs in one chunk at most (the uncertainty's Jacobian and its float64 copy: ~500 bytes a pair)
+CHUNK_PAIRS = 1 << 21
 #: texels per block: a chunk is a run of whole blocks
 BLOCK = 1024
 _MB = 2.0**20
@@ -191,7 +191,7 @@ def chunked_uncertainty(
 ) -> Uncertainty:
     """fit.uncertainty.texel_uncertainty of the local model chunk by chunk: each chunk's information; the noise
     from every noise_stride-th texel over all images, as texel_uncertainty estimates it."""
-    per_channel = []
+    per_channel = None  # (3, T, K, K) float64, each chunk's texels filled in as it is done
     for c in chunks:
         t = c.texels.to(pd.device)
         ev = texel_evidence(
@@ -204,9 +204,10 @@ def chunked_uncertainty(
             loss,
             loss_scale_8bit,
         )
-        per_channel.append(ev.per_channel)
+        if per_channel is None:
+            per_channel = ev.per_channel.new_zeros(3, len(pd), *ev.per_channel.shape[2:])
+        per_channel.index_copy_(1, t, ev.per_channel)
         del ev
-    per_channel = _joined(per_channel, chunks, 1)
     noise: Evidence | None = None
     if noise_dn is None:
         T = int(pd.shape[0])
