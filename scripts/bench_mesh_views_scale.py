@@ -88,11 +88,12 @@ CASES = {
 
 @dataclass
 class Segment:
-    """One measured stage: wall seconds and the peak resident memory during it (bytes)."""
+    """One measured stage: wall seconds, the process's CPU seconds and the peak resident memory during it (bytes)."""
 
     name: str
     seconds: float
     peak_bytes: int
+    cpu_seconds: float = 0.0
 
 
 def _status_kb(key: str) -> int:
@@ -123,13 +124,15 @@ class Meter:
     resets: bool = True
     _open: str | None = None
     _start: float = 0.0
+    _cpu: float = 0.0
 
     def mark(self, name: str | None) -> None:
-        now = time.perf_counter()
+        now, cpu = time.perf_counter(), time.process_time()
         if self._open is not None:
-            self.segments.append(Segment(self._open, now - self._start, _status_kb("VmHWM") * 1024))
+            peak = _status_kb("VmHWM") * 1024
+            self.segments.append(Segment(self._open, now - self._start, peak, cpu - self._cpu))
         self.resets = _reset_peak() and self.resets
-        self._open, self._start = name, time.perf_counter()
+        self._open, self._start, self._cpu = name, time.perf_counter(), time.process_time()
 
     @contextmanager
     def stage(self, name: str, after: str | None = None):
@@ -336,6 +339,7 @@ def merged(segments: list[Segment]) -> list[Segment]:
     for s in segments:
         row = rows.setdefault(s.name, Segment(s.name, 0.0, 0))
         row.seconds += s.seconds
+        row.cpu_seconds += s.cpu_seconds
         row.peak_bytes = max(row.peak_bytes, s.peak_bytes)
     return list(rows.values())
 
@@ -367,13 +371,16 @@ def report(res: ScaleResult, command: str) -> str:
         f"### {c.name}: {res.texels:,} texels, {res.images} images of {c.width} x {c.height} px",
         "",
         f"`{command}` on {machine}. Observations: {res.valid_observations:,} valid of {res.images * res.texels:,} "
-        f"(images x texels); {res.texels_seen:,} texels have one or more.",
+        f"(images x texels); {res.texels_seen:,} texels have one or more. Load average at the end (1, 5, 15 min): "
+        + ", ".join(f"{x:.1f}" for x in os.getloadavg())
+        + ".",
         "",
-        "| stage | seconds | peak resident GiB |",
-        "|---|---:|---:|",
+        "| stage | seconds | CPU seconds | peak resident GiB |",
+        "|---|---:|---:|---:|",
     ]
-    lines += [f"| {s.name} | {s.seconds:.1f} | {s.peak_bytes / gib:.2f} |" for s in res.segments]
-    lines.append(f"| **run** | {sum(s.seconds for s in res.segments):.1f} | {res.peak_bytes / gib:.2f} |")
+    lines += [f"| {s.name} | {s.seconds:.1f} | {s.cpu_seconds:.1f} | {s.peak_bytes / gib:.2f} |" for s in res.segments]
+    wall, cpu = sum(s.seconds for s in res.segments), sum(s.cpu_seconds for s in res.segments)
+    lines.append(f"| **run** | {wall:.1f} | {cpu:.1f} | {res.peak_bytes / gib:.2f} |")
     if not res.resets:
         lines.append("\n(the kernel did not allow resetting the peak: each stage's peak is the run's so far)")
     if res.rays is not None:

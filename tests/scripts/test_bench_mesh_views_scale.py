@@ -42,9 +42,14 @@ def test_tiny_case_renders_loads_fits_and_reports(tmp_path):
     names = [s.name for s in res.segments]
     for stage in ("render (a new folder only)", "load: geometry", "load: observations", "fit: fit"):
         assert stage in names
-    assert all(s.seconds >= 0 and s.peak_bytes > 50 * MIB for s in res.segments)
+    assert all(s.seconds >= 0 and s.cpu_seconds >= 0 and s.peak_bytes > 50 * MIB for s in res.segments)
+    assert sum(s.cpu_seconds for s in res.segments) > 0.1  # the fit alone takes CPU time
     assert res.rays.rays > res.texels and res.rays.ours > 0 and res.rays.raw_nt > 0
     assert res.errors["pd_rmse"] < 0.1  # truth pd spans 0.19..0.79 (std 0.13): a broken fit misses by more
     page = md.read_text()
-    assert "| stage | seconds | peak resident GiB |" in page and "| load: observations |" in page
+    assert (
+        "| stage | seconds | CPU seconds | peak resident GiB |" in page
+        and "Load average at the end" in page
+        and "| load: observations |" in page
+    )
     assert "--case tiny --threads 1" in page and str(tmp_path) not in page

@@ -31,6 +31,14 @@ def test_terms_grow_with_what_they_hold():
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the peak is reset through /proc")
+def test_a_chunked_local_fit_is_estimated_by_its_largest_chunk():
+    cfg = torchrefl.load_config(None, [])
+    dense = me.estimate_memory(cfg, 10**6, 48, "local").total_mb
+    chunked = me.estimate_memory(cfg, 10**6, 48, "local", chunk_pairs=2**22).total_mb
+    whole = 48 * 10**6 * me.CHUNKED_BYTES_PER_OBSERVATION
+    assert chunked == pytest.approx((whole + 2**22 * me.FIT_BYTES_PER_OBSERVATION) / 2**20) and chunked < dense / 2
+
+
 def test_the_photon_estimate_is_within_a_factor_of_a_measured_refresh(tiny_fold_run):
     """The tiny fold's photon level at 300 000 photons per light (the photons' term dominates): the peak resident
     memory that preparing the level and three refreshes add (the third averaged with the second, the best kept: the

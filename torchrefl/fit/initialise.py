@@ -57,6 +57,58 @@ class Initial:
     note: str
 
 
+@dataclass
+class TexelLobes:
+    """The per-texel part of the start: the closed forms and, with the search, each texel's own sigma search result
+    where it fits better (Pd (T, 3), Ps (T, C), sigma (T,); known (T,) the lobe from the texel's own data; error (T,)
+    the squared error of its fitted observations with it, None without the search; taken: texels the search set)."""
+
+    pd: torch.Tensor
+    ps: torch.Tensor
+    sigma: torch.Tensor
+    known: torch.Tensor
+    error: Optional[torch.Tensor]
+    taken: torch.Tensor
+    defined: torch.Tensor
+    pd_from_diffuse: torch.Tensor
+    spec_closed_form: torch.Tensor
+
+
+def texel_lobes(
+    terms: LocalTerms,
+    intensity: torch.Tensor,
+    cls: torch.Tensor,
+    n_spec: torch.Tensor,
+    fit_mask: torch.Tensor,
+    *,
+    ps_channels: int,
+    sigma_min: float,
+    sigma_max: float,
+    ps_max: float,
+    sigma_search: int,
+) -> TexelLobes:
+    """Closed forms and (sigma_search > 0) each texel's sigma search where it has specular evidence (two or more
+    T_spec observations) and the search fits better: texel by texel, a texel's result its own observations' only."""
+    cf = closed_form(terms, intensity, cls, fit_mask, ps_channels, sigma_min, sigma_max)
+    defined = cf.pd_defined
+    pd, ps, sigma = cf.pd.clone(), cf.ps.clamp(0, ps_max), cf.sigma.clone()
+    known, error, take = cf.spec_determined.clone(), None, torch.zeros_like(defined)
+    if sigma_search > 0 and terms.brdf != "lambertian":
+        grid = sigma_grid(sigma_min, sigma_max, sigma_search)
+        pd_s, ps_s, sg_s, err_s = profile_search(terms, intensity, fit_mask, grid, ps_channels, ps_max=ps_max)
+        with torch.no_grad():
+            r0 = (predict(terms, cf.pd, ps, sigma) - intensity) * fit_mask[..., None]
+            err0 = (r0 * r0).sum((0, 2))
+        evidence = (n_spec >= 2) & defined
+        take = evidence & (~cf.spec_determined | (err_s < err0))
+        pd = torch.where(take[:, None], pd_s.to(pd.dtype), pd)
+        ps = torch.where(take[:, None], ps_s.to(ps.dtype), ps)
+        sigma = torch.where(take, sg_s.to(sigma.dtype), sigma)
+        known = cf.spec_determined | take
+        error = torch.where(take, err_s.to(err0.dtype), err0)
+    return TexelLobes(pd, ps, sigma, known, error, take, defined, cf.pd_from_diffuse, cf.spec_determined)
+
+
 def initialise_local(
     terms: LocalTerms,
     intensity: torch.Tensor,
@@ -72,46 +124,44 @@ def initialise_local(
     window: int,
     sigma_search: int,
     specular: str,
+    chunks: Optional[list] = None,
 ) -> Initial:
-    """Closed forms, sigma search and interpolation; see the module docstring."""
-    cf = closed_form(terms, intensity, cls, fit_mask, ps_channels, sigma_min, sigma_max)
-    defined = cf.pd_defined
-    pd = cf.pd.clone()
-    ps = cf.ps.clamp(0, ps_max)
-    sigma = cf.sigma.clone()
-    known = cf.spec_determined.clone()
+    """Closed forms, sigma search and interpolation; see the module docstring. chunks: the per-texel stages (the
+    closed forms, the sigma search, the lobe consensus's evaluations) run chunk by chunk on the texels and images
+    of each (torchrefl.fit.texel_chunks; with fit.specular texel only); None: on all at once."""
+    search = sigma_search > 0 and terms.brdf != "lambertian"
+    options = dict(ps_channels=ps_channels, sigma_min=sigma_min, sigma_max=sigma_max, ps_max=ps_max)
+    per_texel = sigma_search if specular != "shared" else 0
+    if chunks is None:
+        lobes = texel_lobes(terms, intensity, cls, n_spec, fit_mask, sigma_search=per_texel, **options)
+    else:
+        from torchrefl.fit.texel_chunks import chunked_lobes
+
+        lobes = chunked_lobes(chunks, terms, intensity, cls, n_spec, fit_mask, sigma_search=per_texel, **options)
+    pd, ps, sigma, known, defined = lobes.pd, lobes.ps, lobes.sigma, lobes.known, lobes.defined
     shared_lobe = None
     note = "sigma search off"
-    if sigma_search > 0 and terms.brdf != "lambertian":
+    if search and specular in ("shared", "pooled"):
         grid = sigma_grid(sigma_min, sigma_max, sigma_search)
-        if specular in ("shared", "pooled"):
-            pd_g, ps_g, sg_g, _ = profile_search(
-                terms, intensity, fit_mask, grid, ps_channels, shared=True, ps_max=ps_max
-            )
-            shared_lobe = (ps_g[:1].to(ps.dtype), sg_g[:1].to(sigma.dtype))
-        if specular == "shared":
-            pd, ps, sigma = pd_g.to(pd.dtype), ps_g.to(ps.dtype), sg_g.to(sigma.dtype)
-            known = defined.clone()
-            note = f"one shared lobe: Ps {[round(float(x), 4) for x in ps_g[0]]}, sigma {float(sg_g[0]):.4f}"
-        else:
-            pd_s, ps_s, sg_s, err_s = profile_search(terms, intensity, fit_mask, grid, ps_channels, ps_max=ps_max)
-            with torch.no_grad():
-                r0 = (predict(terms, cf.pd, ps, sigma) - intensity) * fit_mask[..., None]
-                err0 = (r0 * r0).sum((0, 2))
-            evidence = (n_spec >= 2) & defined
-            take = evidence & (~cf.spec_determined | (err_s < err0))
-            pd = torch.where(take[:, None], pd_s.to(pd.dtype), pd)
-            ps = torch.where(take[:, None], ps_s.to(ps.dtype), ps)
-            sigma = torch.where(take, sg_s.to(sigma.dtype), sigma)
-            known = cf.spec_determined | take
-            error = torch.where(take, err_s.to(err0.dtype), err0)
+        pd_g, ps_g, sg_g, _ = profile_search(terms, intensity, fit_mask, grid, ps_channels, shared=True, ps_max=ps_max)
+        shared_lobe = (ps_g[:1].to(ps.dtype), sg_g[:1].to(sigma.dtype))
+    if search and specular == "shared":
+        pd, ps, sigma = pd_g.to(pd.dtype), ps_g.to(ps.dtype), sg_g.to(sigma.dtype)
+        known = defined.clone()
+        note = f"one shared lobe: Ps {[round(float(x), 4) for x in ps_g[0]]}, sigma {float(sg_g[0]):.4f}"
+    elif search:
+        if chunks is None:
             profile = profiled_fit(terms, intensity, fit_mask, ps_channels, ps_max)
-            pd, ps, sigma, adopt = settle_outliers(surface, pd, ps, sigma, error, known & defined, window, profile)
-            note = f"sigma search kept at {int(take.sum())} texels with specular evidence"
-            note += f", {int(adopt.sum())} took their measured neighbours' lobe"
-            if shared_lobe is not None:
-                note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, "
-                note += f"sigma {float(shared_lobe[1][0]):.4f}"
+        else:
+            from torchrefl.fit.texel_chunks import chunked_profile
+
+            profile = chunked_profile(chunks, terms, intensity, fit_mask, ps_channels, ps_max)
+        pd, ps, sigma, adopt = settle_outliers(surface, pd, ps, sigma, lobes.error, known & defined, window, profile)
+        note = f"sigma search kept at {int(lobes.taken.sum())} texels with specular evidence"
+        note += f", {int(adopt.sum())} took their measured neighbours' lobe"
+        if shared_lobe is not None:
+            note += f"; shared lobe Ps {[round(float(x), 4) for x in shared_lobe[0][0]]}, "
+            note += f"sigma {float(shared_lobe[1][0]):.4f}"
     ps, sigma, object_lobe, matched = fill_lobes(
         surface, pd, ps, sigma, known, defined, n_spec, window, sigma_min, sigma_max
     )
@@ -119,18 +169,28 @@ def initialise_local(
     sigma = sigma.clamp(sigma_min, sigma_max)
     coverage = torch.full((surface.num_texels,), COVER_NONE, dtype=torch.int8)
     coverage[defined] = COVER_PD_ONLY
-    coverage[defined & ~cf.pd_from_diffuse] = COVER_PD_BOUND
+    coverage[defined & ~lobes.pd_from_diffuse] = COVER_PD_BOUND
     coverage[object_lobe & defined] = COVER_SHARED
     coverage[known & defined] = COVER_SHARED if specular == "shared" else COVER_FULL
     head = (
-        f"closed form: Pd from eq. 3.3 at {int(cf.pd_from_diffuse.sum())} texels, bound at "
-        f"{int((defined & ~cf.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at {int(cf.spec_determined.sum())}; "
+        f"closed form: Pd from eq. 3.3 at {int(lobes.pd_from_diffuse.sum())} texels, bound at "
+        f"{int((defined & ~lobes.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at "
+        f"{int(lobes.spec_closed_form.sum())}; "
         f"Ps/sigma known at {int((known & defined).sum())} of {surface.num_texels} texels, the rest taken from "
         f"measured texels of their colour ({int((matched & defined).sum())}), interpolated (W = {window}) or, beyond "
         f"two windows, the measured texels' median lobe ({int((object_lobe & defined).sum())}); {note}"
     )
     return Initial(
-        pd, ps, sigma, known & defined, defined, coverage, cf.pd_from_diffuse, cf.spec_determined, shared_lobe, head
+        pd,
+        ps,
+        sigma,
+        known & defined,
+        defined,
+        coverage,
+        lobes.pd_from_diffuse,
+        lobes.spec_closed_form,
+        shared_lobe,
+        head,
     )
 
 

@@ -39,10 +39,12 @@ def misfit_texels(
     """(T,) bool: estimated texels whose RMS residual (8-bit DN, over their fitted observations and channels)
     exceeds the median texel's by MISFIT_DEVIATIONS robust deviations. predicted, intensity (P, T, 3);
     fit_mask (P, T); estimated (T,)."""
-    w = fit_mask.to(torch.float64)
-    sq = ((predicted.double() - intensity.double()) * 255.0).square().mean(-1)  # (P, T)
-    count = w.sum(0)
-    rms = torch.sqrt((sq * w).sum(0) / count.clamp_min(1.0))
+    p, t = fit_mask.to(predicted.device).nonzero(as_tuple=True)  # the fitted observations only, not (P, T) copies
+    sq = ((predicted[p, t].double() - intensity.to(predicted.device)[p, t].double()) * 255.0).square().mean(-1)
+    T = fit_mask.shape[1]
+    count = torch.bincount(t, minlength=T).to(torch.float64)
+    total = torch.zeros(T, dtype=torch.float64, device=sq.device).index_add_(0, t, sq)
+    rms = torch.sqrt(total / count.clamp_min(1.0))
     valid = estimated & (count > 0)
     if int(valid.sum()) < 10:
         return torch.zeros_like(estimated)

@@ -28,6 +28,7 @@ from torchrefl.fit.outer_state import INITIALISE, OUTER, outer_state, restore_ou
 from torchrefl.fit.reestimate import reestimate
 from torchrefl.fit.refine import Objective, Prior, neighbour_pairs, refine
 from torchrefl.fit.result import FitResult
+from torchrefl.fit.texel_chunks import texel_chunks
 from torchrefl.fit.texel_lm import levenberg_marquardt
 from torchrefl.fit.uncertainty import fit_uncertainty
 from torchrefl.fit.warm_start import warm_start
@@ -241,6 +242,7 @@ def level_inputs(cfg: Config, capture: Capture, log, device: torch.device = torc
     """What every level is built from (LevelInputs), and the observation summary (Observed) behind it."""
     held = held_out(cfg.fit.holdout, capture.obs.num_lights)
     seen = observe(cfg, capture.surface, capture.obs, held, log)
+    chunks = texel_chunks(cfg, capture.surface.num_texels, seen.fit_mask, log)
     start = partial(
         initialise_local,
         seen.terms,
@@ -248,10 +250,21 @@ def level_inputs(cfg: Config, capture: Capture, log, device: torch.device = torc
         n_spec=seen.counts["T_spec"],
         fit_mask=seen.fit_mask,
         surface=capture.surface,
+        chunks=chunks,
         **seen.initialise_options,
     )
     inputs = LevelInputs(
-        cfg, capture.surface, capture.obs, seen.terms, seen.classes, seen.fit_mask, seen.eval_mask, device, log, start
+        cfg,
+        capture.surface,
+        capture.obs,
+        seen.terms,
+        seen.classes,
+        seen.fit_mask,
+        seen.eval_mask,
+        device,
+        log,
+        start,
+        chunks,
     )
     return inputs, seen
 

@@ -155,7 +155,7 @@ def residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured) ->
     of a texel whose lobe was not measured from its Pd block alone (its held lobe's broad-prior variance is no
     leverage: counted, it put h far over 1 wherever the lobe shows, and the cap's 1 / sqrt(1 - 0.9) tripled those
     residuals); over every k-th texel where there are more than NOISE_TEXELS."""
-    step = -(-r.shape[1] // NOISE_TEXELS)
+    step = noise_stride(r.shape[1])
     if step > 1:
         r, J, weight, mask = r[:, ::step], J[:, ::step], weight[:, ::step], mask[:, ::step]
         per_channel, lobe_measured = per_channel[:, ::step], lobe_measured[::step]
@@ -195,6 +195,34 @@ def shared_lobe_covariance(info: torch.Tensor, prior_var: torch.Tensor, estimate
     return cov
 
 
+@dataclass
+class Evidence:
+    """What a fit's observations say of its texels' parameters: r (P, T, 3) the residuals in DN, J (P, T, 3, K) the
+    Jacobian, weight (P, T, 3) the robust loss's weights at the fitted observations, per_channel (3, T, K, K)
+    channel_information, mask (P, T) the fitted observations."""
+
+    r: torch.Tensor
+    J: torch.Tensor
+    weight: torch.Tensor
+    per_channel: torch.Tensor
+    mask: torch.Tensor
+
+
+def texel_evidence(model: Callable, pd, ps, sigma, intensity, fit_mask, loss: str, loss_scale_8bit: float) -> Evidence:
+    """The Evidence of the texels model (pd, ps, sigma) -> (P, T, 3) describes, at their fitted values."""
+    with torch.no_grad():
+        r = (model(pd, ps, sigma) - intensity) * 255.0
+    J = jacobian(model, pd, ps, sigma)
+    mask = fit_mask.to(pd.device)
+    weight = irls_weight(r, loss, loss_scale_8bit) * mask[..., None].to(r.dtype)
+    return Evidence(r, J, weight, channel_information(J, weight), mask)
+
+
+def noise_stride(texels: int) -> int:
+    """The stride over the texels whose residuals estimate the noise (at most NOISE_TEXELS of them)."""
+    return -(-texels // NOISE_TEXELS)
+
+
 def texel_uncertainty(
     model: Callable,
     pd: torch.Tensor,
@@ -218,15 +246,27 @@ def texel_uncertainty(
     estimated from the residuals); shared_lobe: (T,) bool the estimated texels sharing one lobe (fit.specular:
     shared), None for a lobe per texel."""
     lobe_measured = lobe_measured.to(pd.device)
-    with torch.no_grad():
-        r = (model(pd, ps, sigma) - intensity) * 255.0
-    J = jacobian(model, pd, ps, sigma)
-    mask = fit_mask.to(pd.device)
-    weight = irls_weight(r, loss, loss_scale_8bit) * mask[..., None].to(r.dtype)
-    prior_var = ranges.prior_var(ps.shape[1])
-    per_channel = channel_information(J, weight)
+    ev = texel_evidence(model, pd, ps, sigma, intensity, fit_mask, loss, loss_scale_8bit)
+    return uncertainty_of(ev.per_channel, ev, lobe_measured, ranges, ps.shape[1], noise_dn, shared_lobe)
+
+
+def uncertainty_of(
+    per_channel: torch.Tensor,
+    noise_evidence: Evidence,
+    lobe_measured: torch.Tensor,
+    ranges: ParameterRanges,
+    C: int,
+    noise_dn: float | None = None,
+    shared_lobe: torch.Tensor | None = None,
+) -> Uncertainty:
+    """texel_uncertainty's result from every texel's per_channel (3, T, K, K) information and the Evidence of the
+    texels the noise is estimated on (all texels, or every noise_stride-th: residual_noise; lobe_measured (T,) of
+    all texels)."""
+    prior_var = ranges.prior_var(C)
     if noise_dn is None:
-        s, source = residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured), "residuals"
+        ev, step = noise_evidence, noise_stride(per_channel.shape[1])
+        measured = lobe_measured if ev.r.shape[1] == per_channel.shape[1] else lobe_measured[::step]
+        s, source = residual_noise(ev.r, ev.J, ev.weight, ev.per_channel, ev.mask, prior_var, measured), "residuals"
     else:
         s, source = torch.full((3,), float(noise_dn), dtype=torch.float64), "capture.noise_dn"
     info = scaled(per_channel, s)
@@ -235,7 +275,6 @@ def texel_uncertainty(
     else:
         cov = texel_covariance(info, prior_var.to(info.device), lobe_measured)
     std = torch.diagonal(cov, dim1=1, dim2=2).clamp_min(0.0).sqrt().cpu()
-    C = ps.shape[1]
     measured = lobe_measured.cpu() if shared_lobe is None else shared_lobe.cpu()
     return Uncertainty(std[:, :3], std[:, 3 : 3 + C], std[:, -1], measured, s.cpu(), source)
 
@@ -250,15 +289,26 @@ def fit_uncertainty(cfg: Config, level: TransportLevel, result: FitResult, stage
         pd, ps, sigma = (x.to(inp.device, dtype) for x in (result.pd, result.ps, result.sigma))
         rc = cfg.reflectance
         shared = cfg.fit.specular == "shared"
+        ranges = ParameterRanges(rc.ps_max, rc.sigma_min, rc.sigma_max)
+        fitted = result.fit_mask & result.estimated[None]
+        if inp.chunks is not None and level.name == "local":
+            from torchrefl.fit.texel_chunks import chunked_uncertainty
+
+            measured = (result.coverage == COVER_FULL).to(inp.device)
+            intensity = inp.obs.intensity.to(inp.device)
+            args = (cfg.fit.loss, cfg.fit.loss_scale_8bit, cfg.capture.noise_dn)
+            return chunked_uncertainty(
+                inp.chunks, inp.local_terms(), pd, ps, sigma, intensity, fitted, measured, ranges, *args
+            )
         return texel_uncertainty(
             level.texel_model(pd),
             pd,
             ps,
             sigma,
             inp.obs.intensity.to(inp.device),
-            result.fit_mask & result.estimated[None],
+            fitted,
             result.coverage == COVER_FULL,
-            ParameterRanges(rc.ps_max, rc.sigma_min, rc.sigma_max),
+            ranges,
             cfg.fit.loss,
             cfg.fit.loss_scale_8bit,
             cfg.capture.noise_dn,

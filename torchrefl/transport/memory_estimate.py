@@ -22,6 +22,10 @@ _MB = 2.0**20
 #: bytes per (image, texel) of the fit beyond the capture: predictions, residuals, the level's indirect terms, the LM
 #: Jacobian columns (7 parameters x 3 channels) and the re-estimation's sigma-search profiles, float32/float64 mixed
 FIT_BYTES_PER_OBSERVATION = 400
+#: bytes per (image, texel) of a local fit whose per-texel stages run in chunks of texels (torchrefl.fit.texel_chunks):
+#: what stays whole, the local terms (36), the predicted images (12) and the refinement's and the render's
+#: temporaries over them; a chunk's pairs take FIT_BYTES_PER_OBSERVATION each
+CHUNKED_BYTES_PER_OBSERVATION = 120
 #: bytes per form-factor ray: the (source, target) patch indices and the weight before merging, kept while sorting
 FORM_FACTOR_BYTES_PER_RAY = 48
 #: bytes per (image, emitter map, texel): the maps' irradiance, the per-map indirect irradiance and radiance of one
@@ -68,12 +72,19 @@ def estimate_memory(
     lights_traced: int | None = None,
     maps_per_light: int = 1,
     patches: int | None = None,
+    chunk_pairs: int | None = None,
 ) -> MemoryEstimate:
     """The MiB the fit at `level` ('local', 'radiosity', 'photon') adds for a capture of `texels` texels and `images`
     images (lights_traced: distinct lights the photons are traced for, default `images`; maps_per_light: emitter and
     photon maps per light for lights that move with the scan; patches: radiosity patches, default texels /
-    patch_size^2)."""
-    terms = {"fit": images * texels * FIT_BYTES_PER_OBSERVATION / _MB}
+    patch_size^2; chunk_pairs: the (image, texel) pairs of the largest chunk where the local fit runs in chunks of
+    texels, None where it does not)."""
+    if chunk_pairs is None:
+        terms = {"fit": images * texels * FIT_BYTES_PER_OBSERVATION / _MB}
+    else:
+        terms = {
+            "fit": (images * texels * CHUNKED_BYTES_PER_OBSERVATION + chunk_pairs * FIT_BYTES_PER_OBSERVATION) / _MB
+        }
     settings = {"fit": "selection.num_lights (fewer images) or the scan's texels (synthetic.columns, rows)"}
     if level in ("radiosity", "photon"):
         rc = cfg.radiosity
@@ -145,7 +156,9 @@ def check_level_memory(level) -> MemoryEstimate:
     if level.name in ("radiosity", "photon") and surface.has_mesh:
         sources = light_sources(surface, obs, max(cfg.radiosity.light_maps, cfg.photon.light_maps))
         maps, traced = sources.num_maps, len(distinct_lights(sources)[0])
-    estimate = estimate_memory(cfg, surface.num_texels, obs.num_lights, level.name, traced, maps)
+    chunks = inp.chunks if level.name == "local" else None
+    pairs = None if chunks is None else max(c.pairs for c in chunks)
+    estimate = estimate_memory(cfg, surface.num_texels, obs.num_lights, level.name, traced, maps, chunk_pairs=pairs)
     free = free_mb()
     parts = ", ".join(f"{name} {mb:.0f}" for name, mb in estimate.terms.items())
     inp.log(

@@ -53,6 +53,8 @@ class LevelInputs:
     device: torch.device
     log: Callable[[str], None]
     initialise: Callable[[torch.Tensor], Any]
+    #: the local fit's per-texel stages run in these chunks of texels (torchrefl.fit.texel_chunks; None: at once)
+    chunks: Optional[list] = None
 
     def local_terms(self, texels: Optional[torch.Tensor] = None) -> LocalTerms:
         """The local terms on the fit's device; texels (n,) long: of those texels only."""

@@ -9,6 +9,9 @@ import torch
 from torchrefl.transport.levels.base import LevelInputs, TransportLevel
 from torchrefl.transport.texel_model import TexelModel
 
+#: texels rendered at once by LocalLevel.render
+RENDER_TEXELS = 1 << 16
+
 
 class LocalLevel(TransportLevel):
     name = "local"
@@ -24,6 +27,18 @@ class LocalLevel(TransportLevel):
 
     def predict(self, pd, ps, sigma):
         return self._predict(pd, ps, sigma)
+
+    def render(self, pd, ps, sigma):
+        """predict, RENDER_TEXELS texels at a time into one (P, T, 3) tensor (the temporaries a block's)."""
+        T = pd.shape[0]
+        out = None
+        for a in range(0, T, RENDER_TEXELS):
+            index = torch.arange(a, min(T, a + RENDER_TEXELS), device=pd.device)
+            part = self.inputs.local_predict(index)(pd[index], ps[index], sigma[index])
+            if out is None:
+                out = part.new_empty(part.shape[0], T, part.shape[2])
+            out[:, a : a + len(index)] = part
+        return out
 
     def texel_model(self, pd: torch.Tensor, texels: Optional[torch.Tensor] = None) -> TexelModel:
         """predict, which is the local model: of the texels (n,) long only where given."""
