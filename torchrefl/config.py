@@ -308,7 +308,10 @@ class PhotonConfig:
         low=1,
     )
     outer_iterations: int = opt(
-        5, "th2: cache refreshes followed by a refit (the best parameters by image difference are kept)", low=0
+        5,
+        "th2: at most this many cache refreshes followed by a refit (fewer once Pd moves less than its std; the best "
+        "parameters by image difference are kept)",
+        low=0,
     )
     schedule: str = opt(
         "joint",

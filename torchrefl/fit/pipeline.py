@@ -166,6 +166,10 @@ def refit(
         level.inputs.log(f"resume: {level.name} refinement after outer iteration {done} of {level.refits}")
     memory = saved_memory(saved)  # the indirect terms the last re-estimation saw
     for k in range(done, level.refits):
+        stop = level.converged(params) if k > 0 else None
+        if stop:
+            level.inputs.log(f"{level.name}: {stop}; {k} of {level.refits} outer iterations run")
+            break
         before = [v.detach().clone() for v in params.values()]
         again = reestimate(level, params, cfg, memory)
         if memory is not None and again.memory is not None:

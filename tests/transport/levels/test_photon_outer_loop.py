@@ -3,6 +3,8 @@ renderer's camera paths, not the fitter's photons): the photon level removes the
 bias that a local fit keeps, with both schedules; the kept parameters are the best scored; same seed,
 same result."""
 
+import copy
+
 import numpy as np
 import pytest
 import torch
@@ -243,3 +245,24 @@ def test_refreshes_after_the_first_two_average_two_traces(scene):
     two = sum(spread(x) for x in averaged) / len(averaged)
     # expected ratio (1 / 2 + 1 / 16) / (1 + 1 / 16) = 0.53
     assert two < 0.7 * one, (two, one)
+
+
+def test_the_outer_loop_stops_once_pd_moves_less_than_its_std(scene):
+    """Asked for 8 outer iterations, the loop goes on while a refit moves Pd (RMS) by at least Pd's median std and
+    stops at the first averaged refresh where it moves less. Without sensor noise the photon noise moves Pd by about
+    its std at every refit and all 8 run; with 5 DN of sensor noise Pd's std is larger and the loop stops early."""
+    s, obs, terms = scene
+    noisy = copy.copy(obs)
+    g = torch.Generator().manual_seed(3)
+    noisy.intensity = obs.intensity + 5.0 / 255 * torch.randn(obs.intensity.shape, generator=g, dtype=torch.float64)
+    for o, stops in ((obs, False), (noisy, True)):
+        params, level = fit(s, o, terms, "joint", outer=8)
+        out = level.report()
+        refits = len(out["image_difference_per_refresh"]) - 1
+        changes, stds = out["pd_change_per_refresh"], out["pd_std_median_per_refresh"]
+        went_on = zip(changes[AVERAGE_FROM : refits - 1 if stops else refits], stds)
+        assert all(c >= d for c, d in went_on)
+        assert (refits < 8) == stops
+        if stops:
+            assert AVERAGE_FROM < refits and changes[-1] < stds[-1]
+            assert pd_error(params.pd().detach(), away_from_fold(s)) < 0.05

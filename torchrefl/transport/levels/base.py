@@ -7,6 +7,7 @@ The fit (torchrefl.fit.pipeline) drives every level through the same loop:
     init = level.start(init)              correct the closed-form start (Method II's passes)
     level.refresh(params, 0)              outer-iteration state (the photon cache)
     for k in range(level.refits):
+        stop if k > 0 and level.converged(params)
         re-estimate with level.indirect_terms  texels with specular evidence: the sigma search on direct + indirect
         for step in level.steps(k):       which parameters are refit on which observations
             refine(params, objective(level.predict, step.mask), ...)
@@ -175,6 +176,11 @@ class TransportLevel(ABC):
 
     def refresh(self, params, k: int) -> None:
         """Update the level's state for the parameters after k refits (default: nothing to refresh)."""
+
+    def converged(self, params) -> Optional[str]:
+        """Before each outer iteration after the first: why the outer loop may stop here (None: go on; the
+        default: run all `refits`)."""
+        return None
 
     def finish(self, params) -> None:
         """Called after the last refit (default: nothing)."""

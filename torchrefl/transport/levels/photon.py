@@ -26,6 +26,7 @@ from torchrefl.core.rays import RayTracer
 from torchrefl.transport.cache_average import average_caches
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, RefitStep, TransportLevel
 from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
+from torchrefl.transport.pd_precision import median_pd_std
 from torchrefl.transport.photon_cache import (
     indirect_radiance,
     light_sources,
@@ -92,6 +93,7 @@ class PhotonLevel(TransportLevel):
         self.refresh_at: list[float] = []  # seconds from the start of refresh 0 to the end of each refresh
         self._clock = time.perf_counter()  # reset at refresh 0; a resumed fit counts from the level's creation
         self.pd_change: list[float] = []  # rms change of Pd since the previous refresh, per refresh from 1 on
+        self.pd_std: list[float] = []  # Pd's median std at each convergence test (refresh AVERAGE_FROM + 1 on)
         self.cache = None
         self._last_trace = None  # the latest refresh's own trace (the cache may average two)
         self.refresher: PhotonRefresh | None = None
@@ -309,10 +311,30 @@ class PhotonLevel(TransportLevel):
         if score < self._best[0]:
             self._best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, self.cache)
 
+    def converged(self, params) -> str | None:
+        """After the refit of the first averaged cache: done when the last refit moved Pd (RMS) by less than the
+        median std the observations give it (transport.pd_precision)."""
+        k = len(self.scores) - 1
+        if k <= AVERAGE_FROM or not self.pd_change:
+            return None
+        inp = self.inputs
+        pd, ps, sigma = params.values()
+        std = median_pd_std(
+            self.texel_model(pd), pd, ps, sigma, inp.obs.intensity.to(inp.device), inp.fit_mask.to(inp.device)
+        )
+        self.pd_std.append(std)
+        if self.pd_change[-1] >= std:
+            return None
+        return (
+            f"refit {k} moved Pd by {self.pd_change[-1]:.2g} (RMS), less than its median std {std:.2g}: "
+            "the outer loop has converged"
+        )
+
     def state(self) -> dict:
         return {
             "scores": list(self.scores),
             "pd_change": list(self.pd_change),
+            "pd_std": list(self.pd_std),
             "cache": self.cache,
             "last_trace": self._last_trace,
             "traced_pd": self._traced_pd,
@@ -321,6 +343,7 @@ class PhotonLevel(TransportLevel):
 
     def restore(self, state: dict) -> None:
         self.scores, self.pd_change = list(state["scores"]), list(state["pd_change"])
+        self.pd_std = list(state.get("pd_std", []))
         self.cache, self._last_trace = state["cache"], state["last_trace"]
         self._traced_pd, self._best = state["traced_pd"], state["best"]
 
@@ -352,6 +375,7 @@ class PhotonLevel(TransportLevel):
             "image_difference_per_refresh": self.scores,
             "refresh_at_s": self.refresh_at,
             "pd_change_per_refresh": self.pd_change,
+            "pd_std_median_per_refresh": self.pd_std,
             "kept_refresh": self._best[1],
             "smoothing_texels": self.smoothing,
             "specular_smoothing_texels": self.specular_smoothing,
