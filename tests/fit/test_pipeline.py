@@ -195,3 +195,21 @@ def test_the_photon_level_logs_the_damping_it_uses():
         said[damping] = [l for l in log if "Pd damping" in l][0]
     assert "Pd damping 0 between refreshes;" in said[None]
     assert "Pd damping 0.3 between refreshes;" in said[0.3]
+
+
+def test_held_out_observations_of_texels_without_an_estimate_are_counted_not_evaluated():
+    """Texels that only the held-out light sees have no estimate: their held-out observations are left out of the
+    held-out error (their placeholder values would dominate it) and counted."""
+    surface, obs = glossy_dome()
+    unseen = torch.arange(400) % 10 == 0  # every 10th texel seen by light 0 only, the held-out one
+    obs.valid[1:, unseen] = False
+    cfg = local_config("texel")
+    cfg.fit.holdout = [0]
+    res = fit_capture(cfg, Capture(surface, obs), Stages(), lambda *a: None, torch.device("cpu"))
+    assert not res.estimated[unseen].any()
+    assert not res.eval_mask[:, unseen].any() and res.eval_mask[0, ~unseen].any()
+    rc = cfg.reflectance
+    terms = local_terms(rc.brdf, surface.normals, obs)
+    usable = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light)  # observe()'s test
+    lit_unseen = int(usable[0, unseen].sum())
+    assert lit_unseen > 0 and res.holdout_unestimated == lit_unseen

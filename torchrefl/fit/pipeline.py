@@ -294,7 +294,7 @@ def fit_result(pd, ps, sigma, predicted, history, seen, init, level: TransportLe
         sigma=sigma.cpu(),
         predicted=predicted,
         fit_mask=seen.fit_mask,
-        eval_mask=seen.eval_mask,
+        eval_mask=seen.eval_mask & init.defined[None],
         counts=seen.counts,
         coverage=init.coverage,
         estimated=init.defined,
@@ -306,6 +306,7 @@ def fit_result(pd, ps, sigma, predicted, history, seen, init, level: TransportLe
         diffuse=seen.diffuse,
         model_numbers=level.model_numbers,
         photon=level.report(),
+        holdout_unestimated=int((seen.eval_mask & ~init.defined[None]).sum()),
     )
 
 

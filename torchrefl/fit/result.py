@@ -36,7 +36,7 @@ class FitResult:
     sigma: torch.Tensor  # (T,)
     predicted: torch.Tensor  # (P, T, 3) the model's images at the estimate
     fit_mask: torch.Tensor  # (P, T) observations fitted
-    eval_mask: torch.Tensor  # (P, T) held-out observations evaluated
+    eval_mask: torch.Tensor  # (P, T) held-out observations evaluated: of the estimated texels only
     counts: dict  # T_diff, T_spec, T_none: (T,) observations per class
     coverage: torch.Tensor  # (T,) how each texel was determined (report.maps codes)
     estimated: torch.Tensor  # (T,) bool: texels with an estimate
@@ -50,3 +50,4 @@ class FitResult:
     photon: dict | None = None  # the photon level's per-refresh image differences and cache statistics
     misfit: int = 0  # texels without an estimate because the fitted model cannot explain them (fit.misfit)
     uncertainty: Optional[Uncertainty] = None  # the std of every parameter (torchrefl.fit.uncertainty)
+    holdout_unestimated: int = 0  # held-out observations of texels without an estimate (not evaluated)

@@ -155,6 +155,7 @@ def metrics_of(cfg: Config, cap: Capture, res: FitResult, selection: SelectionRe
     }
     if cfg.fit.holdout:
         metrics["holdout"] = image_difference(res.predicted, obs.intensity, res.eval_mask)
+        metrics["holdout"]["unestimated_observations"] = res.holdout_unestimated
     if cap.truth is not None:
         spec2 = res.counts["T_spec"] >= 2
         metrics["ground_truth"] = ground_truth_errors(res.pd, res.ps, res.sigma, cap.truth, res.estimated, spec2)

@@ -53,6 +53,9 @@ def summary_table(metrics: dict) -> str:
     lines.append(f"  re-render (fitted): {fmt(metrics['rerender'])}")
     if section("holdout"):
         lines.append(f"  held-out lights:    {fmt(metrics['holdout'])}")
+        left = metrics["holdout"].get("unestimated_observations")
+        if isinstance(left, int) and left:
+            lines.append(f"    ({left} held-out observations of texels without an estimate not evaluated)")
     if section("ground_truth"):
         lines.append(f"  ground truth:       {fmt(metrics['ground_truth'])}")
     lines += _coverage_lines(section("coverage"), section("specular_source"))
