@@ -96,6 +96,17 @@ def test_the_linear_cache_is_exact_at_the_traced_pd(traced):
     torch.testing.assert_close(b, a, rtol=1e-9, atol=1e-9 * float(a.abs().max()))
 
 
+def test_only_a_cache_linear_in_pd_keeps_the_smoother(traced):
+    """The density kernel serves the part linear in the emitters' Pd (irradiance_at): a cache without that part
+    (the photon level's) does not keep it (a copy per cache: 0.4 GB on the fold); the smoothed H0 is the same."""
+    plain = cache_of(traced, 0.004, smoothing=1.5)
+    linear = cache_of(traced, 0.004, linear=True, smoothing=1.5)
+    assert plain.linear is None and plain.smoother is None
+    assert linear.smoother is not None
+    pd = traced[5]
+    torch.testing.assert_close(plain.irradiance_at(pd), linear.irradiance_at(pd), rtol=1e-9, atol=1e-12)
+
+
 def test_specular_per_unit_ps_takes_one_sigma_per_texel(traced):
     """What the sigma search evaluates: with sigma (T,) each texel's entries at its own sigma, texel by texel the same
     as every texel at that one value, and Ps times it is the cache's specular light (indirect_radiance)."""

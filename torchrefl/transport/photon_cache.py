@@ -155,7 +155,8 @@ def light_sources(surface, obs, max_maps: int, order: int = 3) -> LightSources:
 class PhotonCache:
     """irradiance (P, T, 3) H0 (smoothed); entry_obs (E,) flat p*T + t; entry_theta_h (E,); entry_weight (E, 3);
     linear: sparse (3 P T, 3 T) L, rows c P T + p T + t, columns c T + e, or None; smoother: the
-    density-estimation kernel (smoothing_matrix) applied to L Pd, or None (H0 is stored smoothed); exact_irradiance:
+    density-estimation kernel (smoothing_matrix) applied to L Pd, or None (H0 is stored smoothed; None without
+    linear); exact_irradiance:
     the part of H0 without photon noise (the radiosity level's all-diffuse paths, photon.diffuse_paths: radiosity),
     or None."""
 
@@ -278,8 +279,11 @@ def build_cache(
         irradiance, smoother = _smooth_irradiance(irradiance, grid, smoother, smoothing, smoothing_normal)
     if linear is not None:
         stats["linear_entries"] = int(linear._nnz())
+    # the smoother serves the part linear in Pd only (irradiance_at): a cache without one does not keep it (a copy
+    # per cache in the cache's dtype, PhotonCache.to, 0.4 GB on the fold)
+    keep_smoother = smoothing > 0 and linear is not None
     return PhotonCache(
-        brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoother=smoother if smoothing > 0 else None
+        brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoother=smoother if keep_smoother else None
     )
 
 
