@@ -302,9 +302,6 @@ def _build_by_light(hits: PhotonHits, sources: LightSources, *args, dtype, smoot
     return PhotonCache(brdf, irradiance.to(dtype), obs, theta.to(dtype), weight.to(dtype), stats=stats)
 
 
-_ENTRIES = ("entry_obs", "entry_theta_h", "entry_weight")
-
-
 def _hits_subset(hits: PhotonHits, idx: np.ndarray) -> PhotonHits:
     """The hits idx (M,) of `hits` (all of a light's), with the totals (emitted, rays, back hits) of all."""
     sub = lambda a: None if a is None else np.take(a, idx, axis=0)  # noqa: E731
