@@ -1,11 +1,13 @@
 """Two traces' caches as one (torchrefl.transport.cache_average): the mean of their predictions, with the part
 that has no photon noise taken from the newer one."""
 
+import numpy as np
 import torch
 from test_photon_cache import cache_of, trace, traced  # noqa: F401 (traced: a fixture)
 
 from torchrefl.transport.cache_average import average_caches
-from torchrefl.transport.photon_cache import indirect_radiance, specular_per_unit_ps
+from torchrefl.transport.photon_cache import PhotonCache, indirect_radiance, specular_per_unit_ps
+from torchrefl.transport.specular_bins import merge_entries
 
 
 def test_an_average_of_two_traces_predicts_the_mean_of_their_predictions(traced):  # noqa: F811
@@ -50,3 +52,34 @@ def test_the_part_without_photon_noise_is_the_newer_caches_not_averaged(traced):
     both = average_caches(a, b, sigma.numpy())
     torch.testing.assert_close(both.irradiance, photons + 3.0)
     assert both.exact_irradiance.equal(b.exact_irradiance)
+
+
+def test_the_entries_merged_one_light_at_a_time_are_those_of_one_merge_of_all():
+    """average_caches merges the specular entries light by light (to bound memory): bit for bit the entries of
+    merge_entries over both caches' entries at once (a's then b's, at half weight), for caches whose entries are
+    in no particular order, one without entries of a light, and a light with no entries in either."""
+    P, T, M = 4, 50, 3000
+    rng = np.random.default_rng(5)
+    sigma = rng.uniform(0.05, 0.4, T)
+
+    def cache(lights):
+        obs = torch.from_numpy(rng.choice(lights, M) * T + rng.integers(0, T, M))
+        theta = torch.from_numpy(rng.uniform(0.0, 0.6, M)).float()
+        weight = torch.from_numpy(rng.uniform(-0.1, 1.0, (M, 3))).float()
+        return PhotonCache("torrance_sparrow", torch.zeros(P, T, 3), obs, theta, weight)
+
+    a, b = cache([0, 1, 3]), cache([1, 3])
+    both = average_caches(a, b, sigma)
+    weight = 0.5 * torch.cat([a.entry_weight, b.entry_weight])
+    obs, theta, w = merge_entries(
+        torch.cat([a.entry_obs, b.entry_obs]).numpy(),
+        torch.cat([a.entry_theta_h, b.entry_theta_h]).double().numpy(),
+        weight.double().numpy().T,
+        sigma,
+        T,
+    )
+    assert both.entry_obs.dtype == torch.int64 and both.entry_weight.dtype == torch.float32
+    assert both.entry_obs.equal(torch.from_numpy(obs))
+    assert both.entry_theta_h.equal(torch.from_numpy(theta).float())
+    assert both.entry_weight.equal(torch.from_numpy(w).float())
+    assert set((both.entry_obs // T).tolist()) == {0, 1, 3}

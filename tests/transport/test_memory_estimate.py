@@ -42,8 +42,9 @@ def test_a_chunked_local_fit_is_estimated_by_its_largest_chunk():
 def test_the_photon_estimate_is_within_a_factor_of_a_measured_refresh(tiny_fold_run):
     """The tiny fold's photon level at 300 000 photons per light (the photons' term dominates): the peak resident
     memory that preparing the level and three refreshes add (the third averaged with the second, the best kept: the
-    caches the fit holds) is within a factor 2.5 of the estimate (2.0-2.2 measured: 0.13 stored hits per photon here
-    against the 0.15 assumed, and fewer specular entries than on the full fold, where it is within 1.05)."""
+    caches the fit holds) is within a factor 2.5 of the estimate (the estimate 0.6 of it measured: the fixed costs, the
+    tracer's landing tables and the smoother, weigh more on 432 observations than on the full fold;
+    docs/results/performance.md, "Peak memory made smaller")."""
     photons = 300_000
     cfg = torchrefl.load_config(
         tiny.FOLD,

@@ -7,6 +7,8 @@ Linux keeps the peak resident set (VmHWM, what `resource.getrusage` reports as r
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import resource
 import sys
 from pathlib import Path
@@ -54,6 +56,25 @@ def resident_mb() -> float:
     """The process's resident memory now, in MiB (Linux; the peak elsewhere)."""
     now = _status_mb("VmRSS")
     return peak_resident_mb() if now is None else now
+
+
+def release_free_memory() -> bool:
+    """Hand the C heap's free pages back to the system (glibc's malloc_trim); returns whether it could.
+
+    numpy's and torch's arrays under glibc's mmap threshold (up to 32 MiB once large arrays have been freed) come
+    from the heap, and the photon level's many such temporaries leave it fragmented: on the fold about 1.5 GB of
+    free heap stayed resident between refreshes. Called before the stages that peak, so the free pages do not add
+    to their peak; no effect on any result."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        trim = libc.malloc_trim
+    except (OSError, AttributeError):  # another C library (musl) or none found
+        return False
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    trim(0)
+    return True
 
 
 def available_mb() -> float | None:

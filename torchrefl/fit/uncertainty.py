@@ -85,11 +85,16 @@ class ParameterRanges:
         return torch.tensor(widths, dtype=dtype) ** 2 / 12.0
 
 
+#: parameter components whose tangents vmap batches at once: the batched model's temporaries grow with it (the photon
+#: level's specular entries times the batch: 2.9 GB over the fit's memory on the full fold at all 7 at once)
+JACOBIAN_CHUNK = 2
+
+
 def jacobian(model: Callable, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
     """(P, T, 3, K) d(255 model) / d theta per texel: forward-mode derivatives along each of the K = 4 + C parameter
-    components of every texel at once, the K tangents batched by vmap (3x faster than one jvp each on the default
-    scene; one jvp each where the model has an operation vmap does not batch). model: (pd (T, 3), ps (T, C),
-    sigma (T,)) -> (P, T, 3), each texel's images a function of its own parameters only."""
+    components of every texel at once, the K tangents batched by vmap JACOBIAN_CHUNK at a time (3x faster than one
+    jvp each on the default scene; one jvp each where the model has an operation vmap does not batch). model:
+    (pd (T, 3), ps (T, C), sigma (T,)) -> (P, T, 3), each texel's images a function of its own parameters only."""
     x = tuple(q.detach().contiguous() for q in (pd, ps, sigma))  # a shared lobe comes expanded (stride 0)
     widths = [q.shape[1] if q.dim() == 2 else 1 for q in x]
     eye = torch.eye(sum(widths), dtype=pd.dtype, device=pd.device)
@@ -100,7 +105,7 @@ def jacobian(model: Callable, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.T
         at += n
     column = lambda *t: torch.func.jvp(model, x, t)[1]
     try:
-        cols = torch.func.vmap(column)(*tangents)  # (K, P, T, 3)
+        cols = torch.func.vmap(column, chunk_size=JACOBIAN_CHUNK)(*tangents)  # (K, P, T, 3)
     except (RuntimeError, NotImplementedError):  # an operation without a batching rule: one jvp per column
         cols = torch.stack([column(*(t[k] for t in tangents)) for k in range(len(eye))])
     return cols.movedim(0, -1) * 255.0

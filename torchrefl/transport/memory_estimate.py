@@ -34,18 +34,16 @@ EMITTER_BYTES = 3 * 3 * 8
 #: stored photon hits per photon emitted (second and later bounces; photons leaving the object store none): 0.13 on
 #: the tiny fold (scripts/tiny_mode.py), see docs/results/performance.md for the full fold
 HITS_PER_PHOTON = 0.15
-#: peak bytes per stored hit while a refresh traces and reduces, its own cache included (the hits' arrays, their
-#: concatenation, the per-image copies, the reduction's temporaries; 265-300 measured on the tiny fold at 0.1-1 M
-#: photons per light)
-HIT_PEAK_BYTES = 250
-#: bytes per stored hit a finished cache keeps (the entries its Pd-linear terms and specular bins hold; 97 measured)
-HIT_KEPT_BYTES = 100
+#: peak bytes per stored hit while a refresh traces and reduces: the hits' arrays and the bounces' batches they are
+#: gathered from at the end of a trace (the reduction runs one light at a time, so its temporaries are a light's)
+HIT_PEAK_BYTES = 150
 #: specular entries: about 2 per stored hit (the photons' and the gather's), at most 16 per (image, texel) once
-#: merged into half-angle bins (the fold: 11 M entries for 5.7 M hits and 20 x 34 449 observations; the tiny fold
-#: 0.02 per hit), and the peak bytes per entry when two caches are averaged (the merge's sort and temporaries; the
-#: fold's peak, 7.6 GB, came there)
-ENTRIES_PER_HIT, ENTRIES_PER_OBSERVATION, ENTRY_PEAK_BYTES = 2, 16, 250
-#: caches alive at once during the fit: the current trace, the previous one, their average, the best kept
+#: merged into half-angle bins (the fold: 11-12.6 M entries for 5.5-5.7 M hits and 20 x 34 449 observations; the tiny
+#: fold 0.05 per hit); each takes ENTRY_BYTES in every cache alive (int64 observation, float32 theta_h and 3
+#: weights); the cache average merges them one light at a time (a light's temporaries)
+ENTRIES_PER_HIT, ENTRIES_PER_OBSERVATION, ENTRY_BYTES = 2, 16, 24
+#: caches alive at the peak: the previous trace, the cache the fit used (the best, usually), the new trace, and
+#: their average
 CACHES_ALIVE = 4
 
 
@@ -100,11 +98,8 @@ def estimate_memory(
         traced = images if lights_traced is None else lights_traced
         hits = cfg.photon.photons_per_light * traced * HITS_PER_PHOTON
         irradiance = images * texels * 3 * 4
-        kept = (CACHES_ALIVE - 1) * HIT_KEPT_BYTES
         entries = min(hits * ENTRIES_PER_HIT, images * texels * ENTRIES_PER_OBSERVATION)
-        terms["photons"] = (
-            hits * (HIT_PEAK_BYTES + kept) + entries * ENTRY_PEAK_BYTES + CACHES_ALIVE * irradiance
-        ) / _MB
+        terms["photons"] = (hits * HIT_PEAK_BYTES + CACHES_ALIVE * (entries * ENTRY_BYTES + irradiance)) / _MB
         settings["photons"] = "photon.photons_per_light"
     return MemoryEstimate(terms, settings)
 

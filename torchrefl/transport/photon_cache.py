@@ -65,7 +65,7 @@ from torchrefl.core.threads import thread_map
 from torchrefl.errors import ConfigError
 from torchrefl.transport.photon_density import SpreadKernel, apply_on_grid, smoothing_matrix
 from torchrefl.transport.photon_trace import PhotonHits
-from torchrefl.transport.specular_bins import BIN_PER_SIGMA, THETA_BIN, spread_and_merge
+from torchrefl.transport.specular_bins import BIN_PER_SIGMA, THETA_BIN, light_slices, spread_and_merge
 from torchrefl.transport.texel_model import SpecularEntries
 
 LOBE_CUTOFF = 1e-7
@@ -155,7 +155,8 @@ def light_sources(surface, obs, max_maps: int, order: int = 3) -> LightSources:
 class PhotonCache:
     """irradiance (P, T, 3) H0 (smoothed); entry_obs (E,) flat p*T + t; entry_theta_h (E,); entry_weight (E, 3);
     linear: sparse (3 P T, 3 T) L, rows c P T + p T + t, columns c T + e, or None; smoother: the
-    density-estimation kernel (smoothing_matrix) applied to L Pd, or None (H0 is stored smoothed); exact_irradiance:
+    density-estimation kernel (smoothing_matrix) applied to L Pd, or None (H0 is stored smoothed; None without
+    linear); exact_irradiance:
     the part of H0 without photon noise (the radiosity level's all-diffuse paths, photon.diffuse_paths: radiosity),
     or None."""
 
@@ -244,7 +245,107 @@ def build_cache(
     False) out of H, for a caller that adds those paths' irradiance from the radiosity level (their
     expectation); the specular entries keep every photon unless specular_paths_only (for a caller that gathers
     the receiving texel's specular reflection of the all-diffuse paths' light itself: specular_gather).
+
+    Without emitter_pd the hits are reduced one light at a time (the same cache, bit for bit: a light's hits feed
+    only its own observations and its own specular entries, in the same order), so the reduction's temporaries
+    are one light's.
     """
+    args = (hits, sources, areas, normals, view_dirs, keep, brdf, sigma, sigma_max, min_cos_light)
+    kwargs = dict(
+        dtype=dtype,
+        theta_bin=theta_bin,
+        bin_per_sigma=bin_per_sigma,
+        threads=threads,
+        smoother=smoother,
+        smoothing=smoothing,
+        grid=grid,
+        emitter_pd=emitter_pd,
+        smoothing_normal=smoothing_normal,
+        specular_smoothing=specular_smoothing,
+        diffuse_paths=diffuse_paths,
+        specular_paths_only=specular_paths_only,
+        spreader=spreader,
+    )
+    if emitter_pd is None and hits.count:
+        return _build_by_light(*args, **kwargs)
+    return _build_all(*args, **kwargs)
+
+
+def _build_by_light(hits: PhotonHits, sources: LightSources, *args, dtype, smoothing: float, grid, **kwargs):
+    """build_cache one light at a time (no part linear in Pd): each light's hits reduced alone in float64 and
+    unsmoothed, their irradiance summed (each light's rows hold its own hits' sums, the others' rows 0) and
+    smoothed once, their specular entries concatenated in light order (spread_and_merge's order)."""
+    P, K = sources.positions.shape[:2]
+    if kwargs["specular_smoothing"] > 0 and kwargs["spreader"] is None and grid is not None:
+        nbrs, gnormals = _grid_parts(grid)  # built once for all the lights
+        kwargs["spreader"] = SpreadKernel(nbrs, kwargs["specular_smoothing"], gnormals, kwargs["smoothing_normal"])
+    irradiance, entries, spread, brdf = None, [], [], None
+    for idx in light_slices(hits.source, K, P):
+        if not idx.size:
+            continue
+        part = _build_all(
+            _hits_subset(hits, idx), sources, *args, dtype=torch.float64, smoothing=0.0, grid=grid, **kwargs
+        )
+        irradiance = part.irradiance if irradiance is None else irradiance.add_(part.irradiance)
+        entries.append((part.entry_obs, part.entry_theta_h, part.entry_weight))
+        if "specular_photons" in part.stats:
+            spread.append(part.stats["specular_photons"])
+        brdf = part.brdf
+    if smoothing > 0:
+        irradiance = _smooth_irradiance(irradiance, grid, kwargs["smoother"], smoothing, kwargs["smoothing_normal"])[0]
+    obs, theta, weight = (torch.cat([e[i] for e in entries]) for i in range(3))
+    stats = {"stored_hits": hits.count, "rays": hits.rays, "back_side_hits": int(hits.back_hits)}
+    stats.update(photons_emitted=int(hits.emitted.sum()), maps_per_light=K)
+    if spread:
+        stats["specular_photons"] = sum(spread)
+    stats["specular_entries"] = int(obs.numel())
+    return PhotonCache(brdf, irradiance.to(dtype), obs, theta.to(dtype), weight.to(dtype), stats=stats)
+
+
+def _hits_subset(hits: PhotonHits, idx: np.ndarray) -> PhotonHits:
+    """The hits idx (M,) of `hits` (all of a light's), with the totals (emitted, rays, back hits) of all."""
+    sub = lambda a: None if a is None else np.take(a, idx, axis=0)  # noqa: E731
+    return PhotonHits(
+        sub(hits.source),
+        sub(hits.texel),
+        sub(hits.direction),
+        sub(hits.power),
+        hits.emitted,
+        hits.rays,
+        sub(hits.emitter),
+        sub(hits.diffuse_per_pd),
+        back_hits=hits.back_hits,
+        specular_path=sub(hits.specular_path),
+        density_weight=sub(hits.density_weight),
+    )
+
+
+def _build_all(
+    hits: PhotonHits,
+    sources: LightSources,
+    areas,
+    normals,
+    view_dirs,
+    keep,
+    brdf: str,
+    sigma,
+    sigma_max: float,
+    min_cos_light: float,
+    dtype=torch.float64,
+    theta_bin: float = THETA_BIN,
+    bin_per_sigma: float = BIN_PER_SIGMA,
+    threads: int = 2,
+    smoother: torch.Tensor | None = None,
+    smoothing: float = 0.0,
+    grid=None,
+    emitter_pd=None,
+    smoothing_normal: float = 0.0,
+    specular_smoothing: float = 0.0,
+    diffuse_paths: bool = True,
+    specular_paths_only: bool = False,
+    spreader: SpreadKernel | None = None,
+) -> PhotonCache:
+    """build_cache of all the hits at once."""
     P, K = sources.positions.shape[:2]
     T = int(areas.shape[0])
     scale, flux, obs_idx = _photon_flux(hits, sources, areas, T)
@@ -278,8 +379,11 @@ def build_cache(
         irradiance, smoother = _smooth_irradiance(irradiance, grid, smoother, smoothing, smoothing_normal)
     if linear is not None:
         stats["linear_entries"] = int(linear._nnz())
+    # the smoother serves the part linear in Pd only (irradiance_at): a cache without one does not keep it (a copy
+    # per cache in the cache's dtype, PhotonCache.to, 0.4 GB on the fold)
+    keep_smoother = smoothing > 0 and linear is not None
     return PhotonCache(
-        brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoother=smoother if smoothing > 0 else None
+        brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoother=smoother if keep_smoother else None
     )
 
 
@@ -321,8 +425,10 @@ def _photon_irradiance(hits: PhotonHits, flux, obs_idx, PT: int, diffuse_paths: 
             "(PhotonTracer.trace records it)"
         )
     in_H = None if diffuse_paths else np.asarray(hits.specular_path, dtype=np.float64)  # (N,) 1 = counted in H
-    flux_H = flux if in_H is None else flux * in_H
-    H = np.stack([np.bincount(obs_idx, weights=flux_H[c], minlength=PT) for c in range(3)], -1)
+    # one channel at a time: no (3, N) copy of the flux beside it
+    H = np.stack(
+        [np.bincount(obs_idx, weights=flux[c] if in_H is None else flux[c] * in_H, minlength=PT) for c in range(3)], -1
+    )
     return H, in_H
 
 

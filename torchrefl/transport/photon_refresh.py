@@ -17,6 +17,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from torchrefl.core.memory import release_free_memory
 from torchrefl.core.progress import bar
 from torchrefl.transport.photon_cache import LightSources, PhotonCache, build_cache
 from torchrefl.transport.photon_density import SpreadKernel, smoothing_matrix
@@ -82,6 +83,7 @@ class PhotonRefresh:
 
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
+        release_free_memory()  # the heap's free pages would add to the tracing's peak
         if self.emitter_source is not None:
             src = self.emitter_source.to(pd.device)
             pd, ps, sigma = (
@@ -135,6 +137,7 @@ class PhotonRefresh:
             diffuse_paths=self.radiosity_irradiance is None,
             specular_paths_only=self.specular_gather is not None,
         )
+        del hits  # reduced: not alive beside the radiosity solve and the gather
         if self.radiosity_irradiance is not None:
             pd_cpu = pd.detach().cpu().to(cache.irradiance.dtype)
             with torch.no_grad():

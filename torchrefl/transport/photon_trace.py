@@ -472,12 +472,20 @@ class PhotonTracer:
                 specular_path=np.zeros(0, dtype=bool),
                 density_weight=np.zeros(0, dtype=np.float32),
             )
-        keep = np.flatnonzero(np.concatenate([b[5] for _, b in batches]))
-        ints = lambda j: np.take(np.concatenate([b[j] for _, b in batches]), keep).astype(np.int64)
-        vecs = lambda j: np.take(np.concatenate([b[j] for _, b in batches], axis=1), keep, axis=1).T  # (N, 3) views
-        source = np.take(np.concatenate([np.full(len(b[0]), s, dtype=np.int64) for s, b in batches]), keep)
-        path = np.take(np.concatenate([b[6] for _, b in batches]), keep)
-        weight = np.take(np.concatenate([b[7] for _, b in batches]), keep)
+        # the bounces' arrays field by field, each field's batches let go once gathered (not all alive to the end)
+        source = np.concatenate([np.full(len(b[0]), s, dtype=np.int64) for s, b in batches])
+        fields = [list(f) for f in zip(*(b for _, b in batches))]
+        batches = results = None
+        keep = np.flatnonzero(np.concatenate(fields[5]))
+        fields[5] = None
+
+        def gather(j: int, axis: int = 0) -> np.ndarray:
+            part, fields[j] = fields[j], None
+            return np.take(np.concatenate(part, axis=axis), keep, axis=axis)
+
+        source = np.take(source, keep)
+        ints = lambda j: gather(j).astype(np.int64)
+        vecs = lambda j: gather(j, axis=1).T  # (N, 3) views
         return PhotonHits(
             source,
             ints(0),
@@ -488,6 +496,6 @@ class PhotonTracer:
             ints(3),
             vecs(4),
             back_hits=back,
-            specular_path=path,
-            density_weight=weight,
+            specular_path=gather(6),
+            density_weight=gather(7),
         )

@@ -107,13 +107,8 @@ def spread_and_merge(e_obs, theta_h, weight, spread, sigma, T: int, theta_bin: f
     spread), one light at a time: a light's copies stay among its own observations, so the pieces are the global
     merge in its order, and the copies (a kernel's worth per entry) are never all held at once. Returns the merged
     (entry_obs, theta_h, weight) and the number of (spread) entries merged."""
-    light = e_obs // T
-    order = np.argsort(light, kind="stable")
-    ends = np.searchsorted(np.take(light, order), np.arange(int(light.max()) + 1), side="right")
-    parts, count, begin = [], 0, 0
-    for end in ends:
-        idx = order[begin:end]
-        begin = end
+    parts, count = [], 0
+    for idx in light_slices(e_obs, T):
         if not idx.size:
             continue
         obs, th, w = np.take(e_obs, idx), np.take(theta_h, idx), np.take(weight, idx, axis=1)
@@ -123,3 +118,14 @@ def spread_and_merge(e_obs, theta_h, weight, spread, sigma, T: int, theta_bin: f
         count += int(obs.size)
         parts.append(merge_entries(obs, th, w, sigma, T, theta_bin, bin_per_sigma))
     return tuple(np.concatenate([part[i] for part in parts]) for i in range(3)), count
+
+
+def light_slices(e_obs: np.ndarray, T: int, lights: int | None = None) -> list[np.ndarray]:
+    """The indices of the entries (flat observations e_obs = p T + t (M,)) of each light p = 0 .. lights - 1 (default:
+    up to the largest present; lights must not be fewer), each in the entries' order (a stable sort): the pieces of
+    a merge one light at a time, since merge_entries never merges entries of different lights."""
+    light = np.asarray(e_obs) // T
+    n = lights if lights is not None else (int(light.max()) + 1 if light.size else 0)
+    order = np.argsort(light, kind="stable")
+    ends = np.searchsorted(np.take(light, order), np.arange(n), side="right")
+    return [order[begin:end] for begin, end in zip([0, *ends[:-1].tolist()], ends.tolist())]

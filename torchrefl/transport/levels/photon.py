@@ -20,6 +20,7 @@ import time
 
 import torch
 
+from torchrefl.core.memory import release_free_memory
 from torchrefl.core.observation_classes import T_DIFF, T_NONE, T_SPEC
 from torchrefl.core.params import inverse_softplus_b
 from torchrefl.core.rays import RayTracer
@@ -275,12 +276,14 @@ class PhotonLevel(TransportLevel):
             trace = self.refresher.cache(*values, refresh=k, progress=inp.cfg.output.progress)
             if k >= AVERAGE_FROM:
                 sigma = values[2].detach().cpu().double().numpy()
+                release_free_memory()  # the trace's freed temporaries would add to the average's peak
                 self.cache = average_caches(self._last_trace, trace, sigma)
             else:
                 self.cache = trace
             self._last_trace = trace
             intensity = inp.obs.intensity.to(inp.device)
             score = image_score(self.predict(*values), intensity, inp.fit_mask.to(inp.device))
+        release_free_memory()  # before the re-estimation and the refit
         self.scores.append(score)
         self.refresh_at.append(round(time.perf_counter() - self._clock, 2))
         stats = self.cache.stats
