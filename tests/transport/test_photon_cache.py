@@ -108,7 +108,7 @@ def test_only_a_cache_linear_in_pd_keeps_the_smoother(traced):
     torch.testing.assert_close(plain.irradiance_at(pd), linear.irradiance_at(pd), rtol=1e-9, atol=1e-12)
 
 
-def test_the_cache_reduced_one_light_at_a_time_is_the_cache_of_all_at_once(traced):
+def test_the_cache_reduced_one_light_at_a_time_is_the_cache_of_all_at_once(traced, monkeypatch):
     """build_cache without a part linear in Pd reduces the hits light by light (to bound memory): bit for bit the
     cache of all the hits reduced at once, smoothed and spread, with the same counts."""
     s, obs, pt, src, hits, pd, ps, sigma = traced
@@ -116,7 +116,9 @@ def test_the_cache_reduced_one_light_at_a_time_is_the_cache_of_all_at_once(trace
     args = (*args, "torrance_sparrow", sigma.numpy(), 10.0, 0.02)
     kwargs = dict(dtype=torch.float32, smoothing=1.5, grid=(s.neighbours, s.normals), smoothing_normal=0.1)
     kwargs.update(specular_smoothing=1.0, bin_per_sigma=0.25)
-    by_light, at_once = build_cache(*args, **kwargs), photon_cache._build_all(*args, **kwargs)
+    by_light = build_cache(*args, **kwargs)
+    monkeypatch.setattr(photon_cache, "_several_lights", lambda *a: False)  # every light's hits at once
+    at_once = build_cache(*args, **kwargs)
     assert len(np.unique(hits.source // src.num_maps)) == 2 and by_light.entry_obs.numel() > 100
     for name in ("irradiance", "entry_obs", "entry_theta_h", "entry_weight"):
         assert getattr(by_light, name).equal(getattr(at_once, name)), name

@@ -250,102 +250,26 @@ def build_cache(
     only its own observations and its own specular entries, in the same order), so the reduction's temporaries
     are one light's.
     """
-    args = (hits, sources, areas, normals, view_dirs, keep, brdf, sigma, sigma_max, min_cos_light)
-    kwargs = dict(
-        dtype=dtype,
-        theta_bin=theta_bin,
-        bin_per_sigma=bin_per_sigma,
-        threads=threads,
-        smoother=smoother,
-        smoothing=smoothing,
-        grid=grid,
-        emitter_pd=emitter_pd,
-        smoothing_normal=smoothing_normal,
-        specular_smoothing=specular_smoothing,
-        diffuse_paths=diffuse_paths,
-        specular_paths_only=specular_paths_only,
-        spreader=spreader,
-    )
-    if emitter_pd is None and hits.count:
-        return _build_by_light(*args, **kwargs)
-    return _build_all(*args, **kwargs)
-
-
-def _build_by_light(hits: PhotonHits, sources: LightSources, *args, dtype, smoothing: float, grid, **kwargs):
-    """build_cache one light at a time (no part linear in Pd): each light's hits reduced alone in float64 and
-    unsmoothed, their irradiance summed (each light's rows hold its own hits' sums, the others' rows 0) and
-    smoothed once, their specular entries concatenated in light order (spread_and_merge's order)."""
-    P, K = sources.positions.shape[:2]
-    if kwargs["specular_smoothing"] > 0 and kwargs["spreader"] is None and grid is not None:
-        nbrs, gnormals = _grid_parts(grid)  # built once for all the lights
-        kwargs["spreader"] = SpreadKernel(nbrs, kwargs["specular_smoothing"], gnormals, kwargs["smoothing_normal"])
-    irradiance, entries, spread, brdf = None, [], [], None
-    for idx in light_slices(hits.source, K, P):
-        if not idx.size:
-            continue
-        part = _build_all(
-            _hits_subset(hits, idx), sources, *args, dtype=torch.float64, smoothing=0.0, grid=grid, **kwargs
+    if emitter_pd is None and _several_lights(hits, sources):
+        return _build_by_light(
+            hits,
+            sources,
+            (areas, normals, view_dirs, keep, brdf, sigma, sigma_max, min_cos_light),
+            dict(
+                theta_bin=theta_bin,
+                bin_per_sigma=bin_per_sigma,
+                threads=threads,
+                smoother=smoother,
+                grid=grid,
+                smoothing_normal=smoothing_normal,
+                specular_smoothing=specular_smoothing,
+                diffuse_paths=diffuse_paths,
+                specular_paths_only=specular_paths_only,
+                spreader=spreader,
+            ),
+            dtype,
+            smoothing,
         )
-        irradiance = part.irradiance if irradiance is None else irradiance.add_(part.irradiance)
-        entries.append((part.entry_obs, part.entry_theta_h, part.entry_weight))
-        if "specular_photons" in part.stats:
-            spread.append(part.stats["specular_photons"])
-        brdf = part.brdf
-    if smoothing > 0:
-        irradiance = _smooth_irradiance(irradiance, grid, kwargs["smoother"], smoothing, kwargs["smoothing_normal"])[0]
-    obs, theta, weight = (torch.cat([e[i] for e in entries]) for i in range(3))
-    stats = {"stored_hits": hits.count, "rays": hits.rays, "back_side_hits": int(hits.back_hits)}
-    stats.update(photons_emitted=int(hits.emitted.sum()), maps_per_light=K)
-    if spread:
-        stats["specular_photons"] = sum(spread)
-    stats["specular_entries"] = int(obs.numel())
-    return PhotonCache(brdf, irradiance.to(dtype), obs, theta.to(dtype), weight.to(dtype), stats=stats)
-
-
-def _hits_subset(hits: PhotonHits, idx: np.ndarray) -> PhotonHits:
-    """The hits idx (M,) of `hits` (all of a light's), with the totals (emitted, rays, back hits) of all."""
-    sub = lambda a: None if a is None else np.take(a, idx, axis=0)  # noqa: E731
-    return PhotonHits(
-        sub(hits.source),
-        sub(hits.texel),
-        sub(hits.direction),
-        sub(hits.power),
-        hits.emitted,
-        hits.rays,
-        sub(hits.emitter),
-        sub(hits.diffuse_per_pd),
-        back_hits=hits.back_hits,
-        specular_path=sub(hits.specular_path),
-        density_weight=sub(hits.density_weight),
-    )
-
-
-def _build_all(
-    hits: PhotonHits,
-    sources: LightSources,
-    areas,
-    normals,
-    view_dirs,
-    keep,
-    brdf: str,
-    sigma,
-    sigma_max: float,
-    min_cos_light: float,
-    dtype=torch.float64,
-    theta_bin: float = THETA_BIN,
-    bin_per_sigma: float = BIN_PER_SIGMA,
-    threads: int = 2,
-    smoother: torch.Tensor | None = None,
-    smoothing: float = 0.0,
-    grid=None,
-    emitter_pd=None,
-    smoothing_normal: float = 0.0,
-    specular_smoothing: float = 0.0,
-    diffuse_paths: bool = True,
-    specular_paths_only: bool = False,
-    spreader: SpreadKernel | None = None,
-) -> PhotonCache:
-    """build_cache of all the hits at once."""
     P, K = sources.positions.shape[:2]
     T = int(areas.shape[0])
     scale, flux, obs_idx = _photon_flux(hits, sources, areas, T)
@@ -385,6 +309,45 @@ def _build_all(
     return PhotonCache(
         brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoother=smoother if keep_smoother else None
     )
+
+
+def _several_lights(hits: PhotonHits, sources: LightSources) -> bool:
+    """Whether the hits come from more than one light (source s = p * K + k)."""
+    if not hits.count:
+        return False
+    light = hits.source // sources.positions.shape[1]
+    return int(light.min()) != int(light.max())
+
+
+def _build_by_light(hits: PhotonHits, sources: LightSources, args: tuple, kwargs: dict, dtype, smoothing: float):
+    """build_cache one light at a time (no part linear in Pd): each light's hits reduced alone in float64 and
+    unsmoothed, their irradiance summed (each light's rows hold its own hits' sums, the others' rows 0) and
+    smoothed once, their specular entries concatenated in light order (spread_and_merge's order). args, kwargs:
+    build_cache's other arguments."""
+    P, K = sources.positions.shape[:2]
+    grid = kwargs["grid"]
+    if kwargs["specular_smoothing"] > 0 and kwargs["spreader"] is None and grid is not None:
+        nbrs, gnormals = _grid_parts(grid)  # built once for all the lights
+        kwargs["spreader"] = SpreadKernel(nbrs, kwargs["specular_smoothing"], gnormals, kwargs["smoothing_normal"])
+    irradiance, entries, spread, brdf = None, [], [], None
+    for idx in light_slices(hits.source, K, P):
+        if not idx.size:
+            continue
+        part = build_cache(hits.take(idx), sources, *args, dtype=torch.float64, smoothing=0.0, **kwargs)
+        irradiance = part.irradiance if irradiance is None else irradiance.add_(part.irradiance)
+        entries.append((part.entry_obs, part.entry_theta_h, part.entry_weight))
+        if "specular_photons" in part.stats:
+            spread.append(part.stats["specular_photons"])
+        brdf = part.brdf
+    if smoothing > 0:
+        irradiance = _smooth_irradiance(irradiance, grid, kwargs["smoother"], smoothing, kwargs["smoothing_normal"])[0]
+    obs, theta, weight = (torch.cat([e[i] for e in entries]) for i in range(3))
+    stats = {"stored_hits": hits.count, "rays": hits.rays, "back_side_hits": int(hits.back_hits)}
+    stats.update(photons_emitted=int(hits.emitted.sum()), maps_per_light=K)
+    if spread:
+        stats["specular_photons"] = sum(spread)
+    stats["specular_entries"] = int(obs.numel())
+    return PhotonCache(brdf, irradiance.to(dtype), obs, theta.to(dtype), weight.to(dtype), stats=stats)
 
 
 def _lobe_hits(hits: PhotonHits, keep, obs_idx, lobe: bool, specular_paths_only: bool) -> np.ndarray:

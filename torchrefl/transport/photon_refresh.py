@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -194,18 +194,6 @@ def shared_hits(hits: PhotonHits, light_of: np.ndarray, K: int) -> PhotonHits:
     parts = [np.flatnonzero(light == u) for u in light_of]
     take = np.concatenate(parts) if parts else np.zeros(0, np.int64)
     image = np.repeat(np.arange(len(light_of)), [len(i) for i in parts])
-    sub = lambda a: None if a is None else a[take]  # noqa: E731
     per_source = hits.emitted.reshape(-1, K)
-    return PhotonHits(
-        image * K + hits.source[take] % K,
-        hits.texel[take],
-        hits.direction[take],
-        hits.power[take],
-        per_source[light_of].reshape(-1),
-        hits.rays,
-        sub(hits.emitter),
-        sub(hits.diffuse_per_pd),
-        back_hits=hits.back_hits,
-        specular_path=sub(hits.specular_path),
-        density_weight=sub(hits.density_weight),
-    )
+    source = image * K + hits.source[take] % K
+    return replace(hits.take(take), source=source, emitted=per_source[light_of].reshape(-1))

@@ -32,7 +32,7 @@ reductions (torchrefl.transport.photon_cache) sum in float64.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -91,6 +91,21 @@ class PhotonHits:
     back_hits: int = 0
     specular_path: np.ndarray | None = None
     density_weight: np.ndarray | None = None
+
+    def take(self, idx: np.ndarray) -> "PhotonHits":
+        """The hits idx (M,) (a copy), with the totals (emitted, rays, back hits) of all."""
+        sub = lambda a: None if a is None else np.take(a, idx, axis=0)  # noqa: E731
+        per_hit = (
+            "source",
+            "texel",
+            "direction",
+            "power",
+            "emitter",
+            "diffuse_per_pd",
+            "specular_path",
+            "density_weight",
+        )
+        return replace(self, **{k: sub(getattr(self, k)) for k in per_hit})
 
     @property
     def count(self) -> int:
