@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import torch
 
+from torchrefl.core.robust import robust_std
 from torchrefl.core.texel_neighbours import TexelNeighbours, texel_window
 
 #: robust deviations (1.4826 x the median absolute deviation) above the median texel RMS residual
@@ -49,5 +50,5 @@ def misfit_texels(
     if int(valid.sum()) < 10:
         return torch.zeros_like(estimated)
     med = rms[valid].median()
-    spread = (1.4826 * (rms[valid] - med).abs().median()).clamp_min(MIN_DEVIATION_DN)
+    spread = robust_std(rms[valid]).clamp_min(MIN_DEVIATION_DN)
     return valid & (rms > med + MISFIT_DEVIATIONS * spread)

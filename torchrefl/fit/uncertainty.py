@@ -38,13 +38,12 @@ import torch
 
 from torchrefl.config import Config
 from torchrefl.core.progress import Stages
+from torchrefl.core.robust import robust_std
 from torchrefl.fit.initialise import COVER_FULL
 from torchrefl.fit.result import FitResult
 from torchrefl.fit.texel_lm import irls_weight
 from torchrefl.transport.levels.base import TransportLevel
 
-#: the normal-distribution consistency factor of the median absolute deviation
-MAD_SCALE = 1.4826
 #: leverages are capped here (an observation that alone fixes a parameter has h -> 1 and no residual)
 MAX_LEVERAGE = 0.9
 #: the noise is estimated from at most this many texels' residuals (an even stride over the texels): some 10^5
@@ -150,7 +149,7 @@ def mad_noise(r: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     out = []
     for c in range(r.shape[-1]):
         x = r[..., c][mask].double()
-        out.append(MAD_SCALE * (x - x.median()).abs().median() if x.numel() else x.new_zeros(()))
+        out.append(robust_std(x) if x.numel() else x.new_zeros(()))
     return torch.stack(out)
 
 

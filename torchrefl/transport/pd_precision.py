@@ -13,8 +13,7 @@ from typing import Callable
 
 import torch
 
-#: the normal-distribution consistency factor of the median absolute deviation
-MAD_SCALE = 1.4826
+from torchrefl.core.robust import robust_std
 
 
 def median_pd_std(model: Callable, pd, ps, sigma, intensity: torch.Tensor, mask: torch.Tensor) -> float:
@@ -25,7 +24,7 @@ def median_pd_std(model: Callable, pd, ps, sigma, intensity: torch.Tensor, mask:
         r = ((model(pd, ps, sigma) - intensity) * 255.0)[mask]  # (N, 3)
         if not len(r):
             return float("inf")
-        noise = MAD_SCALE * (r - r.median(0).values).abs().median(0).values.clamp_min(1e-3)  # (3,)
+        noise = robust_std(r, 0).clamp_min(1e-3)  # (3,)
         info = (slope.square() * mask[..., None]).sum(0) / noise.square()  # (T, 3)
         seen = mask.any(0)
         return float(info[seen].clamp_min(1e-30).rsqrt().median())
