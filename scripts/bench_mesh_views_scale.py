@@ -14,7 +14,7 @@ than 2.5 px out of an image), so at full size each camera sees a part of the obj
 few images. Stages: render (only when the folder is new), load: geometry (mesh + atlas), load: observations
 (load_views_observations), load: other (the rest of MeshViewsLoader.load: the folder's metadata, the BVH, the truth,
 the texel mesh), then the fit's own stages (fit: precompute, initialise, fit). Each stage's peak resident memory is
-the kernel's VmHWM reset at the stage's start (/proc/self/clear_refs; the reset also resets ru_maxrss), the run's
+the kernel's VmHWM reset at the stage's start (/proc/self/clear_refs; torchrefl.core.memory), the run's
 peak the largest of them. The rays part replays the rays camera_view casts (texel visibility and depth steps)
 through the bare embreex scene (float32 contiguous, split over the same threads) and compares rays per second.
 
@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import resource
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -40,6 +39,7 @@ import torch
 import torchrefl.capture.mesh_views as mesh_views
 from torchrefl.capture.mesh_views import MeshViewsLoader
 from torchrefl.config import MeshViewsConfig, load_config
+from torchrefl.core.memory import peak_resident_mb, reset_peak
 from torchrefl.core.progress import Stages
 from torchrefl.core.rays import RayTracer
 from torchrefl.fit.pipeline import fit_capture
@@ -96,26 +96,6 @@ class Segment:
     cpu_seconds: float = 0.0
 
 
-def _status_kb(key: str) -> int:
-    """A 'key: N kB' line of /proc/self/status, in kB (0 where the file or the key is missing)."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith(key + ":"):
-                return int(line.split()[1])
-    except OSError:
-        pass
-    return 0
-
-
-def _reset_peak() -> bool:
-    """Reset the kernel's peak resident size of this process (VmHWM); False where the kernel does not allow it."""
-    try:
-        Path("/proc/self/clear_refs").write_text("5")
-        return True
-    except OSError:
-        return False
-
-
 @dataclass
 class Meter:
     """Flat stages in order: `mark(name)` closes the stage that is open and opens `name`."""
@@ -129,9 +109,9 @@ class Meter:
     def mark(self, name: str | None) -> None:
         now, cpu = time.perf_counter(), time.process_time()
         if self._open is not None:
-            peak = _status_kb("VmHWM") * 1024
+            peak = int(peak_resident_mb() * 2**20)
             self.segments.append(Segment(self._open, now - self._start, peak, cpu - self._cpu))
-        self.resets = _reset_peak() and self.resets
+        self.resets = reset_peak() and self.resets
         self._open, self._start, self._cpu = name, time.perf_counter(), time.process_time()
 
     @contextmanager
@@ -321,7 +301,7 @@ def measure(case: Case, folder: Path, threads: int = 2, rays: bool = True, fit: 
         int(cap.obs.valid.sum()),
         int(cap.obs.valid.any(0).sum()),
         merged(meter.segments),
-        max([s.peak_bytes for s in meter.segments] + [resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024]),
+        max(s.peak_bytes for s in meter.segments),
         meter.resets,
         None,
         errors,

@@ -4,6 +4,7 @@ import sys
 
 import numpy as np
 import pytest
+from fresh_process import run_fresh
 
 from torchrefl.core.memory import available_mb, peak_resident_mb, release_free_memory, reset_peak, resident_mb
 
@@ -49,3 +50,20 @@ def test_the_free_heap_is_handed_back():
         pytest.skip("the C library handed the blocks back at once (no fragmented heap to trim)")
     assert freed > 100, freed
     assert len(kept) == 40
+
+
+def own_peak_mb() -> float:
+    """peak_resident_mb() of a process that has just started (imports only)."""
+    return peak_resident_mb()
+
+
+@linux
+def test_a_process_started_from_a_large_one_reports_its_own_peak():
+    """The kernel carries a process's peak across exec (ru_maxrss of the child starts at its parent's): a run
+    started from a batch runner or a notebook holding gigabytes must not report them as its own."""
+    block = np.ones(1024 * 2**20 // 8)  # 1 GiB, touched, held while the child starts
+    if resident_mb() < 1000:
+        pytest.skip("the touched block did not stay resident")
+    child = run_fresh(__file__, "own_peak_mb")
+    del block
+    assert child < 800, child  # python, numpy and torch: about 250 MiB

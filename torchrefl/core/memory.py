@@ -44,12 +44,14 @@ def _status_mb(key: str) -> float | None:
 def peak_resident_mb() -> float:
     """The process's peak resident memory in MiB (since the last reset_peak on Linux, since the start elsewhere).
 
-    The largest of ru_maxrss, VmHWM and VmRSS: some kernels and sandboxes update the first two lazily, and the peak
-    is never below what is resident now."""
-    kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    rusage_mb = kib / _MB if sys.platform == "darwin" else kib / 1024.0  # macOS reports bytes, Linux KiB
+    On Linux the larger of VmHWM and VmRSS (the peak is never below what is resident now), not ru_maxrss: that one
+    also holds the peak of the process that started this one (the kernel keeps it across exec), so a run started
+    from a large process (a batch runner, a notebook) would report its parent's memory. Elsewhere ru_maxrss."""
     status = [v for v in (_status_mb("VmHWM"), _status_mb("VmRSS")) if v is not None]
-    return max([rusage_mb, *status])
+    if status:
+        return max(status)
+    kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return kib / _MB if sys.platform == "darwin" else kib / 1024.0  # macOS reports bytes, Linux KiB
 
 
 def resident_mb() -> float:
