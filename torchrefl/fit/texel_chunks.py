@@ -28,6 +28,7 @@ import torch
 from torchrefl.config import Config
 from torchrefl.fit.initialise import TexelLobes, texel_lobes
 from torchrefl.fit.profile_search import profiled_fit
+from torchrefl.fit.texel_jacobian import ChannelInformation
 from torchrefl.fit.uncertainty import (
     Evidence,
     ParameterRanges,
@@ -191,7 +192,7 @@ def chunked_uncertainty(
 ) -> Uncertainty:
     """fit.uncertainty.texel_uncertainty of the local model chunk by chunk: each chunk's information; the noise
     from every noise_stride-th texel over all images, as texel_uncertainty estimates it."""
-    per_channel = None  # (3, T, K, K) float64, each chunk's texels filled in as it is done
+    per_channel = None  # every texel's ChannelInformation, each chunk's texels filled in as it is done
     for c in chunks:
         t = c.texels.to(pd.device)
         ev = texel_evidence(
@@ -205,8 +206,8 @@ def chunked_uncertainty(
             loss_scale_8bit,
         )
         if per_channel is None:
-            per_channel = ev.per_channel.new_zeros(3, len(pd), *ev.per_channel.shape[2:])
-        per_channel.index_copy_(1, t, ev.per_channel)
+            per_channel = ChannelInformation.zeros(ev.per_channel, len(pd))
+        per_channel.put(t, ev.per_channel)
         del ev
     noise: Evidence | None = None
     if noise_dn is None:

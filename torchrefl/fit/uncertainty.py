@@ -6,10 +6,11 @@ solution is one K x K block per texel (K = 4 + C):
 
     I_t = sum over the texel's fitted observations p and channels c of  w_ptc / s_c^2  J_ptc J_ptc^T,
 
-with J_ptc = d(255 i_hat_ptc) / d theta (8-bit DN per parameter unit, forward-mode derivatives of the model, in the
-natural parameters, not the optimiser's raw ones), w the fit's robust-loss weights (torchrefl.fit.texel_lm.
-irls_weight) and s_c the sensor noise of channel c in DN. The covariance is (I_t + diag(1 / v))^-1 with v the
-variance of a parameter spread uniformly over its physical range (Pd, Ps in [0, 1] and [0, ps_max], sigma in
+with J_ptc = d(255 i_hat_ptc) / d theta (8-bit DN per parameter unit, torchrefl.fit.texel_jacobian: in closed form
+for a TexelModel, by forward-mode passes of any other model; in the natural parameters, not the optimiser's raw
+ones), w the fit's robust-loss weights (torchrefl.fit.texel_lm.irls_weight) and s_c the sensor noise of channel c in
+DN. The covariance is (I_t + diag(1 / v))^-1 with v the variance of a parameter spread uniformly over its physical
+range (Pd, Ps in [0, 1] and [0, ps_max], sigma in
 [sigma_min, sigma_max]): a broad prior that leaves a well-determined parameter's std alone (its information is far
 larger) and keeps an undetermined one (sigma of a texel without a highlight) finite, at the range's std.
 
@@ -41,6 +42,7 @@ from torchrefl.core.progress import Stages
 from torchrefl.core.robust import robust_std
 from torchrefl.fit.initialise import COVER_FULL
 from torchrefl.fit.result import FitResult
+from torchrefl.fit.texel_jacobian import ChannelInformation, DenseJacobian, Jacobian, jacobian
 from torchrefl.fit.texel_lm import irls_weight
 from torchrefl.transport.levels.base import TransportLevel
 
@@ -84,50 +86,10 @@ class ParameterRanges:
         return torch.tensor(widths, dtype=dtype) ** 2 / 12.0
 
 
-#: parameter components whose tangents vmap batches at once: the batched model's temporaries grow with it (the photon
-#: level's specular entries times the batch: 2.9 GB over the fit's memory on the full fold at all 7 at once)
-JACOBIAN_CHUNK = 2
-
-
-def jacobian(model: Callable, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
-    """(P, T, 3, K) d(255 model) / d theta per texel: forward-mode derivatives along each of the K = 4 + C parameter
-    components of every texel at once, the K tangents batched by vmap JACOBIAN_CHUNK at a time (3x faster than one
-    jvp each on the default scene; one jvp each where the model has an operation vmap does not batch). model:
-    (pd (T, 3), ps (T, C), sigma (T,)) -> (P, T, 3), each texel's images a function of its own parameters only."""
-    x = tuple(q.detach().contiguous() for q in (pd, ps, sigma))  # a shared lobe comes expanded (stride 0)
-    widths = [q.shape[1] if q.dim() == 2 else 1 for q in x]
-    eye = torch.eye(sum(widths), dtype=pd.dtype, device=pd.device)
-    tangents, at = [], 0
-    for q, n in zip(x, widths):
-        block = eye[:, at : at + n]  # (K, n): the tangent of each column on this tensor
-        tangents.append((block[:, None, :] if q.dim() == 2 else block[:, None, 0]).expand(-1, *q.shape))
-        at += n
-    column = lambda *t: torch.func.jvp(model, x, t)[1]
-    try:
-        cols = torch.func.vmap(column, chunk_size=JACOBIAN_CHUNK)(*tangents)  # (K, P, T, 3)
-    except (RuntimeError, NotImplementedError):  # an operation without a batching rule: one jvp per column
-        cols = torch.stack([column(*(t[k] for t in tangents)) for k in range(len(eye))])
-    return cols.movedim(0, -1) * 255.0
-
-
-def channel_information(J: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """(3, T, K, K) float64 per channel c: sum over p of weight J J^T (the information at unit noise).
-    J (P, T, 3, K) in DN per parameter unit; weight (P, T, 3) the observations' weights (0 = not fitted).
-    Summed in float64: float32 sums leave a block whose parameters are nearly collinear (a strong lobe's Ps and
-    sigma) indefinite by rounding, and its Cholesky factorisation fails."""
-    Jd = J.double()
-    return torch.einsum("ptck,ptc,ptcl->ctkl", Jd, weight.double(), Jd)
-
-
 def information(J: torch.Tensor, weight: torch.Tensor, noise_dn: torch.Tensor) -> torch.Tensor:
     """(T, K, K) float64 Fisher information per texel: sum over p, c of weight / noise_dn[c]^2 J J^T;
-    noise_dn (3,) per channel in DN (channel_information's J and weight)."""
-    return scaled(channel_information(J, weight), noise_dn)
-
-
-def scaled(per_channel: torch.Tensor, noise_dn: torch.Tensor) -> torch.Tensor:
-    """(T, K, K) the information of per_channel (3, T, K, K) at unit noise for noise_dn (3,) per channel."""
-    return (per_channel / noise_dn.to(per_channel).square()[:, None, None, None]).sum(0)
+    J (P, T, 3, K) in DN per parameter unit, weight (P, T, 3), noise_dn (3,) per channel in DN."""
+    return DenseJacobian(J).information(weight).scaled(noise_dn)
 
 
 def covariance(info: torch.Tensor, prior_var: torch.Tensor) -> torch.Tensor:
@@ -137,11 +99,10 @@ def covariance(info: torch.Tensor, prior_var: torch.Tensor) -> torch.Tensor:
     return torch.cholesky_inverse(torch.linalg.cholesky(A))
 
 
-def leverage(J: torch.Tensor, weight: torch.Tensor, noise_dn: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
+def leverage(J: Jacobian, weight: torch.Tensor, noise_dn: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
     """(P, T, 3) each observation's leverage h = weight / s_c^2 J^T cov J (the hat matrix's diagonal), float64;
-    the quadratic forms in J's dtype (channel_information)."""
-    h = torch.einsum("ptck,tkl,ptcl->ptc", J, cov.to(J.dtype), J).double()
-    return h * weight.double() / noise_dn.double().square()
+    the quadratic forms in J's dtype (float64 sums are needed for the information only)."""
+    return J.quadratic(cov).double() * weight.double() / noise_dn.double().square()
 
 
 def mad_noise(r: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -161,10 +122,10 @@ def residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured) ->
     residuals); over every k-th texel where there are more than NOISE_TEXELS."""
     step = noise_stride(r.shape[1])
     if step > 1:
-        r, J, weight, mask = r[:, ::step], J[:, ::step], weight[:, ::step], mask[:, ::step]
-        per_channel, lobe_measured = per_channel[:, ::step], lobe_measured[::step]
+        r, J, weight, mask = r[:, ::step], J.texels(slice(None, None, step)), weight[:, ::step], mask[:, ::step]
+        per_channel, lobe_measured = per_channel.texels(slice(None, None, step)), lobe_measured[::step]
     s = mad_noise(r, mask).clamp_min(1e-3)
-    cov = texel_covariance(scaled(per_channel, s), prior_var, lobe_measured)
+    cov = texel_covariance(per_channel.scaled(s), prior_var, lobe_measured)
     cov[~lobe_measured, 3:, 3:] = 0.0  # a held lobe was not fitted to these residuals: it takes no leverage
     h = leverage(J, weight, s, cov).clamp(0.0, MAX_LEVERAGE)
     return mad_noise(r.double() / torch.sqrt(1.0 - h), mask).clamp_min(1e-3)
@@ -173,12 +134,14 @@ def residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured) ->
 def texel_covariance(info: torch.Tensor, prior_var: torch.Tensor, lobe_measured: torch.Tensor) -> torch.Tensor:
     """(T, K, K) the covariance of each texel: the whole block where its lobe was measured; elsewhere the Pd block
     alone (the lobe held at its value) and the lobe at the broad prior's variance, uncorrelated."""
-    cov = covariance(info, prior_var)
-    held = ~lobe_measured
-    block = torch.zeros_like(cov[held])
-    block[:, :3, :3] = covariance(info[held][:, :3, :3], prior_var[:3])
-    block[:, 3:, 3:] = torch.diag(prior_var[3:].to(cov))
-    cov[held] = block
+    prior_var = prior_var.to(info)
+    measured, held = lobe_measured.nonzero()[:, 0], (~lobe_measured).nonzero()[:, 0]
+    cov = torch.zeros_like(info)
+    cov.index_copy_(0, measured, covariance(info.index_select(0, measured), prior_var))
+    block = torch.zeros(len(held), *info.shape[1:], dtype=info.dtype, device=info.device)
+    block[:, :3, :3] = covariance(info.index_select(0, held)[:, :3, :3], prior_var[:3])
+    block[:, 3:, 3:] = torch.diag(prior_var[3:])
+    cov.index_copy_(0, held, block)
     return cov
 
 
@@ -201,14 +164,14 @@ def shared_lobe_covariance(info: torch.Tensor, prior_var: torch.Tensor, estimate
 
 @dataclass
 class Evidence:
-    """What a fit's observations say of its texels' parameters: r (P, T, 3) the residuals in DN, J (P, T, 3, K) the
-    Jacobian, weight (P, T, 3) the robust loss's weights at the fitted observations, per_channel (3, T, K, K)
-    channel_information, mask (P, T) the fitted observations."""
+    """What a fit's observations say of its texels' parameters: r (P, T, 3) the residuals in DN, J the Jacobian
+    (torchrefl.fit.texel_jacobian), weight (P, T, 3) the robust loss's weights at the fitted observations,
+    per_channel J.information(weight), mask (P, T) the fitted observations."""
 
     r: torch.Tensor
-    J: torch.Tensor
+    J: Jacobian
     weight: torch.Tensor
-    per_channel: torch.Tensor
+    per_channel: ChannelInformation
     mask: torch.Tensor
 
 
@@ -219,7 +182,7 @@ def texel_evidence(model: Callable, pd, ps, sigma, intensity, fit_mask, loss: st
     J = jacobian(model, pd, ps, sigma)
     mask = fit_mask.to(pd.device)
     weight = irls_weight(r, loss, loss_scale_8bit) * mask[..., None].to(r.dtype)
-    return Evidence(r, J, weight, channel_information(J, weight), mask)
+    return Evidence(r, J, weight, J.information(weight), mask)
 
 
 def noise_stride(texels: int) -> int:
@@ -255,7 +218,7 @@ def texel_uncertainty(
 
 
 def uncertainty_of(
-    per_channel: torch.Tensor,
+    per_channel: ChannelInformation,
     noise_evidence: Evidence,
     lobe_measured: torch.Tensor,
     ranges: ParameterRanges,
@@ -263,17 +226,17 @@ def uncertainty_of(
     noise_dn: float | None = None,
     shared_lobe: torch.Tensor | None = None,
 ) -> Uncertainty:
-    """texel_uncertainty's result from every texel's per_channel (3, T, K, K) information and the Evidence of the
+    """texel_uncertainty's result from every texel's per_channel information and the Evidence of the
     texels the noise is estimated on (all texels, or every noise_stride-th: residual_noise; lobe_measured (T,) of
     all texels)."""
     prior_var = ranges.prior_var(C)
     if noise_dn is None:
-        ev, step = noise_evidence, noise_stride(per_channel.shape[1])
-        measured = lobe_measured if ev.r.shape[1] == per_channel.shape[1] else lobe_measured[::step]
+        ev, step = noise_evidence, noise_stride(per_channel.values.shape[1])
+        measured = lobe_measured if ev.r.shape[1] == per_channel.values.shape[1] else lobe_measured[::step]
         s, source = residual_noise(ev.r, ev.J, ev.weight, ev.per_channel, ev.mask, prior_var, measured), "residuals"
     else:
         s, source = torch.full((3,), float(noise_dn), dtype=torch.float64), "capture.noise_dn"
-    info = scaled(per_channel, s)
+    info = per_channel.scaled(s)
     if shared_lobe is not None:
         cov = shared_lobe_covariance(info, prior_var.to(info.device), shared_lobe.to(info.device))
     else:

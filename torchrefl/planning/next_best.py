@@ -50,7 +50,8 @@ import torch
 from torchrefl.core.observation_classes import T_SPEC, classify
 from torchrefl.core.observations import Observations
 from torchrefl.errors import ConfigError
-from torchrefl.fit.uncertainty import covariance, information, jacobian, texel_covariance
+from torchrefl.fit.texel_jacobian import jacobian
+from torchrefl.fit.uncertainty import covariance, information, texel_covariance
 from torchrefl.planning.run_scene import RunScene
 from torchrefl.planning.scenes import load_planning_scene
 from torchrefl.report.uncertainty import RELATIVE_PRECISION
@@ -151,7 +152,7 @@ def observation_information(
     fit = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light) & ~saturated
     fit &= scene.estimated[None]
     spec = classify(terms.theta_h, fit, rc.theta_diffuse_deg, rc.theta_specular_deg) == T_SPEC
-    J = jacobian(model, scene.pd, scene.ps, scene.sigma).double()
+    J = jacobian(model, scene.pd, scene.ps, scene.sigma).dense().double()
     texels, infos, specular = [], [], []
     for start in range(0, len(fit), V):
         rows = slice(start, start + V)
