@@ -166,10 +166,6 @@ def refit(
         level.inputs.log(f"resume: {level.name} refinement after outer iteration {done} of {level.refits}")
     memory = saved_memory(saved)  # the indirect terms the last re-estimation saw
     for k in range(done, level.refits):
-        stop = level.converged(params) if k > 0 else None
-        if stop:
-            level.inputs.log(f"{level.name}: {stop}; {k} of {level.refits} outer iterations run")
-            break
         before = [v.detach().clone() for v in params.values()]
         again = reestimate(level, params, cfg, memory)
         if memory is not None and again.memory is not None:
@@ -211,6 +207,10 @@ def refit(
                     history += refine(
                         params, objective, optimizer, step.iterations, fc.learning_rate, progress=pb, train=train
                     )
+        stop = level.converged(params)
+        if stop:  # the refresh would only score parameters that moved less than they are known
+            level.inputs.log(f"{level.name}: {stop}; {k + 1} of {level.refits} outer iterations run")
+            break
         level.refresh(params, k + 1)
         checkpoints.save(OUTER, outer_state(k + 1, level, params, make_objective, history, memory))
     level.finish(params)

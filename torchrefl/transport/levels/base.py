@@ -7,10 +7,10 @@ The fit (torchrefl.fit.pipeline) drives every level through the same loop:
     init = level.start(init)              correct the closed-form start (Method II's passes)
     level.refresh(params, 0)              outer-iteration state (the photon cache)
     for k in range(level.refits):
-        stop if k > 0 and level.converged(params)
         re-estimate with level.indirect_terms  texels with specular evidence: the sigma search on direct + indirect
         for step in level.steps(k):       which parameters are refit on which observations
             refine(params, objective(level.predict, step.mask), ...)
+        stop if level.converged(params)   (before the refresh: no trace for parameters that did not move)
         level.refresh(params, k + 1)
     level.finish(params)                  keep the best refresh (photon)
 
@@ -178,8 +178,8 @@ class TransportLevel(ABC):
         """Update the level's state for the parameters after k refits (default: nothing to refresh)."""
 
     def converged(self, params) -> Optional[str]:
-        """Before each outer iteration after the first: why the outer loop may stop here (None: go on; the
-        default: run all `refits`)."""
+        """After each refit, before its refresh: why the outer loop may stop here (None: go on; the default: run
+        all `refits`)."""
         return None
 
     def finish(self, params) -> None:

@@ -315,22 +315,26 @@ class PhotonLevel(TransportLevel):
             self._best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, self.cache)
 
     def converged(self, params) -> str | None:
-        """After the refit of the first averaged cache: done when the last refit moved Pd (RMS) by less than the
-        median std the observations give it (transport.pd_precision)."""
-        k = len(self.scores) - 1
-        if k <= AVERAGE_FROM or not self.pd_change:
+        """After a refit of an averaged cache, before its refresh: done when the refit moved Pd (RMS, as the refresh
+        would damp it) by less than the median std the observations give it (transport.pd_precision)."""
+        k = len(self.scores)  # the refit just run follows refresh k - 1
+        if k <= AVERAGE_FROM:
             return None
         inp = self.inputs
         pd, ps, sigma = params.values()
+        with torch.no_grad():
+            moved = (pd - self._traced_pd).double().square().mean().sqrt()
+            change = float((1.0 - inp.cfg.photon.damping) * moved)
         std = median_pd_std(
             self.texel_model(pd), pd, ps, sigma, inp.obs.intensity.to(inp.device), inp.fit_mask.to(inp.device)
         )
         self.pd_std.append(std)
-        if self.pd_change[-1] >= std:
+        if change >= std:
             return None
+        self.pd_change.append(change)  # the refit's change is reported although no refresh follows
         return (
-            f"refit {k} moved Pd by {self.pd_change[-1]:.2g} (RMS), less than its median std {std:.2g}: "
-            "the outer loop has converged"
+            f"refit {k} moved Pd by {change:.2g} (RMS), less than its median std {std:.2g}: the outer loop has "
+            "converged"
         )
 
     def state(self) -> dict:
