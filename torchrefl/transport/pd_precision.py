@@ -20,8 +20,10 @@ def median_pd_std(model: Callable, pd, ps, sigma, intensity: torch.Tensor, mask:
     """The median over the texels with a fitted observation (mask (P, T)) and channels of Pd's std: model (pd (T, 3),
     ps, sigma) -> (P, T, 3) linear in pd; intensity (P, T, 3). inf where no texel has one."""
     with torch.no_grad():
-        slope = (model(torch.ones_like(pd), ps, sigma) - model(torch.zeros_like(pd), ps, sigma)) * 255.0
-        r = ((model(pd, ps, sigma) - intensity) * 255.0)[mask]  # (N, 3)
+        without = model(torch.zeros_like(pd), ps, sigma)
+        slope = model(torch.ones_like(pd), ps, sigma) - without
+        r = ((without + pd[None] * slope - intensity) * 255.0)[mask]  # (N, 3): linear in pd, no third evaluation
+        slope = slope * 255.0
         if not len(r):
             return float("inf")
         noise = robust_std(r, 0).clamp_min(1e-3)  # (3,)
