@@ -136,7 +136,7 @@ def texel_covariance(info: torch.Tensor, prior_var: torch.Tensor, lobe_measured:
     alone (the lobe held at its value) and the lobe at the broad prior's variance, uncorrelated."""
     prior_var = prior_var.to(info)
     measured, held = lobe_measured.nonzero()[:, 0], (~lobe_measured).nonzero()[:, 0]
-    cov = torch.zeros_like(info)
+    cov = torch.empty_like(info)  # every texel is measured or held: both index_copy_ calls fill it
     cov.index_copy_(0, measured, covariance(info.index_select(0, measured), prior_var))
     block = torch.zeros(len(held), *info.shape[1:], dtype=info.dtype, device=info.device)
     block[:, :3, :3] = covariance(info.index_select(0, held)[:, :3, :3], prior_var[:3])
