@@ -14,8 +14,9 @@ the fitted parameters, on the capture's own texel Surface:
   (RadiosityLevel.indirect; its form factors, traced once per run, are the surface's and serve every light); photon,
   a PhotonLevel on the same observations (its radiosity part for the all-diffuse paths, photons traced from the new
   light for the paths with a specular scattering, the specular gather), whose images average
-  photon.FINAL_TRACES independent traces as the fit's final images do. The specular part is reduced toward each
-  texel's view direction, so the glossy interreflection is seen from the new camera;
+  transport.final_traces.FINAL_TRACES independent traces (no photon noise is measured for a new light). The
+  specular part is reduced toward each texel's view direction, so the glossy interreflection is seen from the new
+  camera;
 - texels without an estimate reflect with the nearest estimated texel's parameters (fit.emitter_fill, as in the
   fit).
 

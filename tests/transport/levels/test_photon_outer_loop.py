@@ -267,3 +267,17 @@ def test_the_outer_loop_stops_once_pd_moves_less_than_its_std(scene):
         if stops:
             assert AVERAGE_FROM < refits and changes[-1] < stds[-1]
             assert pd_error(params.pd().detach(), away_from_fold(s)) < 0.05
+
+
+def test_final_images_need_no_fresh_trace_when_the_photon_noise_is_small(scene):
+    """finish() measured one trace's photon noise far below the images' noise: render() predicts with the kept cache
+    alone (no trace; the kept cache's own photons)."""
+    s, obs, _ = scene
+    level = photon_level(s, obs, outer=0)
+    T = s.num_texels
+    pd = torch.full((T, 3), PD, dtype=obs.intensity.dtype)
+    ps, sigma = torch.zeros_like(pd), torch.full((T,), 0.1, dtype=pd.dtype)
+    level.cache = level.refresher.cache(pd, ps, sigma, refresh=0)
+    level._photon_noise = (torch.full((3,), 1e-6, dtype=torch.float64), torch.full((3,), 0.2, dtype=torch.float64))
+    level.refresher = None  # a trace would fail
+    torch.testing.assert_close(level.render(pd, ps, sigma), level.predict(pd, ps, sigma))

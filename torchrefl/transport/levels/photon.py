@@ -25,6 +25,7 @@ from torchrefl.core.observation_classes import T_DIFF, T_NONE, T_SPEC
 from torchrefl.core.params import inverse_softplus_b
 from torchrefl.core.rays import RayTracer
 from torchrefl.transport.cache_average import average_caches
+from torchrefl.transport.final_traces import fresh_traces, image_variance, trace_variance
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, RefitStep, TransportLevel
 from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
 from torchrefl.transport.pd_precision import median_pd_std
@@ -49,8 +50,6 @@ from torchrefl.transport.specular_gather import SpecularGather
 
 #: share of photon rays ending on the back of the scanned surface that draws a warning
 BACK_HIT_WARNING = 0.03
-#: independent photon traces whose predictions the final images average (the kept cache and fresh ones)
-FINAL_TRACES = 4
 #: from this refresh on the cache averages the new trace with the previous one (the first refits move the
 #: parameters far, so refresh 1's trace would mix in the start's light)
 AVERAGE_FROM = 2
@@ -355,7 +354,9 @@ class PhotonLevel(TransportLevel):
         self._traced_pd, self._best = state["traced_pd"], state["best"]
 
     def finish(self, params) -> None:
-        """Keep the parameters (and the cache) of the best-scored refresh."""
+        """Keep the parameters (and the cache) of the best-scored refresh; measure one trace's photon noise from the
+        last averaged refresh (transport.final_traces), which decides how many traces the final images average."""
+        self._photon_noise = self._trace_noise(params)
         score, k_best, state, cache = self._best
         with torch.no_grad():
             for n, p in params.named_parameters():
@@ -363,19 +364,47 @@ class PhotonLevel(TransportLevel):
         self.cache = cache
         self.inputs.log(f"photon level: kept the parameters of refresh {k_best} (image difference {score:.4f} DN)")
 
+    def _trace_noise(self, params):
+        """(one trace's photon variance, the images' noise variance), each (3,) in DN^2, at params, from the last
+        refresh's averaged cache and its newer trace; (None, None) where the last refresh did not average."""
+        if self.cache is None or self.cache.stats.get("averaged_traces", 1) != 2 or self._last_trace is None:
+            return None, None
+        inp = self.inputs
+        mask, intensity = inp.fit_mask.to(inp.device), inp.obs.intensity.to(inp.device)
+        with torch.no_grad():
+            values = params.values()
+            averaged = self.predict(*values)
+            kept, self.cache = self.cache, self._last_trace
+            newer = self.predict(*values)
+            self.cache = kept
+        return trace_variance(averaged, newer, mask), image_variance(averaged, intensity, mask)
+
     def render(self, pd, ps, sigma) -> torch.Tensor:
-        """The kept cache's prediction averaged with FINAL_TRACES - 1 caches traced anew at the fitted parameters:
-        independent photons halve the photon noise of the final images without widening the density kernels."""
-        self.inputs.log(f"photon level: the final images average {FINAL_TRACES} independent photon traces")
-        images = self.predict(pd, ps, sigma)
+        """The kept cache's prediction averaged, trace for trace, with caches traced anew at the fitted parameters,
+        as many as keep the photon noise small beside the images' own (transport.final_traces): independent
+        photons lower the final images' photon noise without widening the density kernels."""
+        single, noise = getattr(self, "_photon_noise", (None, None))
+        kept_traces = self.cache.stats.get("averaged_traces", 1)
+        fresh = fresh_traces(single, noise, kept_traces)
+        measured = (
+            ""
+            if single is None
+            else f" (one trace's photon noise {float(single.max()) ** 0.5:.3f} DN against the images' "
+            f"{float(noise.min()) ** 0.5:.3f} DN)"
+        )
+        self.inputs.log(
+            f"photon level: the final images average the kept cache ({kept_traces} trace(s)) and {fresh} fresh "
+            f"trace(s){measured}"
+        )
+        images = self.predict(pd, ps, sigma) * kept_traces
         kept = self.cache
-        for i in range(1, FINAL_TRACES):
+        for i in range(1, fresh + 1):
             self.cache = self.refresher.cache(
                 pd, ps, sigma, refresh=self.refits + i, progress=self.inputs.cfg.output.progress
             )
             images = images + self.predict(pd, ps, sigma)
         self.cache = kept
-        return images / FINAL_TRACES
+        return images / (kept_traces + fresh)
 
     def report(self) -> dict:
         return {
