@@ -40,7 +40,7 @@ def test_fresh_traces_follow_the_photon_noise():
     assert fresh_traces(torch.full((3,), 0.5 * share), noise, 2) == 0  # the kept average is enough
     assert fresh_traces(torch.full((3,), 2.9 * share), noise, 2) == 1  # 2.9 / 3 traces <= the share
     assert fresh_traces(torch.tensor([0.1 * share, 3.5 * share, 0.0]), noise, 2) == 2  # the worst channel decides
-    assert fresh_traces(torch.full((3,), 100 * share), noise, 2) == FINAL_TRACES - 2  # at most FINAL_TRACES in all
+    assert fresh_traces(torch.full((3,), 100 * share), noise, 2) == FINAL_TRACES - 1  # at most FINAL_TRACES caches
     assert fresh_traces(torch.full((3,), 0.5 * share), noise, 1) == 0
     assert fresh_traces(None, None, 1) == FINAL_TRACES - 1  # not measured: all of them
-    assert fresh_traces(torch.full((3,), float("inf")), noise, 2) == FINAL_TRACES - 2
+    assert fresh_traces(torch.full((3,), float("inf")), noise, 2) == FINAL_TRACES - 1

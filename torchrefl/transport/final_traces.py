@@ -5,7 +5,7 @@ independent traces divides its variance by n. One trace's variance per observati
 averaged refresh: its cache is the mean of two independent traces a and b, so cache - b = (a - b) / 2 has half a
 trace's variance. The images need photon noise small beside their own noise (the residuals' robust spread): the
 final images average the fewest fresh traces that keep the photon variance at most PHOTON_NOISE_SHARE of it (so it
-adds at most about 5 % to the noise's std), and at most FINAL_TRACES traces in all.
+adds at most about 5 % to the noise's std), at most FINAL_TRACES - 1 of them, each weighted by its traces.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import torch
 
 from torchrefl.core.robust import robust_std
 
-#: independent photon traces the final images average at most (the kept cache's and fresh ones)
+#: caches the final images average at most: the kept one and fresh traces
 FINAL_TRACES = 4
 #: the final images' photon variance may be at most this share of their noise variance
 PHOTON_NOISE_SHARE = 0.1
@@ -39,8 +39,8 @@ def image_variance(images: torch.Tensor, intensity: torch.Tensor, mask: torch.Te
 def fresh_traces(single: Optional[torch.Tensor], noise: Optional[torch.Tensor], kept_traces: int) -> int:
     """The fresh traces to average with a kept cache of kept_traces traces: the fewest m with single / (kept + m) at
     most PHOTON_NOISE_SHARE x noise in every channel (single, noise (3,) DN^2: trace_variance, image_variance), at
-    most FINAL_TRACES - kept_traces; that many where either is unknown (None)."""
-    most = max(FINAL_TRACES - kept_traces, 0)
+    most FINAL_TRACES - 1; that many where either is unknown (None)."""
+    most = FINAL_TRACES - 1
     if single is None or noise is None:
         return most
     ratio = float((single / (PHOTON_NOISE_SHARE * noise.clamp_min(1e-12))).max())
