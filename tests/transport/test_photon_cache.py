@@ -247,7 +247,7 @@ def test_extremes_are_finite(traced, pd_v, ps_v, sigma_v):
 def test_texels_no_photon_reaches_get_no_indirect_light_and_finite_gradients(traced):
     s, obs, pt, src, *_ = traced
     T = s.num_texels
-    from torchrefl.transport.photon_trace import PhotonHits
+    from torchrefl.transport.photon_hits import PhotonHits
 
     empty = PhotonHits(
         np.zeros(0, np.int64),

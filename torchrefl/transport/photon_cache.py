@@ -64,7 +64,7 @@ from torchrefl.core.lobe_sampling import column_dot
 from torchrefl.core.threads import thread_map
 from torchrefl.errors import ConfigError
 from torchrefl.transport.photon_density import SpreadKernel, apply_on_grid, smoothing_matrix
-from torchrefl.transport.photon_trace import PhotonHits
+from torchrefl.transport.photon_hits import PhotonHits
 from torchrefl.transport.specular_bins import BIN_PER_SIGMA, THETA_BIN, light_slices, spread_and_merge
 from torchrefl.transport.texel_model import SpecularEntries
 

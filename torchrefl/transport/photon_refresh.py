@@ -21,8 +21,9 @@ from torchrefl.core.memory import release_free_memory
 from torchrefl.core.progress import bar
 from torchrefl.transport.photon_cache import LightSources, PhotonCache, build_cache
 from torchrefl.transport.photon_density import SpreadKernel, smoothing_matrix
+from torchrefl.transport.photon_hits import PhotonHits
 from torchrefl.transport.photon_material import TexelMaterial
-from torchrefl.transport.photon_trace import PhotonHits, PhotonTracer
+from torchrefl.transport.photon_trace import PhotonTracer
 from torchrefl.transport.specular_gather import SpecularGather
 
 
