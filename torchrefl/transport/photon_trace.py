@@ -27,7 +27,7 @@ photon (the unscanned side is not modelled).
 
 Deterministic in `seed`: random numbers are keyed by (seed, refresh, source, chunk), never by thread.
 The paths are traced in float32 (positions, directions, flux), as Embree intersects them; the cache
-reductions (torchrefl.transport.photon_cache) sum in float64.
+reductions (torchrefl.transport.cache_build) sum in float64.
 """
 
 from __future__ import annotations
