@@ -28,7 +28,7 @@ def test_an_average_of_two_traces_predicts_the_mean_of_their_predictions(photon_
     assert both.stats["averaged_traces"] == 2
     assert both.stats["averaged_entries"] == both.entry_obs.numel() < a.entry_obs.numel() + b.entry_obs.numel()
     g = torch.Generator().manual_seed(3)
-    pd2 = 0.1 + 0.8 * torch.rand(pd.shape, generator=g, dtype=torch.float64)  # away from the photon_traced Pd
+    pd2 = 0.1 + 0.8 * torch.rand(pd.shape, generator=g, dtype=torch.float64)  # away from the traced Pd
     zero = torch.zeros_like(ps)
     diffuse = lambda c: indirect_radiance(c, obs.kappa, pd2, zero, sigma)
     torch.testing.assert_close(diffuse(both), 0.5 * (diffuse(a) + diffuse(b)), rtol=1e-9, atol=1e-12)

@@ -8,16 +8,14 @@ import pytest
 import torch
 from conftest import CACHE_CAMERA as CAMERA
 from conftest import CACHE_LIGHTS as LIGHTS
-from conftest import fold_surface, photon_cache_of, point_light_observations
+from conftest import build_photon_cache, fold_surface, photon_cache_of, photon_tracer, point_light_observations
 
-from torchrefl.core.rays import RayTracer
 from torchrefl.errors import ConfigError
 from torchrefl.transport import cache_build
 from torchrefl.transport.cache_build import build_cache
 from torchrefl.transport.light_maps import light_sources
 from torchrefl.transport.photon_cache import indirect_radiance, indirect_radiance_reference
 from torchrefl.transport.photon_material import TexelMaterial
-from torchrefl.transport.photon_trace import PhotonTracer
 
 
 def test_the_linear_cache_is_exact_at_the_traced_pd(photon_traced):
@@ -61,14 +59,7 @@ def test_the_linear_cache_follows_the_emitters_pd():
     s = fold_surface(16, 32)
     T = s.num_texels
     obs = point_light_observations(s.normals, s.positions, LIGHTS[:1], CAMERA, intensity=1e4)
-    pt = PhotonTracer(
-        RayTracer(s.mesh_vertices, s.mesh_faces),
-        s.texel_index.numpy(),
-        s.positions.numpy(),
-        s.normals.numpy(),
-        "lambertian",
-        offset=1e-3,
-    )
+    pt = photon_tracer(s, "lambertian")
     src = light_sources(s, obs, 1)
 
     def cache(pd_value, linear, seed):
@@ -104,43 +95,14 @@ def test_the_linear_cache_follows_the_emitters_pd():
 
 
 def test_normal_aware_smoothing_needs_the_normals(photon_traced):
-    s, obs, pt, src, hits, pd, ps, sigma = photon_traced
-    keep = torch.ones(obs.valid.shape, dtype=torch.bool)
+    s = photon_traced[0]
     with pytest.raises(ConfigError, match="smoothing_normal"):
-        build_cache(
-            hits,
-            src,
-            pt.areas,
-            s.normals,
-            obs.view_dir,
-            keep,
-            "torrance_sparrow",
-            np.full(s.num_texels, 1.0),
-            10.0,
-            0.02,
-            smoothing=1.0,
-            grid=(s.neighbours,),
-            smoothing_normal=0.1,
-        )
+        build_photon_cache(photon_traced, smoothing=1.0, grid=(s.neighbours,), smoothing_normal=0.1)
 
 
 def test_specular_spreading_needs_the_grid(photon_traced):
-    s, obs, pt, src, hits, pd, ps, sigma = photon_traced
-    keep = torch.ones(obs.valid.shape, dtype=torch.bool)
     with pytest.raises(ConfigError, match="specular_smoothing"):
-        build_cache(
-            hits,
-            src,
-            pt.areas,
-            s.normals,
-            obs.view_dir,
-            keep,
-            "torrance_sparrow",
-            np.full(s.num_texels, 1.0),
-            10.0,
-            0.02,
-            specular_smoothing=1.0,
-        )
+        build_photon_cache(photon_traced, specular_smoothing=1.0)
 
 
 def test_leaving_out_the_all_diffuse_paths_keeps_exactly_the_flagged_photons(photon_traced):
@@ -149,35 +111,9 @@ def test_leaving_out_the_all_diffuse_paths_keeps_exactly_the_flagged_photons(pho
     s, obs, pt, src, hits, pd, ps, sigma = photon_traced
     flagged = hits.specular_path
     assert 0 < flagged.sum() < hits.count
-    keep = torch.ones(obs.valid.shape, dtype=torch.bool)
-    build = lambda h, **kw: build_cache(
-        h,
-        src,
-        pt.areas,
-        s.normals,
-        obs.view_dir,
-        keep,
-        "torrance_sparrow",
-        np.full(s.num_texels, 1.0),
-        10.0,
-        0.02,
-        theta_bin=1e-12,
-        bin_per_sigma=0.0,
-        **kw,
-    )
+    build = lambda h, **kw: build_photon_cache(photon_traced, h, theta_bin=1e-12, bin_per_sigma=0.0, **kw)
     left_out = build(hits, diffuse_paths=False)
-    sub = lambda a: a[flagged]
-    only_flagged = dataclasses.replace(
-        hits,
-        source=sub(hits.source),
-        texel=sub(hits.texel),
-        direction=sub(hits.direction),
-        power=sub(hits.power),
-        emitter=sub(hits.emitter),
-        diffuse_per_pd=sub(hits.diffuse_per_pd),
-        specular_path=sub(flagged),
-        density_weight=sub(hits.density_weight),
-    )
+    only_flagged = hits.take(np.flatnonzero(flagged))
     zero = torch.zeros_like(pd)
     ref = indirect_radiance_reference(
         only_flagged,
@@ -196,7 +132,7 @@ def test_leaving_out_the_all_diffuse_paths_keeps_exactly_the_flagged_photons(pho
     full = build(hits)
     torch.testing.assert_close(left_out.entry_weight, full.entry_weight)
     assert float(left_out.irradiance.sum()) < float(full.irradiance.sum())
-    # linear emitters: the Pd-linear part is restricted the same way, exact at the photon_traced Pd
+    # linear emitters: the Pd-linear part is restricted the same way, exact at the traced Pd
     lin = build(hits, diffuse_paths=False, emitter_pd=pd.numpy())
     torch.testing.assert_close(lin.irradiance_at(pd), left_out.irradiance, rtol=1e-9, atol=1e-12)
     with pytest.raises(ValueError, match="specular_path"):
