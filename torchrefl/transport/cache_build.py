@@ -23,6 +23,9 @@ only the photons whose path had a specular scattering).
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+from typing import NamedTuple
+
 import numpy as np
 import torch
 
@@ -37,6 +40,35 @@ from torchrefl.transport.photon_hits import PhotonHits
 from torchrefl.transport.specular_bins import BIN_PER_SIGMA, THETA_BIN, light_slices, spread_and_merge
 
 LOBE_CUTOFF = 1e-7
+
+
+class _Receivers(NamedTuple):
+    """build_cache's description of the receiving texels and observations (its docstring)."""
+
+    areas: object
+    normals: object
+    view_dirs: object
+    keep: object
+    brdf: str
+    sigma: object
+    sigma_max: float
+    min_cos_light: float
+
+
+@dataclass(frozen=True)
+class _Options:
+    """build_cache's options that each light's reduction takes as they are (its docstring)."""
+
+    theta_bin: float
+    bin_per_sigma: float
+    threads: int
+    smoother: torch.Tensor | None
+    grid: tuple | None
+    smoothing_normal: float
+    specular_smoothing: float
+    diffuse_paths: bool
+    specular_paths_only: bool
+    spreader: SpreadKernel | None
 
 
 def _grid_parts(grid: tuple) -> tuple:
@@ -93,65 +125,22 @@ def build_cache(
     only its own observations and its own specular entries, in the same order), so the reduction's temporaries
     are one light's.
     """
-    if emitter_pd is None and _several_lights(hits, sources):
-        return _build_by_light(
-            hits,
-            sources,
-            (areas, normals, view_dirs, keep, brdf, sigma, sigma_max, min_cos_light),
-            dict(
-                theta_bin=theta_bin,
-                bin_per_sigma=bin_per_sigma,
-                threads=threads,
-                smoother=smoother,
-                grid=grid,
-                smoothing_normal=smoothing_normal,
-                specular_smoothing=specular_smoothing,
-                diffuse_paths=diffuse_paths,
-                specular_paths_only=specular_paths_only,
-                spreader=spreader,
-            ),
-            dtype,
-            smoothing,
-        )
-    P, K = sources.positions.shape[:2]
-    T = int(areas.shape[0])
-    scale, flux, obs_idx = _photon_flux(hits, sources, areas, T)
-    H, in_H = _photon_irradiance(hits, flux, obs_idx, P * T, diffuse_paths, specular_paths_only)
-    linear = None
-    if emitter_pd is not None and hits.emitter is not None and hits.count:
-        linear = _linear_in_pd(H, hits, scale, in_H, obs_idx, emitter_pd, P, T, dtype)
-    stats = {"stored_hits": hits.count, "rays": hits.rays, "back_side_hits": int(hits.back_hits)}
-    stats.update(photons_emitted=int(hits.emitted.sum()), maps_per_light=K)
-    empty = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=dtype), torch.zeros(0, 3, dtype=dtype))
-    sel = _lobe_hits(hits, keep, obs_idx, brdf != "lambertian", specular_paths_only)
-    if sel.size:
-        e_obs, theta_h, weight = _SpecularEntries(
-            hits, obs_idx, normals, view_dirs, brdf, sigma, sigma_max, min_cos_light, threads
-        ).select(sel, flux)
-        if specular_smoothing > 0 and grid is None:
-            raise ConfigError("photon.specular_smoothing > 0 needs the texel neighbours (grid = (neighbours,))")
-        spread = None
-        if specular_smoothing > 0:
-            if spreader is None:
-                nbrs, gnormals = _grid_parts(grid)
-                spreader = SpreadKernel(nbrs, specular_smoothing, gnormals, smoothing_normal)
-            spread = lambda obs: spreader(obs, T)  # noqa: E731
-        if e_obs.size:
-            merged, count = spread_and_merge(e_obs, theta_h, weight, spread, sigma, T, theta_bin, bin_per_sigma)
-            empty = (torch.from_numpy(merged[0]), *(torch.from_numpy(x).to(dtype) for x in merged[1:]))
-            stats["specular_photons"] = count
-    stats["specular_entries"] = int(empty[0].numel())
-    irradiance = torch.from_numpy(H.reshape(P, T, 3))
-    if smoothing > 0:
-        irradiance, smoother = _smooth_irradiance(irradiance, grid, smoother, smoothing, smoothing_normal)
-    if linear is not None:
-        stats["linear_entries"] = int(linear._nnz())
-    # the smoother serves the part linear in Pd only (irradiance_at): a cache without one does not keep it (a copy
-    # per cache in the cache's dtype, PhotonCache.to, 0.4 GB on the fold)
-    keep_smoother = smoothing > 0 and linear is not None
-    return PhotonCache(
-        brdf, irradiance.to(dtype), *empty, stats=stats, linear=linear, smoother=smoother if keep_smoother else None
+    receivers = _Receivers(areas, normals, view_dirs, keep, brdf, sigma, sigma_max, min_cos_light)
+    options = _Options(
+        theta_bin=theta_bin,
+        bin_per_sigma=bin_per_sigma,
+        threads=threads,
+        smoother=smoother,
+        grid=grid,
+        smoothing_normal=smoothing_normal,
+        specular_smoothing=specular_smoothing,
+        diffuse_paths=diffuse_paths,
+        specular_paths_only=specular_paths_only,
+        spreader=spreader,
     )
+    if emitter_pd is None and _several_lights(hits, sources):
+        return _build_by_light(hits, sources, receivers, options, dtype, smoothing)
+    return _build_at_once(hits, sources, receivers, options, dtype, smoothing, emitter_pd)
 
 
 def _several_lights(hits: PhotonHits, sources: LightSources) -> bool:
@@ -162,31 +151,117 @@ def _several_lights(hits: PhotonHits, sources: LightSources) -> bool:
     return int(light.min()) != int(light.max())
 
 
-def _build_by_light(hits: PhotonHits, sources: LightSources, args: tuple, kwargs: dict, dtype, smoothing: float):
+def _build_at_once(
+    hits: PhotonHits,
+    sources: LightSources,
+    receivers: _Receivers,
+    options: _Options,
+    dtype,
+    smoothing: float,
+    emitter_pd,
+) -> PhotonCache:
+    """build_cache of all the hits in one reduction (emitter_pd: with it the part linear in Pd)."""
+    P, K = sources.positions.shape[:2]
+    T = int(receivers.areas.shape[0])
+    scale, flux, obs_idx = _photon_flux(hits, sources, receivers.areas, T)
+    H, in_H = _photon_irradiance(hits, flux, obs_idx, P * T, options.diffuse_paths, options.specular_paths_only)
+    linear = None
+    if emitter_pd is not None and hits.emitter is not None and hits.count:
+        linear = _linear_in_pd(H, hits, scale, in_H, obs_idx, emitter_pd, P, T, dtype)
+    stats = _hit_stats(hits, K)
+    entries, spread_photons = _cache_entries(hits, flux, obs_idx, receivers, options, T, dtype)
+    if spread_photons is not None:
+        stats["specular_photons"] = spread_photons
+    stats["specular_entries"] = int(entries[0].numel())
+    irradiance = torch.from_numpy(H.reshape(P, T, 3))
+    smoother = options.smoother
+    if smoothing > 0:
+        irradiance, smoother = _smooth_irradiance(
+            irradiance, options.grid, smoother, smoothing, options.smoothing_normal
+        )
+    if linear is not None:
+        stats["linear_entries"] = int(linear._nnz())
+    # the smoother serves the part linear in Pd only (irradiance_at): a cache without one does not keep it (a copy
+    # per cache in the cache's dtype, PhotonCache.to, 0.4 GB on the fold)
+    keep_smoother = smoothing > 0 and linear is not None
+    return PhotonCache(
+        receivers.brdf,
+        irradiance.to(dtype),
+        *entries,
+        stats=stats,
+        linear=linear,
+        smoother=smoother if keep_smoother else None,
+    )
+
+
+def _hit_stats(hits: PhotonHits, K: int) -> dict:
+    """The cache's counts of its trace: hits stored, rays traced, back-side hits, photons emitted, maps per light."""
+    stats = {"stored_hits": hits.count, "rays": hits.rays, "back_side_hits": int(hits.back_hits)}
+    stats.update(photons_emitted=int(hits.emitted.sum()), maps_per_light=K)
+    return stats
+
+
+def _cache_entries(hits: PhotonHits, flux, obs_idx, receivers: _Receivers, options: _Options, T: int, dtype):
+    """(the cache's specular entries (obs (E,), theta_h (E,), weight (E, 3)): the hits' lobe entries merged in theta_h
+    bins and, with options.specular_smoothing, spread over surface neighbours; the number of photons spread_and_merge
+    counted, or None where no hit got an entry)."""
+    _, normals, view_dirs, keep, brdf, sigma, sigma_max, min_cos_light = receivers
+    empty = (torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=dtype), torch.zeros(0, 3, dtype=dtype))
+    sel = _lobe_hits(hits, keep, obs_idx, brdf != "lambertian", options.specular_paths_only)
+    if not sel.size:
+        return empty, None
+    e_obs, theta_h, weight = _SpecularEntries(
+        hits, obs_idx, normals, view_dirs, brdf, sigma, sigma_max, min_cos_light, options.threads
+    ).select(sel, flux)
+    spread = _entry_spread(options, T)
+    if not e_obs.size:
+        return empty, None
+    merged, count = spread_and_merge(e_obs, theta_h, weight, spread, sigma, T, options.theta_bin, options.bin_per_sigma)
+    return (torch.from_numpy(merged[0]), *(torch.from_numpy(x).to(dtype) for x in merged[1:])), count
+
+
+def _entry_spread(options: _Options, T: int):
+    """spread_and_merge's spread of the specular entries over their surface neighbours (options.specular_smoothing,
+    with options.spreader or one built here), or None without specular smoothing."""
+    if options.specular_smoothing > 0 and options.grid is None:
+        raise ConfigError("photon.specular_smoothing > 0 needs the texel neighbours (grid = (neighbours,))")
+    if not options.specular_smoothing > 0:
+        return None
+    spreader = _spread_kernel(options) if options.spreader is None else options.spreader
+    return lambda obs: spreader(obs, T)
+
+
+def _spread_kernel(options: _Options) -> SpreadKernel:
+    """The SpreadKernel of options.specular_smoothing over options.grid's neighbours (and normals)."""
+    nbrs, gnormals = _grid_parts(options.grid)
+    return SpreadKernel(nbrs, options.specular_smoothing, gnormals, options.smoothing_normal)
+
+
+def _build_by_light(
+    hits: PhotonHits, sources: LightSources, receivers: _Receivers, options: _Options, dtype, smoothing: float
+) -> PhotonCache:
     """build_cache one light at a time (no part linear in Pd): each light's hits reduced alone in float64 and
     unsmoothed, their irradiance summed (each light's rows hold its own hits' sums, the others' rows 0) and
-    smoothed once, their specular entries concatenated in light order (spread_and_merge's order). args, kwargs:
-    build_cache's other arguments."""
+    smoothed once, their specular entries concatenated in light order (spread_and_merge's order)."""
     P, K = sources.positions.shape[:2]
-    grid = kwargs["grid"]
-    if kwargs["specular_smoothing"] > 0 and kwargs["spreader"] is None and grid is not None:
-        nbrs, gnormals = _grid_parts(grid)  # built once for all the lights
-        kwargs["spreader"] = SpreadKernel(nbrs, kwargs["specular_smoothing"], gnormals, kwargs["smoothing_normal"])
+    if options.specular_smoothing > 0 and options.spreader is None and options.grid is not None:
+        options = replace(options, spreader=_spread_kernel(options))  # built once for all the lights
     irradiance, entries, spread, brdf = None, [], [], None
     for idx in light_slices(hits.source, K, P):
         if not idx.size:
             continue
-        part = build_cache(hits.take(idx), sources, *args, dtype=torch.float64, smoothing=0.0, **kwargs)
+        part = _build_at_once(hits.take(idx), sources, receivers, options, torch.float64, 0.0, None)
         irradiance = part.irradiance if irradiance is None else irradiance.add_(part.irradiance)
         entries.append((part.entry_obs, part.entry_theta_h, part.entry_weight))
         if "specular_photons" in part.stats:
             spread.append(part.stats["specular_photons"])
         brdf = part.brdf
     if smoothing > 0:
-        irradiance = _smooth_irradiance(irradiance, grid, kwargs["smoother"], smoothing, kwargs["smoothing_normal"])[0]
+        irradiance = _smooth_irradiance(
+            irradiance, options.grid, options.smoother, smoothing, options.smoothing_normal
+        )[0]
     obs, theta, weight = (torch.cat([e[i] for e in entries]) for i in range(3))
-    stats = {"stored_hits": hits.count, "rays": hits.rays, "back_side_hits": int(hits.back_hits)}
-    stats.update(photons_emitted=int(hits.emitted.sum()), maps_per_light=K)
+    stats = _hit_stats(hits, K)
     if spread:
         stats["specular_photons"] = sum(spread)
     stats["specular_entries"] = int(obs.numel())
