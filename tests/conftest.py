@@ -271,3 +271,91 @@ TINY_QUICK_SCENE = (
     "selection.grid.rows=2",
     "threads=1",
 )
+
+
+#: the lights and camera of the photon_traced fixture (tests/transport: the photon cache and its build)
+CACHE_LIGHTS = np.array([[-40.0, 5.0, 50.0], [-20.0, -10.0, 70.0]])
+CACHE_CAMERA = np.array([-150.0, 0.0, 150.0])
+
+
+@pytest.fixture(scope="module")
+def photon_traced():
+    """A fold of 8 x 16 texels under CACHE_LIGHTS (4 light maps each), Torrance-Sparrow at random Pd, Ps, sigma, and
+    its trace: (surface, observations, PhotonTracer, LightSources, PhotonHits, pd, ps, sigma)."""
+    from torchrefl.transport.light_maps import light_sources
+
+    s = fold_surface(8, 16)
+    T = s.num_texels
+    obs = point_light_observations(s.normals, s.positions, CACHE_LIGHTS, CACHE_CAMERA, intensity=1e4)
+    pt = photon_tracer(s, "torrance_sparrow")
+    src = light_sources(s, obs, 4)
+    g = torch.Generator().manual_seed(0)
+    pd = 0.2 + 0.6 * torch.rand(T, 3, generator=g, dtype=torch.float64)
+    ps = 0.1 + 0.5 * torch.rand(T, 3, generator=g, dtype=torch.float64)
+    sigma = 0.05 + 0.3 * torch.rand(T, generator=g, dtype=torch.float64)
+    return s, obs, pt, src, trace_photons(pt, src, pd, ps, sigma, seed=0), pd, ps, sigma
+
+
+def trace_photons(pt, src, pd, ps, sigma, seed):
+    """3,000 photons per light map through the texels' materials."""
+    from torchrefl.transport.photon_material import TexelMaterial
+
+    material = TexelMaterial.from_tensors(pd, ps, sigma)
+    return pt.trace(src.positions.reshape(-1, 3), np.repeat(src.intensity, src.num_maps, 0), 3000, material, seed=seed)
+
+
+def photon_cache_of(
+    photon_traced,
+    theta_bin,
+    sigma_max=10.0,
+    linear=False,
+    smoothing=0.0,
+    smoothing_normal=0.0,
+    specular_smoothing=0.0,
+    bin_per_sigma=0.0,
+    cache_sigma=None,
+):
+    """The cache of photon_traced's hits with these options, smoothed (when asked) over the normals-guided grid."""
+    s, *_, pd, ps, sigma = photon_traced
+    return build_photon_cache(
+        photon_traced,
+        cache_sigma=cache_sigma,
+        sigma_max=sigma_max,
+        theta_bin=theta_bin,
+        bin_per_sigma=bin_per_sigma,
+        emitter_pd=pd.numpy() if linear else None,
+        smoothing=smoothing,
+        grid=(s.neighbours, s.normals),
+        smoothing_normal=smoothing_normal,
+        specular_smoothing=specular_smoothing,
+    )
+
+
+def build_photon_cache(photon_traced, hits=None, cache_sigma=None, sigma_max=10.0, **options):
+    """build_cache of photon_traced's hits (or these hits), every observation kept, the specular entries pruned at
+    cache_sigma (T,) (1 everywhere when None); options: build_cache's keywords."""
+    from torchrefl.transport.cache_build import build_cache
+
+    s, obs, pt, src, traced_hits, *_ = photon_traced
+    keep = torch.ones(obs.valid.shape, dtype=torch.bool)
+    cache_sigma = np.full(s.num_texels, 1.0) if cache_sigma is None else cache_sigma
+    hits = traced_hits if hits is None else hits
+    return build_cache(
+        hits, src, pt.areas, s.normals, obs.view_dir, keep, "torrance_sparrow", cache_sigma, sigma_max, 0.02, **options
+    )
+
+
+def photon_tracer(surface, brdf: str, **options):
+    """A PhotonTracer over the surface's mesh (Embree's default threads), rays offset 1e-3; options: its keywords."""
+    from torchrefl.core.rays import RayTracer
+    from torchrefl.transport.photon_trace import PhotonTracer
+
+    return PhotonTracer(
+        RayTracer(surface.mesh_vertices, surface.mesh_faces),
+        surface.texel_index.numpy(),
+        surface.positions.numpy(),
+        surface.normals.numpy(),
+        brdf,
+        offset=1e-3,
+        **options,
+    )

@@ -3,21 +3,21 @@ that has no photon noise taken from the newer one."""
 
 import numpy as np
 import torch
-from test_photon_cache import cache_of, trace, traced  # noqa: F401 (traced: a fixture)
+from conftest import photon_cache_of, trace_photons
 
 from torchrefl.transport.cache_average import average_caches
 from torchrefl.transport.photon_cache import PhotonCache, indirect_radiance, specular_per_unit_ps
 from torchrefl.transport.specular_bins import merge_entries
 
 
-def test_an_average_of_two_traces_predicts_the_mean_of_their_predictions(traced):  # noqa: F811
+def test_an_average_of_two_traces_predicts_the_mean_of_their_predictions(photon_traced):
     """average_caches: the mean of the two caches' indirect light at any parameters (their diffuse parts exactly,
     the specular part within the theta_h bins' merge error), with fewer entries than the two together."""
-    s, obs, pt, src, hits, pd, ps, sigma = traced
-    other = trace(pt, src, pd, ps, sigma, seed=1)
-    a = cache_of(traced, 0.004, linear=True, smoothing=1.5, bin_per_sigma=0.25, cache_sigma=sigma.numpy())
-    b = cache_of(
-        (*traced[:4], other, pd, ps, sigma),
+    s, obs, pt, src, hits, pd, ps, sigma = photon_traced
+    other = trace_photons(pt, src, pd, ps, sigma, seed=1)
+    a = photon_cache_of(photon_traced, 0.004, linear=True, smoothing=1.5, bin_per_sigma=0.25, cache_sigma=sigma.numpy())
+    b = photon_cache_of(
+        (*photon_traced[:4], other, pd, ps, sigma),
         0.004,
         linear=True,
         smoothing=1.5,
@@ -40,12 +40,12 @@ def test_an_average_of_two_traces_predicts_the_mean_of_their_predictions(traced)
     assert float(error.sum()) < 0.005 * float(expected.abs().sum())
 
 
-def test_the_part_without_photon_noise_is_the_newer_caches_not_averaged(traced):  # noqa: F811
+def test_the_part_without_photon_noise_is_the_newer_caches_not_averaged(photon_traced):
     """With photon.diffuse_paths: radiosity the cache's irradiance holds the radiosity level's solution at the Pd of
     its trace (exact_irradiance): the average keeps the newer one instead of lagging half a refit behind."""
-    s, obs, pt, src, hits, pd, ps, sigma = traced
-    a = cache_of(traced, 0.004)
-    b = cache_of(traced, 0.004)
+    s, obs, pt, src, hits, pd, ps, sigma = photon_traced
+    a = photon_cache_of(photon_traced, 0.004)
+    b = photon_cache_of(photon_traced, 0.004)
     photons = a.irradiance.clone()
     a.exact_irradiance, b.exact_irradiance = torch.full_like(photons, 1.0), torch.full_like(photons, 3.0)
     a.irradiance, b.irradiance = photons + 1.0, photons + 3.0

@@ -184,3 +184,44 @@ def test_the_spread_kernel_built_once_gives_the_copies_of_a_walk_over_the_window
     to, src, w = SpreadKernel(grid, sigma, normals, ns)(obs, T)
     assert to.tolist() == [e[0] for e in expected] and src.tolist() == [e[1] for e in expected]
     np.testing.assert_allclose(w, [e[2] for e in expected], rtol=1e-12)
+
+
+def test_normal_aware_smoothing_does_not_gather_across_a_fold():
+    """A field constant on each side of a 90 degree fold: the plain Gaussian mixes the sides in the columns next to
+    the fold, the normal-aware kernel keeps each side's value; on one side alone both are the same Gaussian."""
+    s = fold_surface(12, 24)
+    floor = s.normals[:, 2] > 0.5
+    values = torch.where(floor, 1.0, 3.0).to(torch.float64)[None, :, None].expand(2, -1, 3).clone()
+    plain = smooth_on_grid(values, s.texel_index, s.grid_shape, 1.0)
+    aware = smooth_on_grid(values, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)
+    torch.testing.assert_close(aware, values, rtol=0, atol=1e-12)
+    col = s.texel_index % s.grid_shape[1]
+    next_to_fold = (col == 11) | (col == 12)
+    assert (plain[0, next_to_fold, 0] - values[0, next_to_fold, 0]).abs().min() > 0.1
+    # a smooth field on one plate: the normal factor is 1 there, so the result is the normalised Gaussian
+    ramp = (s.positions[:, 1:2] * 0.1 + 2.0).expand(-1, 3)[None]
+    on_floor = lambda x: x[:, floor & (col < 8)]
+    torch.testing.assert_close(
+        on_floor(smooth_on_grid(ramp, s.texel_index, s.grid_shape, 1.0, s.normals, 0.1)),
+        on_floor(smooth_on_grid(ramp, s.texel_index, s.grid_shape, 1.0)),
+        rtol=1e-10,
+        atol=1e-12,
+    )
+
+
+def test_spreading_keeps_a_constant_field_and_does_not_cross_the_fold():
+    """One unit entry per texel spread with the normalised kernel: every texel receives exactly 1 (interior and
+    border alike); with the normal test nothing crosses the fold; copies stay with their light."""
+    s = fold_surface(10, 20)
+    T = s.num_texels
+    for normals, ns in ((None, 0.0), (s.normals, 0.1)):
+        obs = np.concatenate([np.arange(T), T + np.arange(T)])  # lights 0 and 1
+        to, src, w = spread_on_grid(obs, T, s.neighbours, 1.0, normals, ns)
+        received = np.bincount(to, weights=w, minlength=2 * T)
+        np.testing.assert_allclose(received, 1.0, rtol=1e-12)
+        assert ((to // T) == (obs[src] // T)).all()
+    floor = (s.normals[:, 2] > 0.5).numpy()
+    to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.neighbours, 1.0, s.normals, 0.1)
+    assert floor[to[w > 1e-12]].all()
+    to, src, w = spread_on_grid(np.flatnonzero(floor), T, s.neighbours, 1.0)
+    assert not floor[to[w > 1e-3]].all()  # the plain kernel does cross

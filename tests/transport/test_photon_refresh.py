@@ -9,7 +9,7 @@ from torchrefl.config import Config
 from torchrefl.fit.pipeline import level_inputs
 from torchrefl.transport.levels.photon import PhotonLevel
 from torchrefl.transport.levels.radiosity import RadiosityLevel
-from torchrefl.transport.photon_cache import LightSources
+from torchrefl.transport.light_maps import LightSources
 from torchrefl.transport.photon_refresh import distinct_lights
 
 CAMERA = np.array([-150.0, 0.0, 150.0])

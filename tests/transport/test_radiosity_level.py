@@ -110,7 +110,7 @@ def test_emitter_maps_give_each_texel_the_radiosity_lit_from_its_own_column():
     """With one map per column, the maps' E in a texel's own column is the local direct irradiance, and H at
     every texel equals a brute-force solve with all emitters lit from that texel's column light."""
     from torchrefl.core.rays import RayTracer
-    from torchrefl.transport.photon_cache import light_sources
+    from torchrefl.transport.light_maps import light_sources
     from torchrefl.transport.radiosity_level import direct_irradiance, emitter_maps
 
     s, obs, L = moving_light_fold()
@@ -142,7 +142,7 @@ def test_emitter_maps_give_each_texel_the_radiosity_lit_from_its_own_column():
 
 def test_one_emitter_map_of_static_lights_is_the_plain_level_and_gradcheck_with_maps():
     from torchrefl.core.rays import RayTracer
-    from torchrefl.transport.photon_cache import light_sources
+    from torchrefl.transport.light_maps import light_sources
     from torchrefl.transport.radiosity_level import emitter_maps
 
     s, obs, L = moving_light_fold(3, 6)

@@ -1,5 +1,5 @@
 """The specular entries' theta_h bins and their merge: what a merged entry holds, and the per-light spread and
-merge (photon_cache.build_cache) against the all-at-once one."""
+merge (cache_build.build_cache) against the all-at-once one."""
 
 import numpy as np
 import pytest

@@ -16,9 +16,11 @@ from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.rays import RayTracer
 from torchrefl.errors import ConfigError
 from torchrefl.synthetic.path_tracer import IndirectRenderer
+from torchrefl.transport.cache_build import build_cache
 from torchrefl.transport.form_factors import form_factors_for_surface
+from torchrefl.transport.light_maps import light_sources
 from torchrefl.transport.local import local_terms
-from torchrefl.transport.photon_cache import build_cache, indirect_radiance, light_sources
+from torchrefl.transport.photon_cache import indirect_radiance
 from torchrefl.transport.photon_material import TexelMaterial
 from torchrefl.transport.radiosity_level import PatchMap, direct_irradiance, indirect_irradiance
 from torchrefl.transport.specular_gather import SpecularGather

@@ -167,11 +167,7 @@ def initialise_local(
     )
     ps = ps.clamp(0, ps_max)
     sigma = sigma.clamp(sigma_min, sigma_max)
-    coverage = torch.full((surface.num_texels,), COVER_NONE, dtype=torch.int8)
-    coverage[defined] = COVER_PD_ONLY
-    coverage[defined & ~lobes.pd_from_diffuse] = COVER_PD_BOUND
-    coverage[object_lobe & defined] = COVER_SHARED
-    coverage[known & defined] = COVER_SHARED if specular == "shared" else COVER_FULL
+    coverage = _start_coverage(surface.num_texels, defined, lobes.pd_from_diffuse, object_lobe, known, specular)
     head = (
         f"closed form: Pd from eq. 3.3 at {int(lobes.pd_from_diffuse.sum())} texels, bound at "
         f"{int((defined & ~lobes.pd_from_diffuse).sum())}, Ps/sigma from eq. 3.5 at "
@@ -192,6 +188,18 @@ def initialise_local(
         shared_lobe,
         head,
     )
+
+
+def _start_coverage(T: int, defined, pd_from_diffuse, object_lobe, known, specular: str) -> torch.Tensor:
+    """(T,) int8 coverage code of each texel at the start (the COVER_ codes above): none where nothing was fitted, else
+    Pd only, Pd bound (not from the diffuse closed form), the object's lobe, or its own lobe (the shared one with
+    fit.specular shared)."""
+    coverage = torch.full((T,), COVER_NONE, dtype=torch.int8)
+    coverage[defined] = COVER_PD_ONLY
+    coverage[defined & ~pd_from_diffuse] = COVER_PD_BOUND
+    coverage[object_lobe & defined] = COVER_SHARED
+    coverage[known & defined] = COVER_SHARED if specular == "shared" else COVER_FULL
+    return coverage
 
 
 def mark_untrusted(coverage: torch.Tensor, untrusted: torch.Tensor | None) -> torch.Tensor:

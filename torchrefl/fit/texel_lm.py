@@ -107,17 +107,12 @@ def levenberg_marquardt(
         if cost_all is None:
             cost_all = cost.clone()
         lam_a = lam.index_select(0, index)
-        diag = torch.diagonal(H, dim1=1, dim2=2)
-        A = H + torch.diag_embed(lam_a[:, None] * diag + 1e-12 * (1.0 + diag.amax(1, keepdim=True)))
-        solved, info = torch.linalg.solve_ex(A, g[..., None])
-        step = -torch.where((info == 0)[:, None], solved[..., 0], 0.0).to(x[0].dtype)  # singular: no step
+        step = _damped_step(H, g, lam_a, x[0].dtype)
         trial = _stepped(part, step, columns)
         with torch.no_grad():
             new_cost = problem.cost(*problem.residuals(*trial))
         better = new_cost < cost  # NaN compares False: refused
-        for i in range(3):
-            keep = better.view(-1, *([1] * (x[i].dim() - 1)))
-            x[i] = x[i].index_copy(0, index, torch.where(keep, trial[i], part[i]))
+        _accept(x, index, better, trial, part)
         lam_a = torch.where(better, lam_a / 3.0, lam_a * 4.0).clamp(_LAMBDA_MIN, _LAMBDA_MAX)
         lam = lam.index_copy(0, index, lam_a)
         before = float(cost_all.index_select(0, refit).sum())  # the skipped texels' cost is not this fit's
@@ -157,6 +152,23 @@ def _problem(params, objective, texel_model, texels_model, x: list, index: torch
     if model is None:
         model = _texels_of(texel_model(softplus_b(x[0])), params, x, index)
     return _TexelProblem(params, objective, model, index), entries
+
+
+def _damped_step(H: torch.Tensor, g: torch.Tensor, lam: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+    """(n, K) the Levenberg-Marquardt step -(H + lam diag(H) + eps)^-1 g of each texel's normal equations H (n, K, K),
+    g (n, K) with damping lam (n,); no step where the damped system is singular."""
+    diag = torch.diagonal(H, dim1=1, dim2=2)
+    A = H + torch.diag_embed(lam[:, None] * diag + 1e-12 * (1.0 + diag.amax(1, keepdim=True)))
+    solved, info = torch.linalg.solve_ex(A, g[..., None])
+    return -torch.where((info == 0)[:, None], solved[..., 0], 0.0).to(dtype)  # singular: no step
+
+
+def _accept(x: list, index: torch.Tensor, better: torch.Tensor, trial: list, part: list) -> None:
+    """Sets the texels index (n,) of the raw tensors x (in the list, in place) to their trial values where better
+    (n,) bool, to part (their values before the step) elsewhere."""
+    for i in range(3):
+        keep = better.view(-1, *([1] * (x[i].dim() - 1)))
+        x[i] = x[i].index_copy(0, index, torch.where(keep, trial[i], part[i]))
 
 
 def _stepped(x: list, step: torch.Tensor, columns: list) -> list:

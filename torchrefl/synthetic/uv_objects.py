@@ -154,14 +154,8 @@ def bowl(
     s_out, t_out, f_out = _sphere_chart(outer_rings, segments, cap=False)
     inner = centre + radius * unit(s_in * np.pi / 2, 2 * np.pi * t_in)
     outer = centre + (radius + wall) * unit(s_out * np.pi / 2, 2 * np.pi * t_out)
-    t_rim = np.arange(segments + 1) / segments
-    rim_unit = unit(np.full(segments + 1, np.pi / 2), 2 * np.pi * t_rim)
-    rim = np.concatenate([centre + radius * rim_unit, centre + (radius + wall) * rim_unit])
     n_in, n_out = len(inner), len(outer)
-    j = np.arange(segments)
-    a, b = n_in + n_out + j, n_in + n_out + j + 1  # inner edge of the rim
-    c, d = a + segments + 1, b + segments + 1  # outer edge
-    f_rim = np.concatenate([np.stack([a, c, d], -1), np.stack([a, d, b], -1)])
+    rim, f_rim, t_rim = _rim_annulus(unit, centre, radius, wall, segments, n_in + n_out)
     verts = np.concatenate([inner, outer, rim])
     faces = np.concatenate([f_in, f_out + n_in, f_rim])
     uvs = np.concatenate(
@@ -204,6 +198,21 @@ def bowl(
     y = verts[:, 1]
     mesh = MeshObject("bowl", verts, faces, normal, material, (float(y.min()), float(y.max())), info)
     return ViewsObject(mesh, uvs, vn, concave=True)
+
+
+def _rim_annulus(unit, centre, radius: float, wall: float, segments: int, first: int) -> tuple:
+    """The bowl's rim, the flat annulus between the inner and the outer sphere at the opening: (vertices (2 (S + 1),
+    3), the inner edge's then the outer's; faces (2 S, 3) numbered from vertex `first`; the edges' azimuth
+    coordinate t (S + 1,)) for S = segments. unit(alpha, phi): the unit vector from the centre at polar angle alpha
+    from the bottom and azimuth phi."""
+    t_rim = np.arange(segments + 1) / segments
+    rim_unit = unit(np.full(segments + 1, np.pi / 2), 2 * np.pi * t_rim)
+    rim = np.concatenate([centre + radius * rim_unit, centre + (radius + wall) * rim_unit])
+    j = np.arange(segments)
+    a, b = first + j, first + j + 1  # inner edge of the rim
+    c, d = a + segments + 1, b + segments + 1  # outer edge
+    f_rim = np.concatenate([np.stack([a, c, d], -1), np.stack([a, d, b], -1)])
+    return rim, f_rim, t_rim
 
 
 VIEWS_OBJECTS = ("ellipsoid", "ellipsoid_no_uv", "bowl")

@@ -142,7 +142,7 @@ def check_memory(estimate: MemoryEstimate, free: float | None, what: str) -> Non
 def check_level_memory(level) -> MemoryEstimate:
     """Estimate the memory a prepared-to-be TransportLevel will add for its capture, log it, and refuse the run
     (MemoryLimitError) when it exceeds the free memory."""
-    from torchrefl.transport.photon_cache import light_sources
+    from torchrefl.transport.light_maps import light_sources
     from torchrefl.transport.photon_refresh import distinct_lights
 
     inp = level.inputs

@@ -9,7 +9,7 @@ the neighbourhood is one-sided (next to a fold, whose other side the normal test
 edges) the normalised kernel returns the interior's value and the plane does not: on the fold at full size the
 upper plate's three rows next to the crease gathered 2-9 % too little of the light that came by a specular
 scattering (docs/results/fold.md). spread_on_grid spreads point entries over their grid neighbours (the specular
-entries) with the normalised kernel. torchrefl.transport.photon_cache describes where the cache uses each.
+entries) with the normalised kernel. torchrefl.transport.cache_build describes where the cache uses each.
 
 The operators' neighbours are the Surface's (core/texel_neighbours.py): the texel at offset (dy, dx) is
 neighbours.neighbour(t, dy, dx), so on an atlas a window reaches across chart seams (walking, keeping its heading)

@@ -19,10 +19,13 @@ import torch
 
 from torchrefl.core.memory import release_free_memory
 from torchrefl.core.progress import bar
-from torchrefl.transport.photon_cache import LightSources, PhotonCache, build_cache
+from torchrefl.transport.cache_build import build_cache
+from torchrefl.transport.light_maps import LightSources
+from torchrefl.transport.photon_cache import PhotonCache
 from torchrefl.transport.photon_density import SpreadKernel, smoothing_matrix
+from torchrefl.transport.photon_hits import PhotonHits
 from torchrefl.transport.photon_material import TexelMaterial
-from torchrefl.transport.photon_trace import PhotonHits, PhotonTracer
+from torchrefl.transport.photon_trace import PhotonTracer
 from torchrefl.transport.specular_gather import SpecularGather
 
 

@@ -4,7 +4,7 @@ An entry (observation p T + t, theta_h, weight) stands for light that texel t re
 p's image with Ps_t D(theta_h; sigma_t) times the weight. Entries of one observation whose theta_h differ by a
 fraction of the lobe's width can be summed into one at their weighted mean theta_h: sum_k w_k D(theta_k) changes
 by < 0.5 % (second order in the spread within a bin), and D stays differentiable in sigma. Used by the photons'
-entries (photon_cache.build_cache) and the gathered ones (specular_gather).
+entries (cache_build.build_cache) and the gathered ones (specular_gather).
 """
 
 from __future__ import annotations

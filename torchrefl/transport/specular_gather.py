@@ -39,7 +39,7 @@ from torchrefl.core import brdf as brdf_mod
 from torchrefl.core.lobe_sampling import row_dot, sample_mixture
 from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.errors import ConfigError
-from torchrefl.transport.photon_cache import LOBE_CUTOFF
+from torchrefl.transport.cache_build import LOBE_CUTOFF
 from torchrefl.transport.photon_trace import PhotonTracer
 from torchrefl.transport.specular_bins import BINS_PER_OBSERVATION, theta_bins
 

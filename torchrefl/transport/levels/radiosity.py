@@ -18,8 +18,8 @@ from torchrefl.core.observation_classes import T_DIFF
 from torchrefl.core.rays import RayTracer
 from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, TransportLevel
+from torchrefl.transport.light_maps import light_sources
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
-from torchrefl.transport.photon_cache import light_sources
 from torchrefl.transport.radiosity_level import (
     PatchMap,
     direct_irradiance,
