@@ -35,13 +35,7 @@ from dataclasses import dataclass, field
 import torch
 
 from torchrefl.core import brdf as brdf_mod
-
-# light_sources lives in light_maps; imported here only for torchrefl.transport.levels.photon, whose import moves
-# to light_maps on the next edit of that module (then this line goes)
-from torchrefl.transport.light_maps import (
-    LightSources,
-    light_sources,  # noqa: F401
-)
+from torchrefl.transport.light_maps import LightSources
 from torchrefl.transport.photon_density import apply_on_grid
 from torchrefl.transport.photon_hits import PhotonHits
 from torchrefl.transport.texel_model import SpecularEntries

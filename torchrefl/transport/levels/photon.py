@@ -28,10 +28,10 @@ from torchrefl.transport.cache_average import average_caches
 from torchrefl.transport.final_traces import fresh_traces, image_variance, trace_variance
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, RefitStep, TransportLevel
 from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
+from torchrefl.transport.light_maps import light_sources
 from torchrefl.transport.pd_precision import median_pd_std
 from torchrefl.transport.photon_cache import (
     indirect_radiance,
-    light_sources,
     specular_per_unit_ps,
     texel_cache,
     texel_entries,
