@@ -241,21 +241,23 @@ def _build_by_light(
     hits: PhotonHits, sources: LightSources, receivers: _Receivers, options: _Options, dtype, smoothing: float
 ) -> PhotonCache:
     """build_cache one light at a time (no part linear in Pd): each light's hits reduced alone in float64 and
-    unsmoothed, their irradiance summed (each light's rows hold its own hits' sums, the others' rows 0) and
+    unsmoothed, `threads` lights at once (one thread each: a light's reduction is mostly single-threaded numpy),
+    their irradiance summed in light order (each light's rows hold its own hits' sums, the others' rows 0) and
     smoothed once, their specular entries concatenated in light order (spread_and_merge's order)."""
     P, K = sources.positions.shape[:2]
     if options.specular_smoothing > 0 and options.spreader is None and options.grid is not None:
         options = replace(options, spreader=_spread_kernel(options))  # built once for all the lights
+    lights = [idx for idx in light_slices(hits.source, K, P) if idx.size]
+    one, n = replace(options, threads=1), max(1, options.threads)
+    reduce = lambda idx: _build_at_once(hits.take(idx), sources, receivers, one, torch.float64, 0.0, None)  # noqa: E731
     irradiance, entries, spread, brdf = None, [], [], None
-    for idx in light_slices(hits.source, K, P):
-        if not idx.size:
-            continue
-        part = _build_at_once(hits.take(idx), sources, receivers, options, torch.float64, 0.0, None)
-        irradiance = part.irradiance if irradiance is None else irradiance.add_(part.irradiance)
-        entries.append((part.entry_obs, part.entry_theta_h, part.entry_weight))
-        if "specular_photons" in part.stats:
-            spread.append(part.stats["specular_photons"])
-        brdf = part.brdf
+    for start in range(0, len(lights), n):  # `threads` lights' temporaries alive at a time
+        for part in thread_map(reduce, lights[start : start + n], n):
+            irradiance = part.irradiance if irradiance is None else irradiance.add_(part.irradiance)
+            entries.append((part.entry_obs, part.entry_theta_h, part.entry_weight))
+            if "specular_photons" in part.stats:
+                spread.append(part.stats["specular_photons"])
+            brdf = part.brdf
     if smoothing > 0:
         irradiance = _smooth_irradiance(
             irradiance, options.grid, options.smoother, smoothing, options.smoothing_normal
