@@ -257,3 +257,18 @@ def test_noise_estimate_of_held_and_measured_lobes(measured):
     J = DenseJacobian(J)
     s = uncertainty.residual_noise(r, J, weight, J.information(weight), mask, RANGES.prior_var(3), lobe)
     assert torch.allclose(s, torch.full((3,), 0.5, dtype=torch.float64), rtol=0.06)
+
+
+def test_the_models_own_noise_adds_to_the_sensors(fitted_from_truth):
+    """A level's Monte Carlo noise (model_var, DN^2) adds to the sensor's variance: 0.5 DN of sensor noise and 0.75
+    DN^2 of the model's give the stds of 1 DN of noise."""
+    obs, terms, est, _ = fitted_from_truth
+    every = torch.ones(len(est[2]), dtype=torch.bool)
+    args = (model_of(terms), *est, obs.intensity, obs.valid, every, RANGES)
+    both = texel_uncertainty(*args, noise_dn=0.5, model_var=torch.full((3,), 0.75, dtype=torch.float64))
+    one = texel_uncertainty(*args, noise_dn=1.0)
+    for a, b in ((both.pd_std, one.pd_std), (both.ps_std, one.ps_std), (both.sigma_std, one.sigma_std)):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=0)
+    torch.testing.assert_close(both.noise_dn, torch.ones(3, dtype=torch.float64))
+    torch.testing.assert_close(both.model_noise_dn, torch.full((3,), 0.75**0.5, dtype=torch.float64))
+    assert one.model_noise_dn is None

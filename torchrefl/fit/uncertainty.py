@@ -18,7 +18,10 @@ Noise: capture.noise_dn when given; else per channel from the fit's residuals, r
 degrees of freedom accounted for: each residual is divided by sqrt(1 - h) (h its leverage, the hat matrix's
 diagonal w / s_c^2 J^T Cov J, at the raw residuals' MAD; a lobe not measured by the texel is held, not fitted, so
 its block of Cov counts zero) and s_c = 1.4826 MAD of those (over an even stride of at most NOISE_TEXELS
-texels).
+texels). A level whose predictions carry their own Monte Carlo noise (the photon level's caches:
+TransportLevel.prediction_variance, a mean square measured from its last averaged refresh) adds that variance per
+channel: the parameters were fitted against caches with that noise, and the residuals' robust spread leaves out
+most of its heavy tail.
 
 Texels whose Ps and sigma the fit did not estimate from their own observations (coverage other than "measured":
 the lobe of their colour, their neighbours' or the object's) have Ps, sigma std at the range's std, marked not
@@ -33,7 +36,7 @@ texel's block and read the covariance it would leave.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Optional
 
 import torch
 
@@ -69,6 +72,8 @@ class Uncertainty:
     lobe_measured: torch.Tensor
     noise_dn: torch.Tensor
     noise_source: str
+    #: (3,) the part of noise_dn that is the level's own Monte Carlo noise in its predictions, in DN (None: none)
+    model_noise_dn: Optional[torch.Tensor] = None
 
 
 @dataclass(frozen=True)
@@ -203,6 +208,7 @@ def texel_uncertainty(
     loss_scale_8bit: float = 3.0,
     noise_dn: float | None = None,
     shared_lobe: torch.Tensor | None = None,
+    model_var: torch.Tensor | None = None,
 ) -> Uncertainty:
     """The std of every texel's fitted parameters (module docstring).
 
@@ -211,10 +217,11 @@ def texel_uncertainty(
     observations; lobe_measured (T,) bool: Ps and sigma estimated from the texel's own observations; ranges: the
     broad prior; loss, loss_scale_8bit: the fit's robust loss; noise_dn: the known sensor noise in DN (None:
     estimated from the residuals); shared_lobe: (T,) bool the estimated texels sharing one lobe (fit.specular:
-    shared), None for a lobe per texel."""
+    shared), None for a lobe per texel; model_var: (3,) DN^2 the model's own Monte Carlo noise per observation
+    (TransportLevel.prediction_variance), added to the sensor noise's variance."""
     lobe_measured = lobe_measured.to(pd.device)
     ev = texel_evidence(model, pd, ps, sigma, intensity, fit_mask, loss, loss_scale_8bit)
-    return uncertainty_of(ev.per_channel, ev, lobe_measured, ranges, ps.shape[1], noise_dn, shared_lobe)
+    return uncertainty_of(ev.per_channel, ev, lobe_measured, ranges, ps.shape[1], noise_dn, shared_lobe, model_var)
 
 
 def uncertainty_of(
@@ -225,6 +232,7 @@ def uncertainty_of(
     C: int,
     noise_dn: float | None = None,
     shared_lobe: torch.Tensor | None = None,
+    model_var: torch.Tensor | None = None,
 ) -> Uncertainty:
     """texel_uncertainty's result from every texel's per_channel information and the Evidence of the
     texels the noise is estimated on (all texels, or every noise_stride-th: residual_noise; lobe_measured (T,) of
@@ -236,6 +244,10 @@ def uncertainty_of(
         s, source = residual_noise(ev.r, ev.J, ev.weight, ev.per_channel, ev.mask, prior_var, measured), "residuals"
     else:
         s, source = torch.full((3,), float(noise_dn), dtype=torch.float64), "capture.noise_dn"
+    model_noise = None
+    if model_var is not None:
+        model_var = model_var.to(s)
+        s, model_noise = torch.sqrt(s.square() + model_var), model_var.sqrt()
     info = per_channel.scaled(s)
     if shared_lobe is not None:
         cov = shared_lobe_covariance(info, prior_var.to(info.device), shared_lobe.to(info.device))
@@ -243,7 +255,8 @@ def uncertainty_of(
         cov = texel_covariance(info, prior_var.to(info.device), lobe_measured)
     std = torch.diagonal(cov, dim1=1, dim2=2).clamp_min(0.0).sqrt().cpu()
     measured = lobe_measured.cpu() if shared_lobe is None else shared_lobe.cpu()
-    return Uncertainty(std[:, :3], std[:, 3 : 3 + C], std[:, -1], measured, s.cpu(), source)
+    model_noise = None if model_noise is None else model_noise.cpu()
+    return Uncertainty(std[:, :3], std[:, 3 : 3 + C], std[:, -1], measured, s.cpu(), source, model_noise)
 
 
 def fit_uncertainty(cfg: Config, level: TransportLevel, result: FitResult, stages: Stages) -> Uncertainty:
@@ -280,4 +293,5 @@ def fit_uncertainty(cfg: Config, level: TransportLevel, result: FitResult, stage
             cfg.fit.loss_scale_8bit,
             cfg.capture.noise_dn,
             result.estimated if shared else None,
+            level.prediction_variance(),
         )

@@ -281,3 +281,4 @@ def test_final_images_need_no_fresh_trace_when_the_photon_noise_is_small(scene):
     level._photon_noise = (torch.full((3,), 1e-6, dtype=torch.float64), torch.full((3,), 0.2, dtype=torch.float64))
     level.refresher = None  # a trace would fail
     torch.testing.assert_close(level.render(pd, ps, sigma), level.predict(pd, ps, sigma))
+    torch.testing.assert_close(level.prediction_variance(), level._photon_noise[0])  # the kept cache: one trace

@@ -185,6 +185,11 @@ class TransportLevel(ABC):
     def finish(self, params) -> None:
         """Called after the last refit (default: nothing)."""
 
+    def prediction_variance(self) -> Optional[torch.Tensor]:
+        """(3,) float64 the variance, in DN^2 per observation and channel, of the Monte Carlo noise in the level's
+        predictions at the kept parameters, after finish (None: exact predictions, the default)."""
+        return None
+
     def state(self) -> dict:
         """What refresh() keeps between outer iterations, for a checkpoint (default: nothing)."""
         return {}

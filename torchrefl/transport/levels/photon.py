@@ -379,6 +379,13 @@ class PhotonLevel(TransportLevel):
             self.cache = kept
         return trace_variance(averaged, newer, mask), image_variance(averaged, intensity, mask)
 
+    def prediction_variance(self):
+        """One trace's photon variance (finish's measurement) over the kept cache's traces."""
+        single = getattr(self, "_photon_noise", (None, None))[0]
+        if single is None or self.cache is None:
+            return None
+        return single / self.cache.stats.get("averaged_traces", 1)
+
     def render(self, pd, ps, sigma) -> torch.Tensor:
         """The kept cache's prediction averaged, trace for trace, with caches traced anew at the fitted parameters,
         as many as keep the photon noise small beside the images' own (transport.final_traces): independent
