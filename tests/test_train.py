@@ -89,6 +89,7 @@ def test_outputs_contract(small_run):
     assert np.median(p["sigma_std"][lobe] / p["sigma"][lobe]) < 0.1
     u = m["uncertainty"]
     assert u["noise_source"] == "residuals" and all(0.2 < x < 1.0 for x in u["noise_dn"])
+    assert u["model_noise_dn"] is None  # the local level's predictions are exact
     assert 0 < u["determined_share"] <= u["lobe_measured"] / m["coverage"]["estimated"]
     assert u["sigma_std"]["median"] <= u["sigma_std"]["p95"]
     assert "uncertainty" in m["timing_s"]

@@ -63,6 +63,7 @@ def uncertainty_summary(ps: torch.Tensor, sigma: torch.Tensor, unc: Uncertainty,
         "lobe_measured": int((unc.lobe_measured & e).sum()),
         "noise_dn": [float(x) for x in unc.noise_dn],
         "noise_source": unc.noise_source,
+        "model_noise_dn": None if unc.model_noise_dn is None else [float(x) for x in unc.model_noise_dn],
     }
 
 
