@@ -10,6 +10,7 @@ adds at most about 5 % to the noise's std), at most FINAL_TRACES - 1 of them, ea
 
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 import torch
@@ -46,4 +47,4 @@ def fresh_traces(single: Optional[torch.Tensor], noise: Optional[torch.Tensor], 
     ratio = float((single / (PHOTON_NOISE_SHARE * noise.clamp_min(1e-12))).max())
     if not ratio < float("inf"):
         return most
-    return min(max(int(torch.tensor(ratio).ceil()) - kept_traces, 0), most)
+    return min(max(math.ceil(ratio) - kept_traces, 0), most)

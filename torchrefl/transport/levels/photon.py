@@ -96,6 +96,7 @@ class PhotonLevel(TransportLevel):
         self.pd_std: list[float] = []  # Pd's median std at each convergence test (refresh AVERAGE_FROM + 1 on)
         self.cache = None
         self._last_trace = None  # the latest refresh's own trace (the cache may average two)
+        self._photon_noise = (None, None)  # finish's (one trace's photon variance, the images' noise variance)
         self.refresher: PhotonRefresh | None = None
         self.smoothing = self.specular_smoothing = 0.0  # the density kernels' std in texels, set by prepare
         self._best = (math.inf, -1, None, None)
@@ -381,7 +382,7 @@ class PhotonLevel(TransportLevel):
 
     def prediction_variance(self):
         """One trace's photon variance (finish's measurement) over the kept cache's traces."""
-        single = getattr(self, "_photon_noise", (None, None))[0]
+        single = self._photon_noise[0]
         if single is None or self.cache is None:
             return None
         return single / self.cache.stats.get("averaged_traces", 1)
@@ -390,7 +391,7 @@ class PhotonLevel(TransportLevel):
         """The kept cache's prediction averaged, trace for trace, with caches traced anew at the fitted parameters,
         as many as keep the photon noise small beside the images' own (transport.final_traces): independent
         photons lower the final images' photon noise without widening the density kernels."""
-        single, noise = getattr(self, "_photon_noise", (None, None))
+        single, noise = self._photon_noise
         kept_traces = self.cache.stats.get("averaged_traces", 1)
         fresh = fresh_traces(single, noise, kept_traces)
         measured = (
