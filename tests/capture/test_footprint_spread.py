@@ -11,6 +11,7 @@ import torch
 from torchrefl.capture.footprint_spread import footprint_covariance, half_angle_spread
 from torchrefl.capture.mesh_views import MeshViewsLoader
 from torchrefl.config import load_config
+from torchrefl.core.brdf import specular_lobe
 from torchrefl.synthetic.mesh_views import write_capture
 from torchrefl.transport.local import local_terms, predict
 
@@ -33,10 +34,47 @@ def test_on_a_sphere_the_normal_and_the_half_vector_turn_with_the_texel_steps():
     dnormal = steps / R  # a sphere's normal turns 1/R per mm
     cov = np.diag([0.3, 0.1])[None]
     far = half_angle_spread(n, steps, dnormal, cov, n, np.array([np.inf]), n, np.array([np.inf]))
-    np.testing.assert_allclose(far[0], [(s / R) ** 2 * 0.2] * 2, rtol=1e-6)  # h = n: split evenly
+    np.testing.assert_allclose(far[0], [(s / R) ** 2 * 0.2] * 2 + [0.0], rtol=1e-6, atol=1e-9)  # h = n: even split
     near = half_angle_spread(n, steps, dnormal, cov, n, np.array([d_l]), n, np.array([d_v]))
     rate = 1 / R + (1 / d_l + 1 / d_v) / 2  # the half vector turns the other way from the normal
-    np.testing.assert_allclose(near[0].sum(), s**2 * rate**2 * 0.4, rtol=1e-6)
+    np.testing.assert_allclose(near[0, :2].sum(), s**2 * rate**2 * 0.4, rtol=1e-6)
+
+
+def test_the_spread_lobe_is_the_footprint_mean_of_the_specular_term_on_a_sphere_under_a_near_light():
+    # Torrance-Sparrow's specular term falloff * D(theta_h) / cos_v averaged over a Gaussian footprint of a sphere's
+    # texel (exact normals, light and view directions at each point) against the spread lobe at the centre
+    R, sigma = 40.0, 0.1
+    X0, n0 = np.array([0.0, 0.0, R]), np.array([0.0, 0.0, 1.0])
+    steps = np.array([[3.0, 0.0], [0.0, 2.0], [0.0, 0.0]])
+    cov = np.array([[0.2, 0.03], [0.03, 0.12]])
+    camera = X0 + 300.0 * np.array([np.sin(0.7), 0.0, np.cos(0.7)])
+    light = X0 + 250.0 * np.array([-np.sin(0.55), 0.12, np.cos(0.55)])
+
+    def term(X, n):
+        to_l, to_v = light - X, camera - X
+        d_l = np.linalg.norm(to_l, axis=-1)
+        l, v = to_l / d_l[..., None], to_v / np.linalg.norm(to_v, axis=-1, keepdims=True)
+        h = (l + v) / np.linalg.norm(l + v, axis=-1, keepdims=True)
+        theta = np.arccos(np.clip(np.einsum("...i,...i->...", n, h), -1, 1))
+        return np.exp(-(theta**2) / (2 * sigma**2)) / np.einsum("...i,...i->...", n, v) / d_l**2, theta, l, v, d_l
+
+    rng = np.random.default_rng(0)
+    o = rng.standard_normal((400_000, 2)) @ np.linalg.cholesky(cov).T
+    X = X0 + o @ steps.T
+    mean = term(X, X / np.linalg.norm(X, axis=1, keepdims=True))[0].mean()
+    centre, theta, l, v, d_l = term(X0[None], n0[None])
+    dnormal = steps[None] / R
+    spread = half_angle_spread(n0[None], steps[None], dnormal, cov[None], l, d_l, v, np.linalg.norm(camera - X0)[None])
+
+    def lobe(sp) -> float:
+        t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64))  # noqa: E731
+        return float(specular_lobe("torrance_sparrow", t(theta), t(sigma), t(sp)))
+
+    weight = centre[0] / np.exp(-(theta[0] ** 2) / (2 * sigma**2))  # falloff / cos_v at the centre
+    err = lambda value: abs(value / mean - 1)  # noqa: E731
+    centre_err, unshifted, shifted = err(centre[0]), err(weight * lobe(spread[:, :2])), err(weight * lobe(spread))
+    assert centre_err > 0.03  # the lobe at the centre: 4 % off
+    assert unshifted < 0.3 * centre_err and shifted < 0.3 * unshifted  # the spread: 0.85 %, with its shift 0.2 %
 
 
 def test_at_the_truth_the_footprint_spread_lobe_explains_the_rendered_highlights(tmp_path):

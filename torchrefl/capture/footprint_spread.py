@@ -66,6 +66,15 @@ def _turn(d: np.ndarray, dist: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return -(steps - d[:, :, None] * along[:, None, :]) / dist[:, None, None]
 
 
+#: the specular geometry factor's exponents of (cos_v, cos_l) per BRDF (core.brdf.specular_geometry)
+GEOMETRY_EXPONENTS = {
+    "torrance_sparrow": (-1.0, 0.0),
+    "ward": (0.0, 1.0),
+    "ward_normalised": (-0.5, 0.5),
+    "lambertian": (0.0, 0.0),
+}
+
+
 def half_angle_spread(
     normals: np.ndarray,
     steps: np.ndarray,
@@ -75,23 +84,36 @@ def half_angle_spread(
     light_dist: np.ndarray,
     view_dir: np.ndarray,
     view_dist: np.ndarray,
+    brdf: str = "torrance_sparrow",
 ) -> np.ndarray:
-    """(T, 2) float32 variance (radians^2) of the half-angle offset along it and across it (module doc), for texels
-    with unit normals (T, 3), texel steps (T, 3, 2), normal steps dnormal (T, 3, 2) (normal_steps), footprint
-    covariance spread (T, 2, 2) in texel steps, unit light and view directions (T, 3) and their distances (T,)
-    (inf for a directional light)."""
-    s = light_dir + view_dir
+    """(T, 3) float32: the variance (radians^2) of the half-angle offset along it and across it, and the shift of
+    its length (radians) by the specular weight's slope across the footprint (module doc), for texels with unit
+    normals (T, 3), texel steps (T, 3, 2), normal steps dnormal (T, 3, 2) (normal_steps), footprint covariance
+    spread (T, 2, 2) in texel steps, unit light and view directions (T, 3) and their distances (T,) (inf for a
+    directional light); brdf names the specular geometry factor (GEOMETRY_EXPONENTS)."""
+    n, l, v = normals, light_dir, view_dir
+    s = l + v
     norm = np.maximum(np.linalg.norm(s, axis=1), 1e-12)
     h = s / norm[:, None]
-    turn = _turn(light_dir, light_dist, steps) + _turn(view_dir, view_dist, steps)
+    dl, dv = _turn(l, light_dist, steps), _turn(v, view_dist, steps)
+    turn = dl + dv
     dh = (turn - h[:, :, None] * np.einsum("ti,tij->tj", h, turn)[:, None, :]) / norm[:, None, None]
-    hn = np.einsum("ti,ti->t", h, normals)
-    jac = dh - normals[:, :, None] * np.einsum("ti,tij->tj", normals, dh)[:, None, :] - hn[:, None, None] * dnormal
+    hn = np.einsum("ti,ti->t", h, n)
+    jac = dh - n[:, :, None] * np.einsum("ti,tij->tj", n, dh)[:, None, :] - hn[:, None, None] * dnormal
     cov = jac @ spread @ np.swapaxes(jac, 1, 2)  # (T, 3, 3)
     total = np.einsum("tii->t", cov)
-    d = h - hn[:, None] * normals
-    length = np.linalg.norm(d, axis=1)
-    dhat = d / np.maximum(length, 1e-300)[:, None]
+    # the specular weight G falloff tilts the footprint's mean by spread grad(ln(G falloff)), per texel step
+    ev, el = GEOMETRY_EXPONENTS[brdf]
+    cos_v, cos_l = (np.maximum(np.einsum("ti,ti->t", n, x), 1e-4) for x in (v, l))
+    dcos_v = np.einsum("tij,ti->tj", dnormal, v) + np.einsum("ti,tij->tj", n, dv)
+    dcos_l = np.einsum("tij,ti->tj", dnormal, l) + np.einsum("ti,tij->tj", n, dl)
+    slope = ev * dcos_v / cos_v[:, None] + el * dcos_l / cos_l[:, None]
+    slope += 2.0 * np.einsum("ti,tij->tj", l, steps) / light_dist[:, None]  # d ln(1 / dist^2)
+    d = h - hn[:, None] * n
+    shifted = d + np.einsum("tij,tjk,tk->ti", jac, spread, slope)
+    length = np.linalg.norm(shifted, axis=1)
+    dhat = shifted / np.maximum(length, 1e-300)[:, None]
     along = np.where(length > 1e-9, np.einsum("ti,tij,tj->t", dhat, cov, dhat), total / 2.0)
     along = np.clip(along, 0.0, total)
-    return np.stack([along, total - along], axis=1).astype(np.float32)
+    shift = length - np.linalg.norm(d, axis=1)
+    return np.stack([along, total - along, shift], axis=1).astype(np.float32)

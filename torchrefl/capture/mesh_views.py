@@ -139,8 +139,9 @@ class ImageRows:
     intensity (P, T, 3): the footprint's pixel value / the image's exposure, 0 where not seen; view_dir,
     light_dir (P, T, 3) unit vectors; dist (P, T) texel-light distance (1 for a directional light); cos_l (P, T)
     n . l; seen, lit, shadowed, saturated, masked (P, T); unseen (P, T) uint8: 0 where seen, else 1 + the index in
-    UNSEEN of why the camera does not see the texel; spread (P, T, 2) the half-angle offset's variance over the
-    footprint, along and across it (radians^2, capture.footprint_spread), 0 where not seen."""
+    UNSEEN of why the camera does not see the texel; spread (P, T, 3) the half-angle offset's variance over the
+    footprint along and across it (radians^2) and its shift (radians) (capture.footprint_spread), 0 where not
+    seen."""
 
     intensity: np.ndarray
     view_dir: np.ndarray
@@ -161,7 +162,7 @@ class ImageRows:
         b = lambda: np.zeros((P, T), dtype=bool)  # noqa: E731
         return cls(
             f3(), f3(), f3(), np.ones((P, T), np.float32), np.zeros((P, T), np.float32),
-            b(), b(), b(), b(), b(), np.zeros((P, T), np.uint8), np.zeros((P, T, 2), np.float32),
+            b(), b(), b(), b(), b(), np.zeros((P, T), np.uint8), np.zeros((P, T, 3), np.float32),
         )  # fmt: skip
 
     def not_seen(self, k: int) -> np.ndarray:
@@ -213,6 +214,7 @@ def _read_rows(
     offset = cfg.geometry.shadow_offset_mm
     for cam in sorted({int(meta.camera_index[i]) for i in chosen}):
         view = frame_view(meta, cam, frame, tracer, cfg)
+        centre = meta.cameras.centres()[cam].numpy()
         for p in [k for k, i in enumerate(chosen) if meta.camera_index[i] == cam]:
             i = chosen[p]
             image = meta.read_image(i)
@@ -231,11 +233,13 @@ def _read_rows(
                 trace=view.seen,
             )
             _light_row(rows, p, pl)
-            _spread_row(rows, p, view, frame, meta.cameras.centres()[cam].numpy(), lights.point[k])
+            _spread_row(rows, p, view, frame, centre, lights.point[k], cfg.reflectance.brdf)
     return rows
 
 
-def _spread_row(rows: ImageRows, p: int, view: CameraView, frame: TexelFrame, centre: np.ndarray, point: bool):
+def _spread_row(
+    rows: ImageRows, p: int, view: CameraView, frame: TexelFrame, centre: np.ndarray, point: bool, brdf: str
+) -> None:
     """Row p's footprint spread of the half-angle offset (capture.footprint_spread) at the seen texels."""
     idx = np.flatnonzero(view.seen)
     X = frame.points[idx]
@@ -250,6 +254,7 @@ def _spread_row(rows: ImageRows, p: int, view: CameraView, frame: TexelFrame, ce
         light_dist,
         view.view_dir[idx].astype(np.float64),
         np.linalg.norm(to_cam, axis=1),
+        brdf,
     )
 
 

@@ -92,9 +92,9 @@ def specular_lobe(model: str, theta_h: torch.Tensor, sigma: torch.Tensor, spread
 
     torrance_sparrow: exp(-theta_h^2 / (2 sigma^2))
     ward*:            exp(-tan^2 theta_h / sigma^2) / (4 pi sigma^2)
-    theta_h, sigma broadcastable; returns their broadcast shape. spread: None, or (..., 2) the observations'
-    footprint spread of the half-angle offset (radians^2, along and across it): the lobe averaged over it
-    (core.lobe_spread).
+    theta_h, sigma broadcastable; returns their broadcast shape. spread: None, or (..., 2 or 3) the observations'
+    footprint spread of the half-angle offset (radians^2, along and across it; the offset's shift, radians): the
+    lobe averaged over it (core.lobe_spread).
     """
     if spread is not None and model != "lambertian":
         return spread_lobe_dsigma(model, theta_h, sigma, spread, SIGMA_EPS, COS_EPS)[0]

@@ -10,8 +10,10 @@ spread with variance `along` in d's direction and `across` perpendicular to it, 
 
     s / sqrt(s^2 + along) * s / sqrt(s^2 + across) * exp(-|d|^2 / (2 (s^2 + along)))
 
-(exact for a Gaussian spread aligned with d; first-order exact in the spread otherwise). With zero spread it is
-the lobe itself. The spread is measured by the loader (capture.footprint_spread), in radians^2.
+(exact for a Gaussian spread aligned with d; first-order exact in the spread otherwise). A third value, a shift
+of |d| (radians), moves the offset the average is taken at: the specular weight (1 / cos_v, the falloff) varies
+across the footprint too and tilts the mean towards where it is larger. With zero spread it is the lobe itself.
+The loader measures all three (capture.footprint_spread).
 """
 
 from __future__ import annotations
@@ -32,11 +34,12 @@ def spread_lobe_dsigma(
     sig = sigma.clamp_min(sigma_eps)
     live = (sigma >= sigma_eps).to(sig.dtype)
     along, across = spread[..., 0], spread[..., 1]
+    theta = theta_h if spread.shape[-1] < 3 else (theta_h + spread[..., 2]).clamp_min(0.0)
     if model == "torrance_sparrow":
-        x2, s2, k = theta_h * theta_h, sig * sig, 1.0
+        x2, s2, k = theta * theta, sig * sig, 1.0
     elif model in ("ward", "ward_normalised"):
-        c = torch.cos(theta_h).clamp_min(cos_eps)
-        x2, s2, k = (torch.sin(theta_h) / c) ** 2, sig * sig / 2.0, 2.0
+        c = torch.cos(theta).clamp_min(cos_eps)
+        x2, s2, k = (torch.sin(theta) / c) ** 2, sig * sig / 2.0, 2.0
     else:
         raise ConfigError(f"fit.brdf: no footprint spread for BRDF '{model}' (torrance_sparrow, ward*)")
     a, b = s2 + along, s2 + across

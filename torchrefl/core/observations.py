@@ -30,9 +30,10 @@ class Observations:
     view_dir: (T, 3) or (P, T, 3) float, unit vector from the texel towards the camera.
     kappa: (3,) float, camera calibration gain: i = kappa * L_o (pi reduces Torrance-Sparrow to eq. 2.9).
     light_positions: (P, 3) float world positions of point lights, or None for directional lights.
-    lobe_spread: (P, T, 2) float radians^2, the spread of each observation's half-angle offset over the
-        footprint its value averages, along and across the offset (capture.footprint_spread; the fitter's lobe is
-        averaged over it, core.lobe_spread), or None: the lobe at the texel centre.
+    lobe_spread: (P, T, 3) float, over the footprint each observation's value averages: the variance of its
+        half-angle offset along and across the offset (radians^2) and the offset's shift (radians) by the specular
+        weight's slope (capture.footprint_spread; the fitter's lobe is averaged over it, core.lobe_spread), or
+        None: the lobe at the texel centre.
     light_names: one name per light configuration (image file names).
     """
 
@@ -76,7 +77,7 @@ class Observations:
             "kappa": (3,),
         }
         if self.lobe_spread is not None:
-            expected["lobe_spread"] = (P, T, 2)
+            expected["lobe_spread"] = (P, T, 3)
         for name, shape in expected.items():
             got = tuple(getattr(self, name).shape)
             if got != shape:

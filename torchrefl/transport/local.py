@@ -30,7 +30,7 @@ class LocalTerms:
     diffuse: (P, T, 3) factor A multiplying Pd.
     specular: (P, T, 3) factor B multiplying Ps * D(theta_h; sigma).
     diffuse_exponent: Minnaert's k built into `diffuse` (1 = Lambert).
-    spread: (P, T, 2) the observations' footprint spread of the half-angle offset (Observations.lobe_spread), the
+    spread: (P, T, 3) the observations' footprint spread of the half-angle offset (Observations.lobe_spread), the
     lobe D averaged over it (core.lobe_spread); None: D at the texel centre.
     """
 
