@@ -10,8 +10,11 @@ whose covariance in texel steps is
 1/12 px^2). Across that footprint the normal turns (normal_steps: the blended corner normals' derivative in texel
 steps) and the half vector turns with the light and view directions, so the 2-D half-angle offset
 d = h - (h . n) n varies by J = (I - n n^T) dh - (h . n) dn per texel step. Its covariance J Sigma J^T, split
-along d and across it, is the spread core.lobe_spread averages the lobe over. A specular lobe of sigma 0.1 rad
-on a texel whose normal turns 0.2 rad is otherwise read as a wider, lower lobe (sigma biased up, Ps down).
+along d and across it, is the spread core.lobe_spread averages the lobe over. The lobe's weight (the BRDF's
+specular geometry factor times the falloff, G) varies across the footprint too: G(x) ~ G exp(g . x) tilts the
+footprint's mean by Sigma g (g the gradient of ln G per texel step), which shifts d by J Sigma g; the change of
+|d| is the third value. A specular lobe of sigma 0.1 rad on a texel whose normal turns 0.2 rad is otherwise read
+as a wider, lower lobe (sigma biased up, Ps down).
 """
 
 from __future__ import annotations

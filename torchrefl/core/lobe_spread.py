@@ -29,8 +29,9 @@ def spread_lobe_dsigma(
     model: str, theta_h: torch.Tensor, sigma: torch.Tensor, spread: torch.Tensor, sigma_eps: float, cos_eps: float
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(D, dD/dsigma) of the footprint-averaged lobe (module doc) of torrance_sparrow or ward*; theta_h (...),
-    sigma broadcastable, spread (..., 2) radians^2 (along, across), >= 0. sigma is clamped below at sigma_eps
-    (derivative 0 there), cos(theta_h) at cos_eps inside tan(theta_h)."""
+    sigma broadcastable, spread (..., 2 or 3): the variances along and across (radians^2, >= 0) and the shift of
+    theta_h (radians; none without a third value). sigma is clamped below at sigma_eps (derivative 0 there),
+    cos(theta_h) at cos_eps inside tan(theta_h)."""
     sig = sigma.clamp_min(sigma_eps)
     live = (sigma >= sigma_eps).to(sig.dtype)
     along, across = spread[..., 0], spread[..., 1]
