@@ -23,6 +23,7 @@ import torch
 
 from torchrefl.capture.base import Capture, CaptureLoader, Log
 from torchrefl.capture.checks import image_content_checks, implied_albedo_check, light_indices, observations_left
+from torchrefl.capture.footprint_spread import half_angle_spread, normal_steps
 from torchrefl.capture.truth import TRUTH, load_truth
 from torchrefl.capture.view_folder import ViewFolder, read_view_folder
 from torchrefl.capture.views_sampling import OUTSIDE, REASON_KEYS, CameraView, camera_view, footprint_values
@@ -76,20 +77,22 @@ def texel_steps(geom: AtlasGeometry) -> np.ndarray:
 
 @dataclass
 class TexelFrame:
-    """The atlas's texels as the cameras sample them (float64, mm): points (T, 3), unit normals (T, 3), areas (T,)
-    and steps (T, 3, 2) (texel_steps)."""
+    """The atlas's texels as the cameras sample them (float64, mm): points (T, 3), unit normals (T, 3), areas (T,),
+    steps (T, 3, 2) (texel_steps) and dnormal (T, 3, 2), the normal's change per step (footprint_spread)."""
 
     points: np.ndarray
     normals: np.ndarray
     areas: np.ndarray
     steps: np.ndarray
+    dnormal: np.ndarray
 
 
 def texel_frame(geom: AtlasGeometry) -> TexelFrame:
     """The TexelFrame of an atlas geometry."""
-    s = geom.surface
+    s, m, t = geom.surface, geom.mesh, geom.texels
+    dnormal = normal_steps(m.vertices, m.faces, m.uvs, s.grid_shape[0], t.face, t.barycentric)
     return TexelFrame(
-        s.positions.double().numpy(), s.normals.double().numpy(), s.areas.double().numpy(), texel_steps(geom)
+        s.positions.double().numpy(), s.normals.double().numpy(), s.areas.double().numpy(), texel_steps(geom), dnormal
     )
 
 
@@ -136,7 +139,9 @@ class ImageRows:
     intensity (P, T, 3): the footprint's pixel value / the image's exposure, 0 where not seen; view_dir,
     light_dir (P, T, 3) unit vectors; dist (P, T) texel-light distance (1 for a directional light); cos_l (P, T)
     n . l; seen, lit, shadowed, saturated, masked (P, T); unseen (P, T) uint8: 0 where seen, else 1 + the index in
-    UNSEEN of why the camera does not see the texel."""
+    UNSEEN of why the camera does not see the texel; spread (P, T, 3) the half-angle offset's variance over the
+    footprint along and across it (radians^2) and its shift (radians) (capture.footprint_spread), 0 where not
+    seen."""
 
     intensity: np.ndarray
     view_dir: np.ndarray
@@ -149,6 +154,7 @@ class ImageRows:
     saturated: np.ndarray
     masked: np.ndarray
     unseen: np.ndarray
+    spread: np.ndarray
 
     @classmethod
     def empty(cls, P: int, T: int) -> "ImageRows":
@@ -156,7 +162,7 @@ class ImageRows:
         b = lambda: np.zeros((P, T), dtype=bool)  # noqa: E731
         return cls(
             f3(), f3(), f3(), np.ones((P, T), np.float32), np.zeros((P, T), np.float32),
-            b(), b(), b(), b(), b(), np.zeros((P, T), np.uint8),
+            b(), b(), b(), b(), b(), np.zeros((P, T), np.uint8), np.zeros((P, T, 3), np.float32),
         )  # fmt: skip
 
     def not_seen(self, k: int) -> np.ndarray:
@@ -208,6 +214,7 @@ def _read_rows(
     offset = cfg.geometry.shadow_offset_mm
     for cam in sorted({int(meta.camera_index[i]) for i in chosen}):
         view = frame_view(meta, cam, frame, tracer, cfg)
+        centre = meta.cameras.centres()[cam].numpy()
         for p in [k for k, i in enumerate(chosen) if meta.camera_index[i] == cam]:
             i = chosen[p]
             image = meta.read_image(i)
@@ -226,7 +233,29 @@ def _read_rows(
                 trace=view.seen,
             )
             _light_row(rows, p, pl)
+            _spread_row(rows, p, view, frame, centre, lights.point[k], cfg.reflectance.brdf)
     return rows
+
+
+def _spread_row(
+    rows: ImageRows, p: int, view: CameraView, frame: TexelFrame, centre: np.ndarray, point: bool, brdf: str
+) -> None:
+    """Row p's footprint spread of the half-angle offset (capture.footprint_spread) at the seen texels."""
+    idx = np.flatnonzero(view.seen)
+    X = frame.points[idx]
+    to_cam = centre[None] - X
+    light_dist = rows.dist[p, idx].astype(np.float64) if point else np.full(len(idx), np.inf)
+    rows.spread[p, idx] = half_angle_spread(
+        frame.normals[idx],
+        frame.steps[idx],
+        frame.dnormal[idx],
+        view.spread[idx],
+        rows.light_dir[p, idx].astype(np.float64),
+        light_dist,
+        view.view_dir[idx].astype(np.float64),
+        np.linalg.norm(to_cam, axis=1),
+        brdf,
+    )
 
 
 def _removed(rows: ImageRows, saturation: float) -> dict[str, np.ndarray]:
@@ -349,6 +378,7 @@ def load_views_observations(
         view_dir=t(rows.view_dir),
         kappa=t(kappa),
         light_positions=t(lights.position[light_of]) if point.all() else None,
+        lobe_spread=t(rows.spread),
         light_names=[Path(im.file).name for im in images],
         source=where,
     )

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from torchrefl.capture.footprint_spread import footprint_covariance
 from torchrefl.core.rays import RayTracer
 
 #: at most this many footprint samples per texel side (a texel covering more pixels is averaged over 8 x 8)
@@ -50,13 +51,16 @@ class CameraView:
     view_dir: (T, 3) float32 unit vectors towards the camera; cos_v: (T,) float32 n . v.
     seen: (T,) bool, usable in this camera's images: in front, in frame, facing it, visible, no depth step.
     samples: [(texels (K,) int64, uv (K, m*m, 2) float64)] the footprint samples of the seen texels, grouped by m.
-    reasons: {reason: (T,) bool} why texels are not seen (a texel counts under its first reason only)."""
+    reasons: {reason: (T,) bool} why texels are not seen (a texel counts under its first reason only).
+    spread: (T, 2, 2) float64 covariance, in texel steps (column, row), of the surface points the footprint value
+    averages (capture.footprint_spread.footprint_covariance); zeros at texels not seen."""
 
     view_dir: np.ndarray
     cos_v: np.ndarray
     seen: np.ndarray
     samples: list
     reasons: dict
+    spread: np.ndarray
 
 
 #: CameraView.reasons' names, in the order they are tested
@@ -131,7 +135,7 @@ def camera_view(
     # projected area in pixels (the depth-step offsets), and the part of the footprint whose pixels lie inside it
     zc = np.maximum(z, 1e-300)
     area_px = areas * np.maximum(cos_v, 0) * fx * fy * d / zc**3
-    inset, m, narrow = _inset(points, steps, cameras, c, zc)
+    inset, m, narrow, px = _inset(points, steps, cameras, c, zc)
     drop(SMALL, narrow)
     idx = np.flatnonzero(left)
     if idx.size:
@@ -151,14 +155,19 @@ def camera_view(
         samples.append((idx[inside], suv[inside]))
     reasons[OUTSIDE] |= outside & left
     left &= ~outside
-    return CameraView(v.astype(np.float32), cos_v.astype(np.float32), left, samples, reasons)
+    spread = np.zeros((T, 2, 2))
+    for idx, suv in samples:
+        spread[idx] = footprint_covariance(suv, px[idx])
+    spread[~left] = 0.0
+    return CameraView(v.astype(np.float32), cos_v.astype(np.float32), left, samples, reasons, spread)
 
 
-def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(inset (T, 2), m (T,), narrow (T,) bool): the fraction of each texel step (column, row) that footprint
-    samples may span so that every pixel their bilinear values use lies inside the texel's projection (SUPPORT_PX
-    from each edge), the samples per side (1: the centre only, where that part is under a pixel or the texel has no
-    steps), and the texels narrower than NARROW_PX along a step (even the centre's value mixes their neighbours')."""
+def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(inset (T, 2), m (T,), narrow (T,) bool, px (T, 2, 2)): the fraction of each texel step (column, row) that
+    footprint samples may span so that every pixel their bilinear values use lies inside the texel's projection
+    (SUPPORT_PX from each edge), the samples per side (1: the centre only, where that part is under a pixel or the
+    texel has no steps), the texels narrower than NARROW_PX along a step (even the centre's value mixes their
+    neighbours'), and the pixels per texel step (columns = steps)."""
     R = cameras.R[c].numpy()
     K = cameras.K[c].numpy()
     Xc = points @ R.T + cameras.t[c].numpy()
@@ -174,7 +183,7 @@ def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, n
     m = np.clip(np.ceil((inset * length).max(axis=1)), 1, MAX_SAMPLES).astype(np.int64)
     m[(inset * length).max(axis=1) <= 1.0] = 1
     narrow = steps.any(axis=(1, 2)) & (length < NARROW_PX).any(axis=1)
-    return inset, m, narrow
+    return inset, m, narrow, px
 
 
 def _depth_steps(idx, T, points, normals, side, footprint_px, z, C, R, fx, tracer, offset) -> np.ndarray:

@@ -38,6 +38,7 @@ import math
 
 import torch
 
+from torchrefl.core.lobe_spread import spread_lobe_dsigma
 from torchrefl.errors import ConfigError
 
 COS_EPS = 1e-4
@@ -86,13 +87,17 @@ def half_angle(n: torch.Tensor, l: torch.Tensor, v: torch.Tensor) -> torch.Tenso
     return angle_between(n, half_vector(l, v))
 
 
-def specular_lobe(model: str, theta_h: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+def specular_lobe(model: str, theta_h: torch.Tensor, sigma: torch.Tensor, spread=None) -> torch.Tensor:
     """The specular distribution D so that the specular part of f*cos_l is Ps * D * geometric factor.
 
     torrance_sparrow: exp(-theta_h^2 / (2 sigma^2))
     ward*:            exp(-tan^2 theta_h / sigma^2) / (4 pi sigma^2)
-    theta_h, sigma broadcastable; returns their broadcast shape.
+    theta_h, sigma broadcastable; returns their broadcast shape. spread: None, or (..., 2 or 3) the observations'
+    footprint spread of the half-angle offset (radians^2, along and across it; the offset's shift, radians): the
+    lobe averaged over it (core.lobe_spread).
     """
+    if spread is not None and model != "lambertian":
+        return spread_lobe_dsigma(model, theta_h, sigma, spread, SIGMA_EPS, COS_EPS)[0]
     sig = sigma.clamp_min(SIGMA_EPS)
     if model == "torrance_sparrow":
         return torch.exp(-(theta_h * theta_h) / (2.0 * sig * sig))
@@ -105,9 +110,14 @@ def specular_lobe(model: str, theta_h: torch.Tensor, sigma: torch.Tensor) -> tor
     raise ConfigError(f"fit.brdf: unknown BRDF '{model}', expected one of {', '.join(BRDF_NAMES)}")
 
 
-def specular_lobe_dsigma(model: str, theta_h: torch.Tensor, sigma: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def specular_lobe_dsigma(
+    model: str, theta_h: torch.Tensor, sigma: torch.Tensor, spread=None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """(D, dD/dsigma) of specular_lobe, the derivative in closed form (0 where sigma < SIGMA_EPS, the clamp):
-    torrance_sparrow D theta_h^2 / sigma^3, ward* D (2 tan^2 theta_h / sigma^3 - 2 / sigma)."""
+    torrance_sparrow D theta_h^2 / sigma^3, ward* D (2 tan^2 theta_h / sigma^3 - 2 / sigma); spread as
+    specular_lobe's."""
+    if spread is not None and model != "lambertian":
+        return spread_lobe_dsigma(model, theta_h, sigma, spread, SIGMA_EPS, COS_EPS)
     sig = sigma.clamp_min(SIGMA_EPS)
     live = (sigma >= SIGMA_EPS).to(sig.dtype)
     if model == "torrance_sparrow":

@@ -30,6 +30,10 @@ class Observations:
     view_dir: (T, 3) or (P, T, 3) float, unit vector from the texel towards the camera.
     kappa: (3,) float, camera calibration gain: i = kappa * L_o (pi reduces Torrance-Sparrow to eq. 2.9).
     light_positions: (P, 3) float world positions of point lights, or None for directional lights.
+    lobe_spread: (P, T, 3) float, over the footprint each observation's value averages: the variance of its
+        half-angle offset along and across the offset (radians^2) and the offset's shift (radians) by the specular
+        weight's slope (capture.footprint_spread; the fitter's lobe is averaged over it, core.lobe_spread), or
+        None: the lobe at the texel centre.
     light_names: one name per light configuration (image file names).
     """
 
@@ -43,6 +47,7 @@ class Observations:
     view_dir: torch.Tensor
     kappa: torch.Tensor
     light_positions: Optional[torch.Tensor] = None
+    lobe_spread: Optional[torch.Tensor] = None
     light_names: list = field(default_factory=list)
     source: str = "<memory>"
 
@@ -71,6 +76,8 @@ class Observations:
             "light_intensity": (P, 3),
             "kappa": (3,),
         }
+        if self.lobe_spread is not None:
+            expected["lobe_spread"] = (P, T, 3)
         for name, shape in expected.items():
             got = tuple(getattr(self, name).shape)
             if got != shape:
@@ -109,6 +116,7 @@ class Observations:
             view_dir=vd,
             kappa=self.kappa,
             light_positions=None if self.light_positions is None else self.light_positions[idx],
+            lobe_spread=None if self.lobe_spread is None else self.lobe_spread[idx],
             light_names=[self.light_names[i] for i in idx.tolist()] if self.light_names else [],
             source=self.source,
         )
@@ -127,6 +135,7 @@ class Observations:
             view_dir=f(self.view_dir),
             kappa=f(self.kappa),
             light_positions=f(self.light_positions),
+            lobe_spread=f(self.lobe_spread),
             light_names=list(self.light_names),
             source=self.source,
         )

@@ -127,7 +127,7 @@ def closed_form_specular(
     determined &= (sigma >= sigma_min) & (sigma <= sigma_max)
     sigma = sigma.clamp(sigma_min, sigma_max)
     # Ps per channel: weighted mean over the usable observations of a_k,c / D(theta_k; sigma)
-    D = specular_lobe(model, terms.theta_h, sigma[None])  # (P, T)
+    D = specular_lobe(model, terms.theta_h, sigma[None], terms.spread)  # (P, T)
     a_c = spec_int / B.clamp_min(1e-30)  # (P, T, 3)
     wc = torch.where(ok, D * D, torch.zeros_like(D))[..., None]
     ps = (wc * a_c * D[..., None]).sum(0) / (wc * D[..., None] ** 2).sum(0).clamp_min(1e-30)

@@ -126,6 +126,7 @@ class FittedProblem:
 
         local = model.local
         self.theta = at(local.theta_h)
+        self.spread = None if local.spread is None else at(local.spread)
         self.a = at(local.diffuse if model.diffuse is None else local.diffuse + model.diffuse)
         self.b = at(local.specular)
         # the intensities straight from the (P, T, 3) tensor (not a (P, n, 3) copy of the texels')
@@ -157,10 +158,10 @@ class FittedProblem:
             return m @ self.e_weight
 
         if not derivative:
-            lobe, _ = specular_lobe_dsigma(self.brdf, self.theta, s_obs)
+            lobe, _ = specular_lobe_dsigma(self.brdf, self.theta, s_obs, self.spread)
             spec, _ = specular_lobe_dsigma(self.brdf, self.e_theta, s_ent)
             return lobe, summed(spec)
-        lobe, dlobe = specular_lobe_dsigma(self.brdf, self.theta, s_obs)
+        lobe, dlobe = specular_lobe_dsigma(self.brdf, self.theta, s_obs, self.spread)
         spec, dspec = specular_lobe_dsigma(self.brdf, self.e_theta, s_ent)
         return lobe, summed(spec), dlobe, summed(dspec)
 

@@ -98,7 +98,8 @@ class _Profile:
     def _sums(self, sigma: torch.Tensor):
         """(S_AE, S_Ei, S_EE, uv, vv) each (T, 3) at sigma: the specular column E's sums and, Pd eliminated, u.v
         and v.v."""
-        E = specular_lobe(self.terms.brdf, self.terms.theta_h, sigma.to(self.dt))[..., None] * self.terms.specular
+        t = self.terms
+        E = specular_lobe(t.brdf, t.theta_h, sigma.to(self.dt), t.spread)[..., None] * t.specular
         if self.indirect is not None:
             E = E + self.indirect.specular(sigma).to(self.dt)
         E = E * self.w

@@ -122,7 +122,8 @@ def texel_chunks(cfg: Config, texels: int, fitted: torch.Tensor, log) -> Optiona
 def chunk_terms(terms: LocalTerms, chunk: TexelChunk) -> LocalTerms:
     """The local terms of the chunk's images and texels."""
     pick = lambda x: _pick(x, chunk)  # noqa: E731
-    return LocalTerms(terms.brdf, *(pick(getattr(terms, k)) for k in LOCAL_TENSORS), terms.diffuse_exponent)
+    spread = None if terms.spread is None else pick(terms.spread)
+    return LocalTerms(terms.brdf, *(pick(getattr(terms, k)) for k in LOCAL_TENSORS), terms.diffuse_exponent, spread)
 
 
 def _pick(x: torch.Tensor, chunk: TexelChunk) -> torch.Tensor:

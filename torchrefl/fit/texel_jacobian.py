@@ -153,7 +153,7 @@ def texel_model_jacobian(model: TexelModel, ps: torch.Tensor, sigma: torch.Tenso
     """The ChannelJacobian of a TexelModel of n texels at ps (n, C), sigma (n,) (it does not depend on Pd)."""
     local = model.local
     sigma = sigma.detach().contiguous()  # a shared lobe comes expanded (stride 0)
-    lobe, dlobe = specular_lobe_dsigma(local.brdf, local.theta_h, sigma[None])  # (P, n)
+    lobe, dlobe = specular_lobe_dsigma(local.brdf, local.theta_h, sigma[None], local.spread)  # (P, n)
     a = local.diffuse if model.diffuse is None else local.diffuse + model.diffuse
     B = local.specular.permute(2, 0, 1)  # (3, P, n)
     P, n = lobe.shape

@@ -30,6 +30,8 @@ class LocalTerms:
     diffuse: (P, T, 3) factor A multiplying Pd.
     specular: (P, T, 3) factor B multiplying Ps * D(theta_h; sigma).
     diffuse_exponent: Minnaert's k built into `diffuse` (1 = Lambert).
+    spread: (P, T, 3) the observations' footprint spread of the half-angle offset (Observations.lobe_spread), the
+    lobe D averaged over it (core.lobe_spread); None: D at the texel centre.
     """
 
     brdf: str
@@ -39,6 +41,7 @@ class LocalTerms:
     diffuse: torch.Tensor
     specular: torch.Tensor
     diffuse_exponent: float = 1.0
+    spread: torch.Tensor | None = None
 
     @property
     def num_lights(self) -> int:
@@ -59,6 +62,7 @@ class LocalTerms:
             pick(self.diffuse),
             pick(self.specular),
             self.diffuse_exponent,
+            None if self.spread is None else pick(self.spread),
         )
 
 
@@ -81,12 +85,14 @@ def local_terms(brdf_name: str, normals: torch.Tensor, obs: Observations, diffus
     scale = light_scale(obs)
     diffuse = scale * brdf_mod.diffuse_term(cos_l, cos_v, float(diffuse_exponent))[..., None]
     specular = scale * brdf_mod.specular_geometry(brdf_name, cos_l, cos_v)[..., None]
-    return LocalTerms(brdf_name, theta_h, cos_l, cos_v, diffuse, specular, float(diffuse_exponent))
+    spread = obs.lobe_spread
+    spread = None if spread is None else spread.to(theta_h.dtype)
+    return LocalTerms(brdf_name, theta_h, cos_l, cos_v, diffuse, specular, float(diffuse_exponent), spread)
 
 
 def predict(terms: LocalTerms, pd: torch.Tensor, ps: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
     """(P, T, 3) predicted intensities for pd (T, 3), ps (T, C) with C in {1, 3}, sigma (T,)."""
-    lobe = brdf_mod.specular_lobe(terms.brdf, terms.theta_h, sigma.unsqueeze(0))
+    lobe = brdf_mod.specular_lobe(terms.brdf, terms.theta_h, sigma.unsqueeze(0), terms.spread)
     return pd.unsqueeze(0) * terms.diffuse + ps.unsqueeze(0) * (lobe[..., None] * terms.specular)
 
 

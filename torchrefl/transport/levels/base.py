@@ -62,7 +62,10 @@ class LevelInputs:
         terms = self.terms if texels is None else self.terms.texels(texels)
         if self.device.type != "cpu":
             terms = LocalTerms(
-                terms.brdf, *(getattr(terms, k).to(self.device) for k in LOCAL_TENSORS), terms.diffuse_exponent
+                terms.brdf,
+                *(getattr(terms, k).to(self.device) for k in LOCAL_TENSORS),
+                terms.diffuse_exponent,
+                None if terms.spread is None else terms.spread.to(self.device),
             )
         return terms
 
