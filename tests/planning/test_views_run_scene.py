@@ -33,8 +33,9 @@ def test_the_run_s_own_images_are_predicted_as_the_loader_reads_them(scene):
     # the loader's valid also drops saturated and masked pixels, which the planner predicts from the estimate
     assert torch.equal(predicted.valid, loaded.valid | loaded.saturated)
     assert predicted.valid.any(1).all()
-    for key in ("light_dir", "falloff", "view_dir", "light_intensity"):
+    for key in ("light_dir", "falloff", "view_dir", "light_intensity", "lobe_spread"):
         torch.testing.assert_close(getattr(predicted, key), getattr(loaded, key).to(predicted.falloff.dtype))
+    assert (predicted.lobe_spread[..., :2] > 0).any()  # the lobe is predicted over the footprint, as it is fitted
 
 
 def test_a_candidate_is_photographed_by_every_camera_that_sees_the_object(scene):

@@ -237,25 +237,35 @@ def _read_rows(
     return rows
 
 
-def _spread_row(
-    rows: ImageRows, p: int, view: CameraView, frame: TexelFrame, centre: np.ndarray, point: bool, brdf: str
-) -> None:
-    """Row p's footprint spread of the half-angle offset (capture.footprint_spread) at the seen texels."""
+def view_spread(
+    view: CameraView, frame: TexelFrame, centre: np.ndarray, light_dir: np.ndarray, light_dist: np.ndarray, brdf: str
+) -> np.ndarray:
+    """(T, 3) float32: the footprint spread of the half-angle offset (capture.footprint_spread) of one image, camera
+    `view` (centre (3,) mm) under a light at unit directions light_dir (T, 3) and distances light_dist (T,) (inf for a
+    directional light), at the texels the camera sees; 0 elsewhere."""
+    out = np.zeros((len(frame.points), 3), dtype=np.float32)
     idx = np.flatnonzero(view.seen)
     X = frame.points[idx]
-    to_cam = centre[None] - X
-    light_dist = rows.dist[p, idx].astype(np.float64) if point else np.full(len(idx), np.inf)
-    rows.spread[p, idx] = half_angle_spread(
+    out[idx] = half_angle_spread(
         frame.normals[idx],
         frame.steps[idx],
         frame.dnormal[idx],
         view.spread[idx],
-        rows.light_dir[p, idx].astype(np.float64),
-        light_dist,
+        np.asarray(light_dir[idx], dtype=np.float64),
+        np.asarray(light_dist[idx], dtype=np.float64),
         view.view_dir[idx].astype(np.float64),
-        np.linalg.norm(to_cam, axis=1),
+        np.linalg.norm(centre[None] - X, axis=1),
         brdf,
     )
+    return out
+
+
+def _spread_row(
+    rows: ImageRows, p: int, view: CameraView, frame: TexelFrame, centre: np.ndarray, point: bool, brdf: str
+) -> None:
+    """Row p's footprint spread of the half-angle offset (view_spread) at the seen texels."""
+    dist = rows.dist[p] if point else np.full(len(frame.points), np.inf)
+    rows.spread[p] = view_spread(view, frame, centre, rows.light_dir[p], dist, brdf)
 
 
 def _removed(rows: ImageRows, saturation: float) -> dict[str, np.ndarray]:

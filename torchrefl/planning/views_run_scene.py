@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from torchrefl.capture.checks import light_indices
-from torchrefl.capture.mesh_views import MeshViewsLoader, frame_view, texel_frame
+from torchrefl.capture.mesh_views import MeshViewsLoader, TexelFrame, frame_view, texel_frame, view_spread
 from torchrefl.capture.view_folder import ViewFolder
 from torchrefl.capture.views_sampling import CameraView
 from torchrefl.config import Config, resolve_path
@@ -56,8 +56,9 @@ class ViewsRunScene:
     """A fitted mesh_views run seen by a planner, over the T atlas texels (module docstring).
 
     run, cfg: the RunResult and its resolved Config; geometry: the atlas (the fit's texels); meta: the capture
-    folder's cameras, lights and images (mm); tracer: the mesh's Embree scene; views: the CameraView of each camera
-    in `cameras` (the indices of meta.cameras that see some texel); fitted: images.json indices of the run's fitted
+    folder's cameras, lights and images (mm); tracer: the mesh's Embree scene; frame: the texels' points, normals and
+    steps as the loader traces them; views: the CameraView of each camera in `cameras` (the indices of meta.cameras
+    that see some texel); fitted: images.json indices of the run's fitted
     images; pd, ps, sigma, estimated, lobe_measured, n_specular: the estimate (planning.run_scene.TexelEstimate);
     lights (P, 3) world mm: the distinct positions of the fitted images' point lights; intensity (3,): a
     candidate's radiant intensity; kappa (3,); saturation_level; noise_dn (3,) DN; ranges: the broad prior."""
@@ -67,6 +68,7 @@ class ViewsRunScene:
     geometry: AtlasGeometry
     meta: ViewFolder
     tracer: RayTracer
+    frame: TexelFrame
     cameras: list[int]
     views: list[CameraView]
     fitted: list[int]
@@ -105,7 +107,7 @@ class ViewsRunScene:
     @cached_property
     def _frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """float32 texel points and normals (T, 3) as the loader traces them, and (T,) some camera sees it."""
-        f = texel_frame(self.geometry)
+        f = self.frame
         seen = np.any([v.seen for v in self.views], axis=0)
         return f.points.astype(np.float32), f.normals.astype(np.float32), seen
 
@@ -123,12 +125,20 @@ class ViewsRunScene:
             trace=seen,
         )
 
-    def _rows(self, pairs: list[tuple[int, PointLight]], intensity: np.ndarray, what: str) -> Observations:
-        """Observations of images (v, light): view index v in self.views under the light; intensity (R, 3)."""
+    def _rows(self, pairs: list[tuple[int, PointLight]], point: list[bool], intensity, what: str) -> Observations:
+        """Observations of images (v, light): view index v in self.views under the light, a point light where
+        `point` (else directional: no distance); intensity (R, 3)."""
+        distances = [pl.distance if near else np.full(len(pl.distance), np.inf) for (_, pl), near in zip(pairs, point)]
         dtype = self.pd.dtype
         t = lambda a: torch.from_numpy(np.ascontiguousarray(np.stack(a))).to(dtype)
         valid = [self.views[v].seen & pl.lit & ~pl.shadowed for v, pl in pairs]
         shadowed = torch.from_numpy(np.stack([pl.shadowed for _, pl in pairs]))
+        centres = self.meta.cameras.centres().numpy()
+        brdf = self.cfg.reflectance.brdf
+        spread = [
+            view_spread(self.views[v], self.frame, centres[self.cameras[v]], pl.direction, far, brdf)
+            for (v, pl), far in zip(pairs, distances)
+        ]
         return Observations(
             intensity=torch.zeros(len(pairs), len(valid[0]), 3, dtype=dtype),
             valid=torch.from_numpy(np.stack(valid)),
@@ -139,6 +149,7 @@ class ViewsRunScene:
             light_intensity=torch.from_numpy(np.array(intensity, dtype=np.float64)).to(dtype),
             view_dir=t([self.views[v].view_dir for v, _ in pairs]),
             kappa=torch.from_numpy(self.kappa).to(dtype),
+            lobe_spread=t(spread),
             source=f"{self.run.folder}: {what}",
         )
 
@@ -151,7 +162,9 @@ class ViewsRunScene:
             for pl in [self._light(position=pos)]
             for v in range(len(self.views))
         ]
-        return self._rows(pairs, np.broadcast_to(self.intensity, (len(pairs), 3)), "predicted lights")
+        return self._rows(
+            pairs, [True] * len(pairs), np.broadcast_to(self.intensity, (len(pairs), 3)), "predicted lights"
+        )
 
     def fitted_observations(self, chunk: int) -> Iterator[Observations]:
         """The geometry of the run's fitted images (each its own camera and light), chunk images at a time."""
@@ -162,12 +175,14 @@ class ViewsRunScene:
             images = [i for i in self.fitted[start : start + chunk] if int(m.camera_index[i]) in view_of]
             if not images:
                 continue
-            pairs = []
+            pairs, point = [], []
             for i in images:
                 k = int(m.light_index[i])
                 pl = self._light(lights.position[k]) if lights.point[k] else self._light(direction=lights.direction[k])
                 pairs.append((view_of[int(m.camera_index[i])], pl))
-            yield self._rows(pairs, lights.intensity[[int(m.light_index[i]) for i in images]], "fitted images")
+                point.append(bool(lights.point[k]))
+            intensity = lights.intensity[[int(m.light_index[i]) for i in images]]
+            yield self._rows(pairs, point, intensity, "fitted images")
 
 
 def views_capture_folder(run: RunResult, cfg: Config) -> Path:
@@ -211,6 +226,7 @@ def views_run_scene(run: RunResult, cfg: Config) -> ViewsRunScene:
         geometry=geom,
         meta=meta,
         tracer=tracer,
+        frame=frame,
         cameras=cameras,
         views=[views[c] for c in cameras],
         fitted=fitted,
