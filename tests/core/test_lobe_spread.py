@@ -52,3 +52,32 @@ def test_the_sigma_derivative_passes_gradcheck(model, columns):
     D, dD = specular_lobe_dsigma(model, theta, sigma.detach(), spread)
     (auto,) = torch.autograd.grad(specular_lobe(model, theta, sigma, spread).sum(), sigma)
     assert torch.allclose(dD, auto, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("model", ["torrance_sparrow", "ward"])
+def test_extremes_are_finite_and_float32_agrees_with_float64(model):
+    # sigma at and below its clamp, grazing half-angles, no spread, a spread far wider than the lobe, large shifts
+    theta = torch.tensor([0.0, 1e-6, 0.3, 1.2, 1.5707, 1.5707, 0.05, 0.05], dtype=torch.float64)
+    sigma = torch.tensor([1e-9, 1e-3, 0.1, 0.5, 0.3, 1e-9, 0.02, 2.0], dtype=torch.float64)
+    spread = torch.tensor(
+        [
+            [0, 0, 0],
+            [1e-8, 0, 0],
+            [1e-3, 1e-3, 0.5],
+            [0.5, 0.5, -2.0],
+            [1.0, 1.0, 0],
+            [0, 0, 0],
+            [2.0, 1e-6, 0],
+            [0, 0, 0],
+        ],
+        dtype=torch.float64,
+    )
+    D64, dD64 = specular_lobe_dsigma(model, theta, sigma, spread)
+    D32, dD32 = specular_lobe_dsigma(model, theta.float(), sigma.float(), spread.float())
+    assert torch.isfinite(D64).all() and torch.isfinite(dD64).all()
+    assert torch.isfinite(D32).all() and torch.isfinite(dD32).all()
+    scale = D64.abs().max()
+    assert torch.allclose(D32.double(), D64, rtol=1e-4, atol=1e-6 * float(scale))
+    sig = sigma.clone().requires_grad_()
+    (grad,) = torch.autograd.grad(specular_lobe(model, theta, sig, spread).sum(), sig)
+    assert torch.isfinite(grad).all()
