@@ -16,7 +16,7 @@ target's reading as scripts/next_best_compare.py (its Row, summary and plot).
     python scripts/next_best_views_compare.py [--seeds 0 1 2] [--greedy 3 4 5 6 8] [--start 3] [--plan 3]
         [--reference 8] [--out FOLDER] [dotted.key=value ...]
     python scripts/next_best_views_compare.py --tabulate A/results.json B/results.json [--reference 8]
-    python scripts/next_best_views_compare.py --tiny   # a 16 x 16 atlas, 4 small views, one seed (a check)
+    python scripts/next_best_views_compare.py --tiny [--per-round 1]  # a 16 x 16 atlas, 4 small views, one seed
 """
 
 from __future__ import annotations
@@ -91,11 +91,27 @@ def compare_seed(args, seed: int, out: Path, log) -> list:
 
     for n in sorted(set(args.greedy) | {args.start}):
         fitted("coverage", order[:n])
+    if args.per_round:
+        return rows + planned_in_rounds(args, seed, out, order, candidates, fitted, log, rows)
     plan = choose(load_planning_scene(out / f"coverage_{args.start}"), candidates, args.plan)
     log(f"seed {seed}: planned {plan.chosen} after {order[: args.start]}; gains {np.round(plan.gain, 1).tolist()}")
     for j in range(1, args.plan + 1):
         fitted("planner", [*order[: args.start], *plan.chosen[:j]])
     return rows
+
+
+def planned_in_rounds(args, seed: int, out: Path, order, candidates, fitted, log, rows) -> list:
+    """The closed loop: --per-round lights planned from the last fit, fitted, planned again, until --plan lights
+    are added (the rows are appended to `rows` by `fitted`; returns nothing new)."""
+    chosen, folder = list(order[: args.start]), out / f"coverage_{args.start}"
+    while len(chosen) < args.start + args.plan:
+        k = min(args.per_round, args.start + args.plan - len(chosen))
+        plan = choose(load_planning_scene(folder), candidates, k)
+        log(f"seed {seed}: planned {plan.chosen} after {chosen}; gains {np.round(plan.gain, 1).tolist()}")
+        chosen += [int(c) for c in plan.chosen]
+        fitted("planner", chosen)
+        folder = out / f"planner_{len(chosen)}"
+    return []
 
 
 def main(argv=None) -> int:
@@ -105,6 +121,9 @@ def main(argv=None) -> int:
     parser.add_argument("--start", type=int, default=3, help="coverage-greedy lights the planner starts from")
     parser.add_argument("--plan", type=int, default=3, help="lights the planner adds")
     parser.add_argument("--reference", type=int, default=8, help="coverage-greedy's count the target compares with")
+    parser.add_argument(
+        "--per-round", type=int, default=0, help="plan this many lights, fit, plan again (0: all --plan at once)"
+    )
     parser.add_argument("--out", default=None, help="folder for the runs and results.json (default: a temporary one)")
     parser.add_argument("--tabulate", nargs="+", default=None, help="no fit: the tables of these results.json files")
     parser.add_argument("--tiny", action="store_true", help="a 16 x 16 atlas, 4 views: checks that the script runs")
@@ -112,7 +131,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     args.overrides = [*(TINY if args.tiny else REDUCED), *args.overrides]
     if args.tiny:
-        args.seeds, args.greedy, args.start, args.plan, args.reference = args.seeds[:1], [2], 2, 1, 2
+        args.seeds, args.greedy, args.start, args.reference = args.seeds[:1], [2], 2, 2
+        args.plan = 2 if args.per_round else 1
     log = lambda message: print(message, file=sys.stderr, flush=True)
     if args.tabulate:
         rows = [Row(**r) for path in args.tabulate for r in json.loads(Path(path).read_text())]
