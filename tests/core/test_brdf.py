@@ -245,3 +245,17 @@ def test_minnaert_float32_agrees_with_float64():
     f = lambda x: T(x).float()
     g32 = brdf.cosine_weighted_brdf("torrance_sparrow", f(nrm), f(l), f(v), f(pd), f(ps), f(sigma), 1.2)
     np.testing.assert_allclose(g32.double().numpy(), g64.numpy(), rtol=2e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("model", brdf.BRDF_NAMES)
+def test_the_specular_geometry_is_the_power_law_its_exponents_say(model):
+    # the footprint spread's slope of ln G (capture.footprint_spread) reads these exponents, not the function
+    ev, el = brdf.SPECULAR_GEOMETRY_EXPONENTS[model]
+    cl = torch.tensor([0.2, 0.5, 0.9], dtype=torch.float64)
+    cv = torch.tensor([0.7, 0.3, 0.6], dtype=torch.float64)
+    g = brdf.specular_geometry(model, cl, cv)
+    if model == "lambertian":
+        assert torch.all(g == 0) and (ev, el) == (0.0, 0.0)
+        return
+    torch.testing.assert_close(brdf.specular_geometry(model, 2 * cl, cv) / g, torch.full_like(g, 2.0**el))
+    torch.testing.assert_close(brdf.specular_geometry(model, cl, 2 * cv) / g, torch.full_like(g, 2.0**ev))

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from torchrefl.core.brdf import SPECULAR_GEOMETRY_EXPONENTS
 from torchrefl.geometry.atlas import uv_to_texel_xy
 from torchrefl.geometry.atlas_neighbours import face_jacobians
 from torchrefl.geometry.mesh_normals import DEFAULT_CREASE_ANGLE_DEG, corner_normals
@@ -69,15 +70,6 @@ def _turn(d: np.ndarray, dist: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return -(steps - d[:, :, None] * along[:, None, :]) / dist[:, None, None]
 
 
-#: the specular geometry factor's exponents of (cos_v, cos_l) per BRDF (core.brdf.specular_geometry)
-GEOMETRY_EXPONENTS = {
-    "torrance_sparrow": (-1.0, 0.0),
-    "ward": (0.0, 1.0),
-    "ward_normalised": (-0.5, 0.5),
-    "lambertian": (0.0, 0.0),
-}
-
-
 def half_angle_spread(
     normals: np.ndarray,
     steps: np.ndarray,
@@ -93,7 +85,7 @@ def half_angle_spread(
     its length (radians) by the specular weight's slope across the footprint (module doc), for texels with unit
     normals (T, 3), texel steps (T, 3, 2), normal steps dnormal (T, 3, 2) (normal_steps), footprint covariance
     spread (T, 2, 2) in texel steps, unit light and view directions (T, 3) and their distances (T,) (inf for a
-    directional light); brdf names the specular geometry factor (GEOMETRY_EXPONENTS)."""
+    directional light); brdf names the specular geometry factor (core.brdf.SPECULAR_GEOMETRY_EXPONENTS)."""
     n, l, v = normals, light_dir, view_dir
     s = l + v
     norm = np.maximum(np.linalg.norm(s, axis=1), 1e-12)
@@ -106,7 +98,7 @@ def half_angle_spread(
     cov = jac @ spread @ np.swapaxes(jac, 1, 2)  # (T, 3, 3)
     total = np.einsum("tii->t", cov)
     # the specular weight G falloff tilts the footprint's mean by spread grad(ln(G falloff)), per texel step
-    ev, el = GEOMETRY_EXPONENTS[brdf]
+    ev, el = SPECULAR_GEOMETRY_EXPONENTS[brdf]
     cos_v, cos_l = (np.maximum(np.einsum("ti,ti->t", n, x), 1e-4) for x in (v, l))
     dcos_v = np.einsum("tij,ti->tj", dnormal, v) + np.einsum("ti,tij->tj", n, dv)
     dcos_l = np.einsum("tij,ti->tj", dnormal, l) + np.einsum("ti,tij->tj", n, dl)

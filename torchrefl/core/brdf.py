@@ -87,7 +87,9 @@ def half_angle(n: torch.Tensor, l: torch.Tensor, v: torch.Tensor) -> torch.Tenso
     return angle_between(n, half_vector(l, v))
 
 
-def specular_lobe(model: str, theta_h: torch.Tensor, sigma: torch.Tensor, spread=None) -> torch.Tensor:
+def specular_lobe(
+    model: str, theta_h: torch.Tensor, sigma: torch.Tensor, spread: torch.Tensor | None = None
+) -> torch.Tensor:
     """The specular distribution D so that the specular part of f*cos_l is Ps * D * geometric factor.
 
     torrance_sparrow: exp(-theta_h^2 / (2 sigma^2))
@@ -111,7 +113,7 @@ def specular_lobe(model: str, theta_h: torch.Tensor, sigma: torch.Tensor, spread
 
 
 def specular_lobe_dsigma(
-    model: str, theta_h: torch.Tensor, sigma: torch.Tensor, spread=None
+    model: str, theta_h: torch.Tensor, sigma: torch.Tensor, spread: torch.Tensor | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(D, dD/dsigma) of specular_lobe, the derivative in closed form (0 where sigma < SIGMA_EPS, the clamp):
     torrance_sparrow D theta_h^2 / sigma^3, ward* D (2 tan^2 theta_h / sigma^3 - 2 / sigma); spread as
@@ -133,6 +135,16 @@ def specular_lobe_dsigma(
         zero = torch.zeros_like(theta_h + sig)
         return zero, zero
     raise ConfigError(f"fit.brdf: unknown BRDF '{model}', expected one of {', '.join(BRDF_NAMES)}")
+
+
+#: specular_geometry's G as a power law, (exponent of cos_v, exponent of cos_l) per BRDF: what its slope across a
+#: footprint is (capture.footprint_spread); tests/core/test_brdf.py holds the two together
+SPECULAR_GEOMETRY_EXPONENTS = {
+    "torrance_sparrow": (-1.0, 0.0),
+    "ward": (0.0, 1.0),
+    "ward_normalised": (-0.5, 0.5),
+    "lambertian": (0.0, 0.0),
+}
 
 
 def specular_geometry(model: str, cos_l: torch.Tensor, cos_v: torch.Tensor) -> torch.Tensor:
