@@ -242,3 +242,37 @@ def test_the_bundled_config_runs_end_to_end_on_a_tiny_scene(tmp_path):
     assert (out / "capture" / "mesh.obj").is_file()
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["capture"]["kind"] == "synthetic_mesh_views" and metrics["capture"]["images"] == 8
+
+
+def _behind_occluder(X: np.ndarray, source: np.ndarray) -> bool:
+    """The segment from the plate point X to source (a light or a camera centre) crosses the occluder (z = 15,
+    |x|, |y| <= 5)."""
+    hit = X + (15.0 - X[2]) / (source[2] - X[2]) * (source - X)
+    return bool(abs(hit[0]) <= 5 and abs(hit[1]) <= 5)
+
+
+STEPS = ((0, 1), (0, -1), (1, 0), (-1, 0))
+
+
+@pytest.mark.parametrize("image", [0, 2])  # the top light: the occluder's shadow falls on the plate
+def test_a_texel_beside_the_occluders_shadow_is_left_out_and_counted(hand, image):
+    # the shadow worked out from the geometry: a lit texel whose neighbour one step along a texel axis is in
+    # shadow may have part of its footprint in shadow; one two steps from the shadow (and from the occluder's
+    # outline in the image) keeps its observation
+    _, cap = hand
+    light = np.array(LIGHTS[IMAGES[image]["light"]]["position"], dtype=float)
+    cam = CAMERAS[IMAGES[image]["camera"]]
+    centre = -np.asarray(cam["R"], dtype=float).T @ np.asarray(cam["t"], dtype=float)
+    cells = [(r, c) for r in range(16, 32) for c in range(16)]
+    dark = {rc: _behind_occluder(plate_point(*rc), light) for rc in cells}
+    hidden = {rc: _behind_occluder(plate_point(*rc), centre) for rc in cells}
+    inner = [(r, c) for r in range(18, 30) for c in range(2, 14)]  # away from the plate's outline
+    edge = [rc for rc in inner if not dark[rc] and any(dark[(rc[0] + a, rc[1] + b)] for a, b in STEPS)]
+    near = lambda rc, flags: any(flags[(rc[0] + a, rc[1] + b)] for a in range(-2, 3) for b in range(-2, 3))  # noqa: E731
+    clear = [rc for rc in inner if not near(rc, dark) and not near(rc, hidden)]
+    assert len(edge) >= 8 and len(clear) >= 40
+    valid = cap.obs.valid[image].numpy()
+    assert not any(valid[texel(cap, *rc)] for rc in edge)
+    assert not any(valid[texel(cap, *rc)] for rc in inner if dark[rc])
+    assert all(valid[texel(cap, *rc)] for rc in clear)
+    assert cap.stats["shadow_edge_observations"] >= len(edge)

@@ -10,7 +10,8 @@ The texels are the mesh's atlas at capture.texture_size (geometry.atlas_surface;
 no UVs, and then written into the run folder). Each image is one light configuration p of the Observations: its
 camera's view of the texels (capture.views_sampling: projection with distortion, Embree visibility, footprint
 sampling, silhouettes and depth steps left out), its light's direction, falloff and cast shadow
-(core.point_light), the pixel value divided by the image's exposure. P = images, so view_dir is (P, T, 3).
+(core.point_light; texels at a cast shadow's edge left out: capture.shadow_edges), the pixel value divided by the
+image's exposure. P = images, so view_dir is (P, T, 3).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import torch
 from torchrefl.capture.base import Capture, CaptureLoader, Log
 from torchrefl.capture.checks import image_content_checks, implied_albedo_check, light_indices, observations_left
 from torchrefl.capture.footprint_spread import half_angle_spread, normal_steps
+from torchrefl.capture.shadow_edges import adjacent_texels, shadow_edge, with_adjacent
 from torchrefl.capture.truth import TRUTH, load_truth
 from torchrefl.capture.view_folder import ViewFolder, read_view_folder
 from torchrefl.capture.views_sampling import OUTSIDE, REASON_KEYS, CameraView, camera_view, footprint_values
@@ -78,13 +80,15 @@ def texel_steps(geom: AtlasGeometry) -> np.ndarray:
 @dataclass
 class TexelFrame:
     """The atlas's texels as the cameras sample them (float64, mm): points (T, 3), unit normals (T, 3), areas (T,),
-    steps (T, 3, 2) (texel_steps) and dnormal (T, 3, 2), the normal's change per step (footprint_spread)."""
+    steps (T, 3, 2) (texel_steps), dnormal (T, 3, 2), the normal's change per step (footprint_spread), and adjacent
+    (T, 4) int64, each texel's surface neighbours (capture.shadow_edges.adjacent_texels)."""
 
     points: np.ndarray
     normals: np.ndarray
     areas: np.ndarray
     steps: np.ndarray
     dnormal: np.ndarray
+    adjacent: np.ndarray
 
 
 def texel_frame(geom: AtlasGeometry) -> TexelFrame:
@@ -92,7 +96,12 @@ def texel_frame(geom: AtlasGeometry) -> TexelFrame:
     s, m, t = geom.surface, geom.mesh, geom.texels
     dnormal = normal_steps(m.vertices, m.faces, m.uvs, s.grid_shape[0], t.face, t.barycentric)
     return TexelFrame(
-        s.positions.double().numpy(), s.normals.double().numpy(), s.areas.double().numpy(), texel_steps(geom), dnormal
+        s.positions.double().numpy(),
+        s.normals.double().numpy(),
+        s.areas.double().numpy(),
+        texel_steps(geom),
+        dnormal,
+        adjacent_texels(s.neighbours),
     )
 
 
@@ -138,7 +147,8 @@ class ImageRows:
 
     intensity (P, T, 3): the footprint's pixel value / the image's exposure, 0 where not seen; view_dir,
     light_dir (P, T, 3) unit vectors; dist (P, T) texel-light distance (1 for a directional light); cos_l (P, T)
-    n . l; seen, lit, shadowed, saturated, masked (P, T); unseen (P, T) uint8: 0 where seen, else 1 + the index in
+    n . l; seen, lit, shadowed, saturated, masked (P, T); shadow_edge (P, T): lit texels beside a cast shadow
+    (capture.shadow_edges); unseen (P, T) uint8: 0 where seen, else 1 + the index in
     UNSEEN of why the camera does not see the texel; spread (P, T, 3) the half-angle offset's variance over the
     footprint along and across it (radians^2) and its shift (radians) (capture.footprint_spread), 0 where not
     seen."""
@@ -155,6 +165,7 @@ class ImageRows:
     masked: np.ndarray
     unseen: np.ndarray
     spread: np.ndarray
+    shadow_edge: np.ndarray
 
     @classmethod
     def empty(cls, P: int, T: int) -> "ImageRows":
@@ -162,7 +173,7 @@ class ImageRows:
         b = lambda: np.zeros((P, T), dtype=bool)  # noqa: E731
         return cls(
             f3(), f3(), f3(), np.ones((P, T), np.float32), np.zeros((P, T), np.float32),
-            b(), b(), b(), b(), b(), np.zeros((P, T), np.uint8), np.zeros((P, T, 3), np.float32),
+            b(), b(), b(), b(), b(), np.zeros((P, T), np.uint8), np.zeros((P, T, 3), np.float32), b(),
         )  # fmt: skip
 
     def not_seen(self, k: int) -> np.ndarray:
@@ -197,10 +208,11 @@ def _image_row(rows: ImageRows, p: int, view: CameraView, image: np.ndarray, mas
     rows.view_dir[p] = view.view_dir
 
 
-def _light_row(rows: ImageRows, p: int, pl: PointLight) -> None:
-    """Row p's light geometry."""
+def _light_row(rows: ImageRows, p: int, pl: PointLight, adjacent: np.ndarray) -> None:
+    """Row p's light geometry, and the texels at its cast shadows' edges (adjacent: TexelFrame.adjacent)."""
     rows.light_dir[p], rows.dist[p], rows.cos_l[p] = pl.direction, pl.distance, pl.cosine
     rows.lit[p], rows.shadowed[p] = pl.lit, pl.shadowed
+    rows.shadow_edge[p] = rows.seen[p] & shadow_edge(pl.lit, pl.shadowed, adjacent)
 
 
 def _read_rows(
@@ -230,9 +242,9 @@ def _read_rows(
                 direction=None if lights.point[k] else lights.direction[k],
                 offset=offset,
                 min_cos=cfg.reflectance.min_cos_light,
-                trace=view.seen,
+                trace=with_adjacent(view.seen, frame.adjacent),
             )
-            _light_row(rows, p, pl)
+            _light_row(rows, p, pl, frame.adjacent)
             _spread_row(rows, p, view, frame, centre, lights.point[k], cfg.reflectance.brdf)
     return rows
 
@@ -274,6 +286,7 @@ def _removed(rows: ImageRows, saturation: float) -> dict[str, np.ndarray]:
         **{f"not seen: {reason}": rows.not_seen(k) for k, reason in enumerate(UNSEEN)},
         "not lit (n.l at or below reflectance.min_cos_light)": ~rows.lit,
         "in cast shadow": rows.shadowed,
+        "at a cast shadow's edge (the footprint partly in shadow)": rows.shadow_edge,
         f"saturated (>= {saturation:g})": rows.saturated,
         "masked out by the image's mask": rows.masked,
         "not finite": ~np.isfinite(rows.intensity).all(-1),
@@ -281,9 +294,11 @@ def _removed(rows: ImageRows, saturation: float) -> dict[str, np.ndarray]:
 
 
 def _valid(rows: ImageRows) -> np.ndarray:
-    """(P, T) bool: seen, lit, not shadowed, saturated nor masked, finite (what _removed removes, in place)."""
+    """(P, T) bool: seen, lit, not shadowed nor at a shadow's edge, saturated nor masked, finite (what _removed
+    removes, in place)."""
     valid = rows.seen & rows.lit
     valid &= ~rows.shadowed
+    valid &= ~rows.shadow_edge
     valid &= ~rows.saturated
     valid &= ~rows.masked
     valid &= np.isfinite(rows.intensity).all(-1)
@@ -335,6 +350,7 @@ def _stats(meta: ViewFolder, rows: ImageRows, valid: np.ndarray, images: list, s
         "saturation_level": float(saturation),
         "saturated_observations": int((rows.saturated & rows.lit).sum()),
         "shadowed_observations": int(rows.shadowed.sum()),
+        "shadow_edge_observations": int(rows.shadow_edge.sum()),
         "masked_observations": int(rows.masked.sum()),
         **{
             f"not_seen_{REASON_KEYS[reason]}_observations": int(rows.not_seen(k).sum())

@@ -13,8 +13,10 @@ For camera c with centre C and texel t at X with normal n, area a (side s = sqrt
   area), so the samples keep that far from the texel's projected edges, and the value carries no neighbour's
   reflectance (a material border on a texel edge stays out of it). m is the inset part's projected length in
   pixels (at most MAX_SAMPLES), 1 (the centre) where that part is under a pixel across; a texel whose projection
-  is narrower than NARROW_PX = 2.5 px along one of its steps is left out of the image (even its centre's value
-  mixes its neighbours': the image does not resolve it; a closer or more frontal view may);
+  is narrower than NARROW_PX = 2.5 px across a pair of its edges (the parallelogram's width, not its edges'
+  length: at grazing view the two steps project nearly parallel, a sliver between long edges) is left out of the
+  image (even its centre's value mixes its neighbours': the image does not resolve it; a closer or more frontal
+  view may);
 - in frame: every sample lies within [0, W - 1] x [0, H - 1], so that its bilinear support is in the image;
 - silhouettes and depth steps: rays from C through four points offset from X perpendicular to the view by
   (half the footprint + 1) pixels (the camera's x and y axes, both signs) must hit the texel's tangent plane
@@ -165,9 +167,10 @@ def camera_view(
 def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(inset (T, 2), m (T,), narrow (T,) bool, px (T, 2, 2)): the fraction of each texel step (column, row) that
     footprint samples may span so that every pixel their bilinear values use lies inside the texel's projection
-    (SUPPORT_PX from each edge), the samples per side (1: the centre only, where that part is under a pixel or the
-    texel has no steps), the texels narrower than NARROW_PX along a step (even the centre's value mixes their
-    neighbours'), and the pixels per texel step (columns = steps)."""
+    (SUPPORT_PX from each edge, across the projection's width: projected_widths), the samples per side (1: the
+    centre only, where that part is under a pixel or the texel has no steps), the texels narrower than NARROW_PX
+    across a pair of edges (even the centre's value mixes their neighbours'), and the pixels per texel step
+    (columns = steps)."""
     R = cameras.R[c].numpy()
     K = cameras.K[c].numpy()
     Xc = points @ R.T + cameras.t[c].numpy()
@@ -178,12 +181,25 @@ def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, n
     J[:, 1, 2] = -K[1, 1] * Xc[:, 1] / z**2
     px = np.einsum("tij,jk,tkl->til", J, R, steps)  # (T, 2, 2): pixels per texel step, columns = steps
     length = np.linalg.norm(px, axis=1)  # (T, 2) projected length of each step, px
+    width = projected_widths(px)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inset = np.clip(np.nan_to_num(1.0 - 2.0 * SUPPORT_PX / length), 0.0, 1.0)
+        inset = np.clip(np.nan_to_num(1.0 - 2.0 * SUPPORT_PX / width), 0.0, 1.0)
     m = np.clip(np.ceil((inset * length).max(axis=1)), 1, MAX_SAMPLES).astype(np.int64)
     m[(inset * length).max(axis=1) <= 1.0] = 1
-    narrow = steps.any(axis=(1, 2)) & (length < NARROW_PX).any(axis=1)
+    narrow = steps.any(axis=(1, 2)) & (width < NARROW_PX).any(axis=1)
     return inset, m, narrow, px
+
+
+def projected_widths(px: np.ndarray) -> np.ndarray:
+    """(T, 2) the projected texel's width (px) across each pair of its edges: for the parallelogram spanned by the
+    steps' projections a, b (px (T, 2, 2), columns), |a x b| / |b| along a and |a x b| / |a| along b. This is the
+    step's length where the projections are perpendicular, and far less at grazing view, where they turn towards
+    one another and the parallelogram is a thin sliver between long edges."""
+    a, b = px[..., 0], px[..., 1]
+    area = np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    length = np.linalg.norm(px, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.nan_to_num(area[:, None] / length[:, ::-1])
 
 
 def _depth_steps(idx, T, points, normals, side, footprint_px, z, C, R, fx, tracer, offset) -> np.ndarray:

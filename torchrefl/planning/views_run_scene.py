@@ -11,8 +11,9 @@ makes: the plan lists one image per camera for each chosen light), so it is imag
 Observations, one per such camera, each as the loader computes an image's geometry: the camera's view of the
 texels (capture.mesh_views.frame_view: projection, Embree visibility, silhouettes, footprints too narrow), the
 light's direction, 1 / d^2 falloff and cast shadow (core.point_light.light_geometry, traced for the texels some
-camera sees), n.l above reflectance.min_cos_light. Its radiant intensity is the per-channel median of the run's
-fitted lights', its exposure 1; kappa is the run's; an observation saturates at the folder's saturation level
+camera sees; texels at a cast shadow's edge left out, capture.shadow_edges), n.l above
+reflectance.min_cos_light. Its radiant intensity is the per-channel median of the run's fitted lights', its
+exposure 1; kappa is the run's; an observation saturates at the folder's saturation level
 (images.json, else capture.saturation_level), which next_best applies to the predicted values.
 
 The run's own information comes from its fitted images (capture.light_subset minus fit.holdout), each with its own
@@ -31,6 +32,7 @@ import torch
 
 from torchrefl.capture.checks import light_indices
 from torchrefl.capture.mesh_views import MeshViewsLoader, TexelFrame, frame_view, texel_frame, view_spread
+from torchrefl.capture.shadow_edges import shadow_edge, with_adjacent
 from torchrefl.capture.view_folder import ViewFolder
 from torchrefl.capture.views_sampling import CameraView
 from torchrefl.config import Config, resolve_path
@@ -106,10 +108,11 @@ class ViewsRunScene:
 
     @cached_property
     def _frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """float32 texel points and normals (T, 3) as the loader traces them, and (T,) some camera sees it."""
+        """float32 texel points and normals (T, 3) as the loader traces them, and (T,) some camera sees it or a texel
+        adjacent to it (the shadow edges' test)."""
         f = self.frame
         seen = np.any([v.seen for v in self.views], axis=0)
-        return f.points.astype(np.float32), f.normals.astype(np.float32), seen
+        return f.points.astype(np.float32), f.normals.astype(np.float32), with_adjacent(seen, f.adjacent)
 
     def _light(self, position=None, direction=None) -> PointLight:
         """A light's geometry over the texels (shadows traced where some camera sees the texel)."""
@@ -131,7 +134,10 @@ class ViewsRunScene:
         distances = [pl.distance if near else np.full(len(pl.distance), np.inf) for (_, pl), near in zip(pairs, point)]
         dtype = self.pd.dtype
         t = lambda a: torch.from_numpy(np.ascontiguousarray(np.stack(a))).to(dtype)
-        valid = [self.views[v].seen & pl.lit & ~pl.shadowed for v, pl in pairs]
+        adjacent = self.frame.adjacent
+        valid = [
+            self.views[v].seen & pl.lit & ~pl.shadowed & ~shadow_edge(pl.lit, pl.shadowed, adjacent) for v, pl in pairs
+        ]
         shadowed = torch.from_numpy(np.stack([pl.shadowed for _, pl in pairs]))
         centres = self.meta.cameras.centres().numpy()
         brdf = self.cfg.reflectance.brdf
