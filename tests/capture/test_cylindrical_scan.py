@@ -255,8 +255,8 @@ def test_a_strip_no_fitting_window_describes_is_excluded_and_counted(scan_folder
 
 def test_observations_at_a_cast_shadows_edge_are_excluded_and_counted(scan_folder, tmp_path):
     """The raised block casts shadows on the ellipsoid: the lit observations next to a shadowed texel of the same
-    face (untrusted_texels.shadow_edge_observations) are invalid and counted; the smooth ellipsoid has none."""
-    from torchrefl.capture.untrusted_texels import shadow_edge_observations
+    face (capture.shadow_edges) are invalid and counted; the smooth ellipsoid has none."""
+    from torchrefl.capture.shadow_edges import face_neighbours, shadow_edge_observations
 
     folder, _ = scan_folder
     _, smooth = load_scan_observations(load_scan_geometry(folder, threads=1, dtype=torch.float64), threads=1)
@@ -265,7 +265,7 @@ def test_observations_at_a_cast_shadows_edge_are_excluded_and_counted(scan_folde
     geom = load_scan_geometry(step, threads=1, dtype=torch.float64)
     obs, stats = load_scan_observations(geom, threads=1, dtype=torch.float64)
     s = geom.surface
-    edge = shadow_edge_observations(obs.shadowed.numpy(), s.neighbours, s.normals.numpy())
+    edge = shadow_edge_observations(obs.shadowed.numpy(), face_neighbours(s.neighbours, s.normals.numpy()))
     assert stats["shadowed_observations"] > 0 and edge.sum() > 0
     assert not obs.valid[torch.from_numpy(edge)].any()
     assert 0 < stats["shadow_edge_observations"] <= int(edge.sum())

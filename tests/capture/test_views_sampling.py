@@ -6,6 +6,7 @@ import numpy as np
 from torchrefl.capture.cameras import Cameras
 from torchrefl.capture.views_sampling import NARROW_PX, SMALL, camera_view
 from torchrefl.core.rays import RayTracer
+from torchrefl.core.texel_grid import TexelGrid
 
 F, D = 1000.0, 500.0  # focal length (px) and the camera's height above the plate (mm)
 
@@ -56,3 +57,42 @@ def test_a_sheared_texel_is_narrow_by_its_width_not_by_its_edges():
     )
     assert view.reasons[SMALL].tolist() == [True, False]
     assert view.seen.tolist() == [False, True]
+
+
+def sheared_grid(n: int = 5, width_px: float = 2.0, edge_px: float = 4.0):
+    """n x n texels on the plate whose steps are edge_px long in the image and meet at an angle that leaves the
+    parallelogram width_px wide across its edges: texel (r, c) at c a + r b (a the column step, b the row step)."""
+    s = edge_px * D / F
+    sine = width_px / edge_px
+    a, b = np.array([s, 0.0, 0.0]), np.array([s * np.sqrt(1 - sine**2), s * sine, 0.0])
+    r, c = np.divmod(np.arange(n * n), n)
+    points = (c[:, None] - n // 2) * a + (r[:, None] - n // 2) * b
+    steps = np.tile(np.stack([a, b], 1), (n * n, 1, 1))
+    return (
+        points,
+        np.tile([0.0, 0.0, 1.0], (n * n, 1)),
+        np.full(n * n, s * s * sine),
+        steps,
+        TexelGrid(np.arange(n * n), (n, n)),
+    )
+
+
+def test_a_sliver_on_a_continuing_face_is_kept_and_one_whose_support_leaves_the_face_is_not():
+    # 2 px wide slivers: the value's support (SUPPORT_PX = 1.5 px from the centre) reaches one texel step each way;
+    # where those texels exist on the same face the footprint spread describes the blend, elsewhere it mixes
+    # another surface (here: the grid's border, and a neighbour whose normal is tilted by 40 degrees)
+    cams, plate = plate_below_camera()
+    points, normals, areas, steps, grid = sheared_grid()
+    view = lambda nb, n=normals: camera_view(  # noqa: E731
+        cams, 0, points, n, areas, steps, plate, offset=0.01, min_cos_view=0.1, neighbours=nb
+    )
+    inner = [r * 5 + c for r in range(1, 4) for c in range(1, 4)]
+    border = [t for t in range(25) if t not in inner]
+    kept = view(grid)
+    assert kept.seen[inner].all() and not kept.seen[border].any()
+    assert kept.reasons[SMALL][border].all()
+    assert not view(None).seen.any()  # no neighbour structure: every sliver is left out
+    tilted = normals.copy()
+    tilted[2 * 5 + 3] = [np.sin(np.radians(40)), 0.0, np.cos(np.radians(40))]  # texel (2, 3)
+    beside = view(grid, tilted)
+    assert not beside.seen[2 * 5 + 2] and beside.seen[1 * 5 + 1]  # (2, 2) borders it, (1, 1) does not

@@ -34,14 +34,10 @@ from torchrefl.capture.cylindrical_rig import CylindricalRig
 from torchrefl.capture.images import read_images
 from torchrefl.capture.scan_scale import scan_scale_check
 from torchrefl.capture.scan_yaml import read_manifest, read_scan_yaml  # noqa: F401  (the loader's readers)
+from torchrefl.capture.shadow_edges import face_neighbours, shadow_edge_observations
 from torchrefl.capture.truth import TRUTH
 from torchrefl.capture.truth import load_truth as read_truth
-from torchrefl.capture.untrusted_texels import (
-    mixed_footprint_grid,
-    shadow_edge_observations,
-    untrusted_counts,
-    untrusted_geometry,
-)
+from torchrefl.capture.untrusted_texels import mixed_footprint_grid, untrusted_counts, untrusted_geometry
 from torchrefl.config import Config
 from torchrefl.core.observations import Observations
 from torchrefl.core.point_light import point_light
@@ -313,7 +309,9 @@ def _excluded_observations(
         "not seen by the camera (facing away or occluded)": every(~og["seen"]),
         "not lit (n.l at or below the threshold)": ~og["lit"],
         "in cast shadow": og["shadowed"],
-        SHADOW_EDGE: shadow_edge_observations(og["shadowed"], geom.surface.neighbours, geom.surface.normals.numpy()),
+        SHADOW_EDGE: shadow_edge_observations(
+            og["shadowed"], face_neighbours(geom.surface.neighbours, geom.surface.normals.numpy())
+        ),
         f"saturated (>= {saturation_level:g})": saturated,
         "not finite": ~finite,
         f"edge texels (geometry.edge_width {edge_width})": every(texels["edge"]),

@@ -25,7 +25,7 @@ import torch
 from torchrefl.capture.base import Capture, CaptureLoader, Log
 from torchrefl.capture.checks import image_content_checks, implied_albedo_check, light_indices, observations_left
 from torchrefl.capture.footprint_spread import half_angle_spread, normal_steps
-from torchrefl.capture.shadow_edges import adjacent_texels, shadow_edge, with_adjacent
+from torchrefl.capture.shadow_edges import face_neighbours, shadow_edge_observations, with_adjacent
 from torchrefl.capture.truth import TRUTH, load_truth
 from torchrefl.capture.view_folder import ViewFolder, read_view_folder
 from torchrefl.capture.views_sampling import OUTSIDE, REASON_KEYS, CameraView, camera_view, footprint_values
@@ -33,6 +33,7 @@ from torchrefl.config import Config, read_yaml_mapping
 from torchrefl.core.observations import Observations
 from torchrefl.core.point_light import PointLight, light_geometry
 from torchrefl.core.rays import RayTracer
+from torchrefl.core.texel_neighbours import TexelNeighbours
 from torchrefl.errors import CaptureError
 from torchrefl.geometry.atlas import uv_to_texel_xy
 from torchrefl.geometry.atlas_neighbours import face_jacobians
@@ -80,8 +81,9 @@ def texel_steps(geom: AtlasGeometry) -> np.ndarray:
 @dataclass
 class TexelFrame:
     """The atlas's texels as the cameras sample them (float64, mm): points (T, 3), unit normals (T, 3), areas (T,),
-    steps (T, 3, 2) (texel_steps), dnormal (T, 3, 2), the normal's change per step (footprint_spread), and adjacent
-    (T, 4) int64, each texel's surface neighbours (capture.shadow_edges.adjacent_texels)."""
+    steps (T, 3, 2) (texel_steps), dnormal (T, 3, 2), the normal's change per step (footprint_spread), adjacent
+    (T, 4) int64, each texel's neighbours on its face (capture.shadow_edges.face_neighbours), and neighbours, the
+    surface's (Surface.neighbours)."""
 
     points: np.ndarray
     normals: np.ndarray
@@ -89,6 +91,7 @@ class TexelFrame:
     steps: np.ndarray
     dnormal: np.ndarray
     adjacent: np.ndarray
+    neighbours: TexelNeighbours
 
 
 def texel_frame(geom: AtlasGeometry) -> TexelFrame:
@@ -101,7 +104,8 @@ def texel_frame(geom: AtlasGeometry) -> TexelFrame:
         s.areas.double().numpy(),
         texel_steps(geom),
         dnormal,
-        adjacent_texels(s.neighbours),
+        face_neighbours(s.neighbours, s.normals.double().numpy()),
+        s.neighbours,
     )
 
 
@@ -110,7 +114,16 @@ def frame_view(meta: ViewFolder, cam: int, frame: TexelFrame, tracer: RayTracer,
     config's shadow offset and minimum n.v)."""
     f, off, min_cos = frame, cfg.geometry.shadow_offset_mm, cfg.reflectance.min_cos_view
     return camera_view(
-        meta.cameras, cam, f.points, f.normals, f.areas, f.steps, tracer, offset=off, min_cos_view=min_cos
+        meta.cameras,
+        cam,
+        f.points,
+        f.normals,
+        f.areas,
+        f.steps,
+        tracer,
+        offset=off,
+        min_cos_view=min_cos,
+        neighbours=f.neighbours,
     )
 
 
@@ -212,7 +225,7 @@ def _light_row(rows: ImageRows, p: int, pl: PointLight, adjacent: np.ndarray) ->
     """Row p's light geometry, and the texels at its cast shadows' edges (adjacent: TexelFrame.adjacent)."""
     rows.light_dir[p], rows.dist[p], rows.cos_l[p] = pl.direction, pl.distance, pl.cosine
     rows.lit[p], rows.shadowed[p] = pl.lit, pl.shadowed
-    rows.shadow_edge[p] = rows.seen[p] & shadow_edge(pl.lit, pl.shadowed, adjacent)
+    rows.shadow_edge[p] = rows.seen[p] & pl.lit & shadow_edge_observations(pl.shadowed, adjacent)
 
 
 def _read_rows(

@@ -1,7 +1,7 @@
 """The texels of a cylindrical scan whose geometry cannot be trusted: silhouettes, creases, mixed footprints and
 texels no range-fitting window describes (torchrefl.geometry.footprint, range_mesh); the loader leaves their
-observations out and reports them as coverage code 4. Also the observations whose footprint a cast shadow's edge
-may cross (shadow_edge_observations), which the loader leaves out as well."""
+observations out and reports them as coverage code 4. (The observations whose footprint a cast shadow's edge may
+cross: capture.shadow_edges.)"""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import numpy as np
 import torch
 
 from torchrefl.capture.cylindrical_rig import CylindricalRig
-from torchrefl.core.texel_neighbours import TexelNeighbours
 from torchrefl.geometry.cylindrical import cylindrical_points
 from torchrefl.geometry.footprint import mixed_footprints
 from torchrefl.geometry.range_image import RangeGeometry
@@ -32,29 +31,6 @@ def mixed_footprint_grid(r: np.ndarray, valid: np.ndarray, geo: RangeGeometry, r
         noise_mm=geo.noise_mm,
         wrap=rig.covers_full_turn(),
     )
-
-
-#: grid neighbours whose unit normals' cosine is below this lie across a crease: a shadow edge there is the crease's
-SAME_FACE_COS = 0.9
-
-
-def shadow_edge_observations(shadowed: np.ndarray, neighbours: TexelNeighbours, normals: np.ndarray) -> np.ndarray:
-    """(P, T) bool: lit observations (not in cast shadow) of texels with a surface neighbour (4-neighbourhood of
-    neighbours, the Surface's: on a scan of the full turn the first and last columns are neighbours, on an atlas
-    the texel across a seam is one) on the same face (normals within SAME_FACE_COS) that is in cast shadow. The
-    texel's colour integrates a footprint reaching half-way to its neighbours, so the shadow's edge may cross it,
-    while the model shades the texel's centre only: such an observation reads anything between lit and dark (on
-    the fold at full size they were 0.4 % of the fitted observations and 47 % of the squared image residual at
-    the true parameters)."""
-    shadowed = np.asarray(shadowed, dtype=bool)
-    n = np.asarray(normals, dtype=np.float64)
-    edge = np.zeros_like(shadowed)
-    t = np.arange(neighbours.num_texels)
-    for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0)):
-        other = neighbours.neighbour(t, dy, dx)
-        same = np.flatnonzero((other >= 0) & (np.einsum("ti,ti->t", n, n[np.maximum(other, 0)]) >= SAME_FACE_COS))
-        edge[:, same] |= shadowed[:, other[same]]
-    return edge & ~shadowed
 
 
 def untrusted_geometry(geom, edge_width: int, crease_angle_deg) -> dict:

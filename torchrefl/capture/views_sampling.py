@@ -13,10 +13,14 @@ For camera c with centre C and texel t at X with normal n, area a (side s = sqrt
   area), so the samples keep that far from the texel's projected edges, and the value carries no neighbour's
   reflectance (a material border on a texel edge stays out of it). m is the inset part's projected length in
   pixels (at most MAX_SAMPLES), 1 (the centre) where that part is under a pixel across; a texel whose projection
-  is narrower than NARROW_PX = 2.5 px across a pair of its edges (the parallelogram's width, not its edges'
-  length: at grazing view the two steps project nearly parallel, a sliver between long edges) is left out of the
-  image (even its centre's value mixes its neighbours': the image does not resolve it; a closer or more frontal
-  view may);
+  is narrower than NARROW_PX = 2.5 px along one of its steps is left out of the image (even its centre's value
+  mixes its neighbours': the image does not resolve it; a closer or more frontal view may);
+- slivers: at grazing view the two steps project nearly parallel, and a texel with edges longer than NARROW_PX
+  may be far narrower across them (the parallelogram's width, projected_widths). Its value then averages the
+  texels its support reaches across that width, which the footprint spread models where they continue its face;
+  a sliver whose support reaches a texel off its face (none there, or a normal beyond SAME_FACE_COS: a crease, a
+  rim, the mesh's border) is left out, as narrow. The footprint samples keep SUPPORT_PX from the edges across the
+  width in every case;
 - in frame: every sample lies within [0, W - 1] x [0, H - 1], so that its bilinear support is in the image;
 - silhouettes and depth steps: rays from C through four points offset from X perpendicular to the view by
   (half the footprint + 1) pixels (the camera's x and y axes, both signs) must hit the texel's tangent plane
@@ -34,7 +38,9 @@ import numpy as np
 import torch
 
 from torchrefl.capture.footprint_spread import footprint_covariance
+from torchrefl.capture.shadow_edges import SAME_FACE_COS
 from torchrefl.core.rays import RayTracer
+from torchrefl.core.texel_neighbours import TexelNeighbours
 
 #: at most this many footprint samples per texel side (a texel covering more pixels is averaged over 8 x 8)
 MAX_SAMPLES = 8
@@ -44,6 +50,9 @@ SUPPORT_PX = 1.5
 #: a texel narrower than this (px) along one of its steps is left out of the image: its centre's four bilinear
 #: pixels (SUPPORT_PX) reach past its edges by more than a quarter of a pixel, so its value mixes its neighbours'
 NARROW_PX = 2.5
+#: a sliver (narrower than NARROW_PX across its edges) whose value's support reaches more texel steps than this is
+#: left out of the image
+MAX_REACH = 8
 
 
 @dataclass
@@ -102,10 +111,12 @@ def camera_view(
     *,
     offset: float,
     min_cos_view: float,
+    neighbours: TexelNeighbours | None = None,
 ) -> CameraView:
     """CameraView of camera index c of `cameras` (capture.views_folder.Cameras: project, centres, K, R, width,
     height) for texels at points (T, 3) with unit normals (T, 3), areas (T,) and texel steps (T, 3, 2) (the 3-D
-    displacement of one texel column and one texel row; zeros where unknown: centre sampling)."""
+    displacement of one texel column and one texel row; zeros where unknown: centre sampling); neighbours: the
+    surface's (Surface.neighbours) for the slivers' test (None: every sliver is left out)."""
     T = len(points)
     W, H = int(cameras.width[c]), int(cameras.height[c])
     C = cameras.centres()[c].numpy()
@@ -138,6 +149,10 @@ def camera_view(
     zc = np.maximum(z, 1e-300)
     area_px = areas * np.maximum(cos_v, 0) * fx * fy * d / zc**3
     inset, m, narrow, px = _inset(points, steps, cameras, c, zc)
+    width = projected_widths(px)
+    sliver = left & ~narrow & steps.any(axis=(1, 2)) & (width < NARROW_PX).any(axis=1)
+    idx = np.flatnonzero(sliver)
+    narrow[idx] = _support_leaves_face(idx, width[idx], normals, neighbours)
     drop(SMALL, narrow)
     idx = np.flatnonzero(left)
     if idx.size:
@@ -186,8 +201,33 @@ def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, n
         inset = np.clip(np.nan_to_num(1.0 - 2.0 * SUPPORT_PX / width), 0.0, 1.0)
     m = np.clip(np.ceil((inset * length).max(axis=1)), 1, MAX_SAMPLES).astype(np.int64)
     m[(inset * length).max(axis=1) <= 1.0] = 1
-    narrow = steps.any(axis=(1, 2)) & (width < NARROW_PX).any(axis=1)
+    narrow = steps.any(axis=(1, 2)) & (length < NARROW_PX).any(axis=1)
     return inset, m, narrow, px
+
+
+def _support_leaves_face(idx: np.ndarray, width: np.ndarray, normals: np.ndarray, neighbours) -> np.ndarray:
+    """(K,) bool: slivers idx (K,) (projected widths (K, 2) px, one under NARROW_PX) whose value's support reaches
+    a texel off their face: along each narrow axis the support (SUPPORT_PX from the centre) touches the texels up
+    to k = ceil(SUPPORT_PX / width + 1/2) - 1 steps away (at most MAX_REACH, beyond which the sliver is left out),
+    each of which must exist and have its normal within SAME_FACE_COS of the sliver's. neighbours None: all."""
+    out = np.ones(len(idx), dtype=bool)
+    if neighbours is None or not len(idx):
+        return out
+    with np.errstate(divide="ignore"):
+        reach = np.ceil(SUPPORT_PX / width + 0.5) - 1.0  # (K, 2) texel steps the support touches, per axis
+    out = (reach > MAX_REACH).any(axis=1)
+    n = normals[idx]
+    for axis, (dy, dx) in enumerate(((0, 1), (1, 0))):  # width[:, 0] is across the column step: the next column
+        narrow = width[:, axis] < NARROW_PX
+        for k in range(1, MAX_REACH + 1):
+            ask = np.flatnonzero(narrow & ~out & (reach[:, axis] >= k))
+            if not len(ask):
+                break
+            for sign in (1, -1):
+                other = neighbours.neighbour(idx[ask], sign * k * dy, sign * k * dx)
+                cos = np.einsum("ti,ti->t", n[ask], normals[np.maximum(other, 0)])
+                out[ask[(other < 0) | (cos < SAME_FACE_COS)]] = True
+    return out
 
 
 def projected_widths(px: np.ndarray) -> np.ndarray:

@@ -32,7 +32,7 @@ import torch
 
 from torchrefl.capture.checks import light_indices
 from torchrefl.capture.mesh_views import MeshViewsLoader, TexelFrame, frame_view, texel_frame, view_spread
-from torchrefl.capture.shadow_edges import shadow_edge, with_adjacent
+from torchrefl.capture.shadow_edges import shadow_edge_observations, with_adjacent
 from torchrefl.capture.view_folder import ViewFolder
 from torchrefl.capture.views_sampling import CameraView
 from torchrefl.config import Config, resolve_path
@@ -136,7 +136,8 @@ class ViewsRunScene:
         t = lambda a: torch.from_numpy(np.ascontiguousarray(np.stack(a))).to(dtype)
         adjacent = self.frame.adjacent
         valid = [
-            self.views[v].seen & pl.lit & ~pl.shadowed & ~shadow_edge(pl.lit, pl.shadowed, adjacent) for v, pl in pairs
+            self.views[v].seen & pl.lit & ~pl.shadowed & ~shadow_edge_observations(pl.shadowed, adjacent)
+            for v, pl in pairs
         ]
         shadowed = torch.from_numpy(np.stack([pl.shadowed for _, pl in pairs]))
         centres = self.meta.cameras.centres().numpy()

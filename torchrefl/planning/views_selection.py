@@ -106,7 +106,10 @@ def views_measurability(
     steps = texel_steps(geom)
     T, C, P = len(x), len(cameras), len(candidates)
     views = [
-        camera_view(cameras, c, x, n, areas, steps, tracer, offset=offset, min_cos_view=min_cos_view) for c in range(C)
+        camera_view(
+            cameras, c, x, n, areas, steps, tracer, offset=offset, min_cos_view=min_cos_view, neighbours=s.neighbours
+        )
+        for c in range(C)
     ]
     seen = np.stack([v.seen for v in views])  # (C, T)
     anyone = seen.any(0)
