@@ -25,7 +25,10 @@ most of its heavy tail.
 
 Texels whose Ps and sigma the fit did not estimate from their own observations (coverage other than "measured":
 the lobe of their colour, their neighbours' or the object's) have Ps, sigma std at the range's std, marked not
-determined (`lobe_measured` False), and Pd's std with the lobe held at its value (the Pd block alone). With
+determined (`lobe_measured` False), and Pd's std with that lobe free within the broad prior (Pd's part of the
+whole block's covariance): a borrowed lobe may be off, and Pd is as uncertain as the lobe its observations depend
+on (where they all lie inside the lobe, a grey part of Pd and the lobe trade; where some are diffuse-only, Pd's std
+is about that of the lobe held). With
 fit.specular: shared, the object's one lobe has the information of all texels (the Schur complements of their Pd
 blocks summed) and each texel's Pd std includes the lobe's uncertainty.
 
@@ -130,21 +133,35 @@ def residual_noise(r, J, weight, per_channel, mask, prior_var, lobe_measured) ->
         r, J, weight, mask = r[:, ::step], J.texels(slice(None, None, step)), weight[:, ::step], mask[:, ::step]
         per_channel, lobe_measured = per_channel.texels(slice(None, None, step)), lobe_measured[::step]
     s = mad_noise(r, mask).clamp_min(1e-3)
-    cov = texel_covariance(per_channel.scaled(s), prior_var, lobe_measured)
-    cov[~lobe_measured, 3:, 3:] = 0.0  # a held lobe was not fitted to these residuals: it takes no leverage
+    cov = fitted_covariance(per_channel.scaled(s), prior_var, lobe_measured)
     h = leverage(J, weight, s, cov).clamp(0.0, MAX_LEVERAGE)
     return mad_noise(r.double() / torch.sqrt(1.0 - h), mask).clamp_min(1e-3)
 
 
+def fitted_covariance(info: torch.Tensor, prior_var: torch.Tensor, lobe_measured: torch.Tensor) -> torch.Tensor:
+    """(T, K, K) the covariance of what the fit moved, for the leverages: the whole block where the texel's lobe
+    was measured; elsewhere the Pd block alone (the lobe was held, not fitted to the residuals: it takes no
+    leverage) and zeros for the lobe."""
+    prior_var = prior_var.to(info)
+    measured, held = lobe_measured.nonzero()[:, 0], (~lobe_measured).nonzero()[:, 0]
+    cov = torch.zeros_like(info)
+    cov.index_copy_(0, measured, covariance(info.index_select(0, measured), prior_var))
+    block = torch.zeros(len(held), *info.shape[1:], dtype=info.dtype, device=info.device)
+    block[:, :3, :3] = covariance(info.index_select(0, held)[:, :3, :3], prior_var[:3])
+    cov.index_copy_(0, held, block)
+    return cov
+
+
 def texel_covariance(info: torch.Tensor, prior_var: torch.Tensor, lobe_measured: torch.Tensor) -> torch.Tensor:
-    """(T, K, K) the covariance of each texel: the whole block where its lobe was measured; elsewhere the Pd block
-    alone (the lobe held at its value) and the lobe at the broad prior's variance, uncorrelated."""
+    """(T, K, K) the covariance of each texel: the whole block where its lobe was measured; elsewhere Pd's part of
+    the whole block (the held lobe free within the broad prior: Pd is as uncertain as the lobe its observations
+    depend on) and the lobe at the broad prior's variance, uncorrelated."""
     prior_var = prior_var.to(info)
     measured, held = lobe_measured.nonzero()[:, 0], (~lobe_measured).nonzero()[:, 0]
     cov = torch.empty_like(info)  # every texel is measured or held: both index_copy_ calls fill it
     cov.index_copy_(0, measured, covariance(info.index_select(0, measured), prior_var))
     block = torch.zeros(len(held), *info.shape[1:], dtype=info.dtype, device=info.device)
-    block[:, :3, :3] = covariance(info.index_select(0, held)[:, :3, :3], prior_var[:3])
+    block[:, :3, :3] = covariance(info.index_select(0, held), prior_var)[:, :3, :3]
     block[:, 3:, 3:] = torch.diag(prior_var[3:])
     cov.index_copy_(0, held, block)
     return cov
