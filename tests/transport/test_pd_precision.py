@@ -1,10 +1,11 @@
 """Pd's median std from the images' slope in Pd: against the spread of Pd refitted by hand (per texel and channel,
-linear least squares) over independent noise draws, and against fit.uncertainty's Pd block at a known noise."""
+linear least squares) over independent noise draws, and against fit.uncertainty's Pd block with the lobe held at a
+known noise."""
 
 import torch
 from conftest import noisy_glossy_scene as glossy_scene
 
-from torchrefl.fit.uncertainty import ParameterRanges, texel_uncertainty
+from torchrefl.fit.uncertainty import ParameterRanges, fitted_covariance, texel_evidence
 from torchrefl.transport.local import predict
 from torchrefl.transport.pd_precision import median_pd_std
 
@@ -33,12 +34,15 @@ def test_the_median_std_is_the_spread_of_refitted_pd():
 def test_agrees_with_the_uncertainty_s_pd_block():
     obs, terms, (pd, ps, sigma) = glossy_scene(T=80, seed=9, noise=0.5)
     model = lambda a, b, c: predict(terms, a, b, c)  # noqa: E731
-    measured = torch.zeros(80, dtype=torch.bool)  # the lobe held: Pd's block alone
+    held = torch.zeros(80, dtype=torch.bool)  # the lobe held: Pd's block alone (fit.uncertainty.fitted_covariance)
     ranges = ParameterRanges(ps_max=4.0, sigma_min=0.01, sigma_max=0.6)
     noise = float(median_pd_std(model, pd, ps, sigma, obs.intensity, obs.valid))
-    u = texel_uncertainty(model, pd, ps, sigma, obs.intensity, obs.valid, measured, ranges, noise_dn=0.577)
+    ev = texel_evidence(model, pd, ps, sigma, obs.intensity, obs.valid, "huber", 3.0)
+    info = ev.per_channel.scaled(torch.full((3,), 0.577, dtype=torch.float64))
+    cov = fitted_covariance(info, ranges.prior_var(ps.shape[1]), held)
+    pd_std = cov[:, :3, :3].diagonal(dim1=1, dim2=2).sqrt()
     # same noise level (0.5 DN and 8-bit rounding, sqrt(0.25 + 1/12)): the same median std within the MAD's scatter
-    assert abs(noise / float(u.pd_std.median()) - 1) < 0.1
+    assert abs(noise / float(pd_std.median()) - 1) < 0.1
 
 
 def test_no_fitted_observation_is_no_precision():
