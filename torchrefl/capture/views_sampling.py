@@ -148,8 +148,7 @@ def camera_view(
     # projected area in pixels (the depth-step offsets), and the part of the footprint whose pixels lie inside it
     zc = np.maximum(z, 1e-300)
     area_px = areas * np.maximum(cos_v, 0) * fx * fy * d / zc**3
-    inset, m, narrow, px = _inset(points, steps, cameras, c, zc)
-    width = projected_widths(px)
+    inset, m, narrow, px, width = _inset(points, steps, cameras, c, zc)
     sliver = left & ~narrow & steps.any(axis=(1, 2)) & (width < NARROW_PX).any(axis=1)
     idx = np.flatnonzero(sliver)
     narrow[idx] = _support_leaves_face(idx, width[idx], normals, neighbours)
@@ -179,13 +178,13 @@ def camera_view(
     return CameraView(v.astype(np.float32), cos_v.astype(np.float32), left, samples, reasons, spread)
 
 
-def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(inset (T, 2), m (T,), narrow (T,) bool, px (T, 2, 2)): the fraction of each texel step (column, row) that
-    footprint samples may span so that every pixel their bilinear values use lies inside the texel's projection
-    (SUPPORT_PX from each edge, across the projection's width: projected_widths), the samples per side (1: the
-    centre only, where that part is under a pixel or the texel has no steps), the texels narrower than NARROW_PX
-    across a pair of edges (even the centre's value mixes their neighbours'), and the pixels per texel step
-    (columns = steps)."""
+def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(inset (T, 2), m (T,), narrow (T,) bool, px (T, 2, 2), width (T, 2)): the fraction of each texel step (column,
+    row) that footprint samples may span so that every pixel their bilinear values use lies inside the texel's
+    projection (SUPPORT_PX from each edge, across the projection's width), the samples per side (1: the centre only,
+    where that part is under a pixel or the texel has no steps), the texels narrower than NARROW_PX along a step
+    (even the centre's value mixes their neighbours'), the pixels per texel step (columns = steps) and the
+    projection's width across each pair of edges (projected_widths)."""
     R = cameras.R[c].numpy()
     K = cameras.K[c].numpy()
     Xc = points @ R.T + cameras.t[c].numpy()
@@ -202,7 +201,7 @@ def _inset(points, steps, cameras, c: int, z) -> tuple[np.ndarray, np.ndarray, n
     m = np.clip(np.ceil((inset * length).max(axis=1)), 1, MAX_SAMPLES).astype(np.int64)
     m[(inset * length).max(axis=1) <= 1.0] = 1
     narrow = steps.any(axis=(1, 2)) & (length < NARROW_PX).any(axis=1)
-    return inset, m, narrow, px
+    return inset, m, narrow, px, width
 
 
 def _support_leaves_face(idx: np.ndarray, width: np.ndarray, normals: np.ndarray, neighbours) -> np.ndarray:

@@ -157,13 +157,11 @@ def texel_covariance(info: torch.Tensor, prior_var: torch.Tensor, lobe_measured:
     the whole block (the held lobe free within the broad prior: Pd is as uncertain as the lobe its observations
     depend on) and the lobe at the broad prior's variance, uncorrelated."""
     prior_var = prior_var.to(info)
-    measured, held = lobe_measured.nonzero()[:, 0], (~lobe_measured).nonzero()[:, 0]
-    cov = torch.empty_like(info)  # every texel is measured or held: both index_copy_ calls fill it
-    cov.index_copy_(0, measured, covariance(info.index_select(0, measured), prior_var))
-    block = torch.zeros(len(held), *info.shape[1:], dtype=info.dtype, device=info.device)
-    block[:, :3, :3] = covariance(info.index_select(0, held), prior_var)[:, :3, :3]
-    block[:, 3:, 3:] = torch.diag(prior_var[3:])
-    cov.index_copy_(0, held, block)
+    cov = covariance(info, prior_var)
+    held = ~lobe_measured.to(cov.device)
+    cov[held, :3, 3:] = 0.0
+    cov[held, 3:, :3] = 0.0
+    cov[held, 3:, 3:] = torch.diag(prior_var[3:])
     return cov
 
 
