@@ -276,3 +276,20 @@ def test_a_texel_beside_the_occluders_shadow_is_left_out_and_counted(hand, image
     assert not any(valid[texel(cap, *rc)] for rc in inner if dark[rc])
     assert all(valid[texel(cap, *rc)] for rc in clear)
     assert cap.stats["shadow_edge_observations"] >= len(edge)
+
+
+@pytest.mark.parametrize("image", range(4))
+def test_every_lit_texel_has_its_cast_shadow_whether_the_camera_sees_it_or_not(hand, image):
+    # the interreflection levels light every texel as an emitter with obs.shadowed: a texel the camera does not see
+    # (here: under the occluder in camera A's view) still has its shadow from the light, worked out from the geometry
+    _, cap = hand
+    light = np.array(LIGHTS[IMAGES[image]["light"]]["position"], dtype=float)
+    cam = CAMERAS[IMAGES[image]["camera"]]
+    centre = -np.asarray(cam["R"], dtype=float).T @ np.asarray(cam["t"], dtype=float)
+    cells = [(r, c) for r in range(16, 32) for c in range(16)]
+    shadowed = cap.obs.shadowed[image].numpy()
+    dark = [rc for rc in cells if _behind_occluder(plate_point(*rc), light)]
+    assert [rc for rc in cells if shadowed[texel(cap, *rc)]] == dark
+    if IMAGES[image] == IMAGES[0]:  # camera A under the top light: some shadowed texels are hidden from the camera
+        hidden = [rc for rc in dark if _behind_occluder(plate_point(*rc), centre)]
+        assert len(hidden) >= 4 and not any(cap.obs.valid[image, texel(cap, *rc)] for rc in hidden)

@@ -227,7 +227,8 @@ def observation_geometry(
     """Light/view geometry of P head-frame lights for every texel, with Embree visibility.
 
     Returns dict with light_dir (P, T, 3), dist (P, T), view_dir (T, 3), cos_l (P, T), cos_v (T,),
-    seen (T,) (camera sees the texel), lit (P, T) (n.l above threshold), shadowed (P, T).
+    seen (T,) (camera sees the texel), lit (P, T) (n.l above threshold), shadowed (P, T) (traced at every lit texel,
+    seen or not: the interreflection levels' emitters).
     Computed in float32 (what Embree uses) by torchrefl.core.point_light (its one shadow-offset rule); lights are
     processed in parallel on the tracer's threads (numpy and Embree both release the GIL).
     """
@@ -253,7 +254,7 @@ def observation_geometry(
         lat, vert, rad = (np.float32(c) for c in heads[p])
         light = rad * u + lat * w
         light[:, 1] += vert
-        pl = point_light(x, n, light, geom.tracer, offset=shadow_offset, min_cos=min_cos_light, trace=seen)
+        pl = point_light(x, n, light, geom.tracer, offset=shadow_offset, min_cos=min_cos_light)
         l_all[p], dist_all[p], cos_all[p], shadowed[p] = pl.direction, pl.distance, pl.cosine, pl.shadowed
 
     thread_map(one_light, range(P), geom.tracer.threads)
@@ -394,7 +395,7 @@ def load_scan_observations(
         "texels": int(idx.size),
         "saturation_level": float(saturation_level),
         "saturated_observations": int((saturated & og["seen"][None] & og["lit"]).sum()),
-        "shadowed_observations": int(og["shadowed"].sum()),
+        "shadowed_observations": int((og["shadowed"] & og["seen"][None]).sum()),
         "shadow_edge_observations": int((removed[SHADOW_EDGE] & og["seen"][None] & og["lit"]).sum()),
         "valid_observations": int(valid.sum()),
         **untrusted_counts(texels),

@@ -25,7 +25,7 @@ import torch
 from torchrefl.capture.base import Capture, CaptureLoader, Log
 from torchrefl.capture.checks import image_content_checks, implied_albedo_check, light_indices, observations_left
 from torchrefl.capture.footprint_spread import half_angle_spread, normal_steps
-from torchrefl.capture.shadow_edges import face_neighbours, shadow_edge_observations, with_adjacent
+from torchrefl.capture.shadow_edges import face_neighbours, shadow_edge_observations
 from torchrefl.capture.truth import TRUTH, load_truth
 from torchrefl.capture.view_folder import ViewFolder, read_view_folder
 from torchrefl.capture.views_sampling import OUTSIDE, REASON_KEYS, CameraView, camera_view, footprint_values
@@ -255,7 +255,6 @@ def _read_rows(
                 direction=None if lights.point[k] else lights.direction[k],
                 offset=offset,
                 min_cos=cfg.reflectance.min_cos_light,
-                trace=with_adjacent(view.seen, frame.adjacent),
             )
             _light_row(rows, p, pl, frame.adjacent)
             _spread_row(rows, p, view, frame, centre, lights.point[k], cfg.reflectance.brdf)
@@ -362,7 +361,7 @@ def _stats(meta: ViewFolder, rows: ImageRows, valid: np.ndarray, images: list, s
         "valid_observations": int(valid.sum()),
         "saturation_level": float(saturation),
         "saturated_observations": int((rows.saturated & rows.lit).sum()),
-        "shadowed_observations": int(rows.shadowed.sum()),
+        "shadowed_observations": int((rows.shadowed & rows.seen).sum()),
         "shadow_edge_observations": int(rows.shadow_edge.sum()),
         "masked_observations": int(rows.masked.sum()),
         **{

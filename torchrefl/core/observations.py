@@ -23,7 +23,8 @@ class Observations:
     valid: (P, T) bool, usable for fitting: seen by the camera (n.v > 0), lit (n.l > 0),
         not in a cast shadow, not saturated, finite.
     saturated: (P, T) bool, some channel at or above the saturation level (excluded, counted).
-    shadowed: (P, T) bool, the light is blocked by the object itself (cast shadow).
+    shadowed: (P, T) bool, the light is blocked by the object itself (cast shadow), at every lit texel whether the
+        camera sees it or not (the interreflection levels light their emitters with it).
     light_dir: (P, T, 3) float, unit vector from the texel towards light p.
     falloff: (P, T) float, 1 / C^2 for a point light at distance C, 1 for a directional light.
     light_intensity: (P, 3) float, radiant intensity Y_p (RGB), > 0.

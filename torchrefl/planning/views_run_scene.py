@@ -32,7 +32,7 @@ import torch
 
 from torchrefl.capture.checks import light_indices
 from torchrefl.capture.mesh_views import MeshViewsLoader, TexelFrame, frame_view, texel_frame, view_spread
-from torchrefl.capture.shadow_edges import shadow_edge_observations, with_adjacent
+from torchrefl.capture.shadow_edges import shadow_edge_observations
 from torchrefl.capture.view_folder import ViewFolder
 from torchrefl.capture.views_sampling import CameraView
 from torchrefl.config import Config, resolve_path
@@ -107,16 +107,14 @@ class ViewsRunScene:
         return self.world_candidates().positions
 
     @cached_property
-    def _frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """float32 texel points and normals (T, 3) as the loader traces them, and (T,) some camera sees it or a texel
-        adjacent to it (the shadow edges' test)."""
+    def _frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """float32 texel points and normals (T, 3) as the loader traces them."""
         f = self.frame
-        seen = np.any([v.seen for v in self.views], axis=0)
-        return f.points.astype(np.float32), f.normals.astype(np.float32), with_adjacent(seen, f.adjacent)
+        return f.points.astype(np.float32), f.normals.astype(np.float32)
 
     def _light(self, position=None, direction=None) -> PointLight:
-        """A light's geometry over the texels (shadows traced where some camera sees the texel)."""
-        points, normals, seen = self._frame
+        """A light's geometry over the texels (shadows traced at every lit texel, as the loader does)."""
+        points, normals = self._frame
         return light_geometry(
             points,
             normals,
@@ -125,7 +123,6 @@ class ViewsRunScene:
             direction=direction,
             offset=self.cfg.geometry.shadow_offset_mm,
             min_cos=self.cfg.reflectance.min_cos_light,
-            trace=seen,
         )
 
     def _rows(self, pairs: list[tuple[int, PointLight]], point: list[bool], intensity, what: str) -> Observations:
