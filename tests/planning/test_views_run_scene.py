@@ -32,6 +32,7 @@ def test_the_run_s_own_images_are_predicted_as_the_loader_reads_them(scene):
     assert scene.fitted == [0, 2, 3, 4, 5, 6, 7]  # images.json's 8 images but the held-out image 1
     # the loader's valid also drops saturated and masked pixels, which the planner predicts from the estimate
     assert torch.equal(predicted.valid, loaded.valid | loaded.saturated)
+    assert torch.equal(predicted.shadowed, loaded.shadowed)  # at every lit texel, seen or not (the emitters)
     assert predicted.valid.any(1).all()
     for key in ("light_dir", "falloff", "view_dir", "light_intensity", "lobe_spread"):
         torch.testing.assert_close(getattr(predicted, key), getattr(loaded, key).to(predicted.falloff.dtype))
