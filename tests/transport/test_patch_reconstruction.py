@@ -6,8 +6,11 @@ import torch
 from conftest import fold_surface, point_light_observations
 
 from torchrefl.errors import ConfigError
+from torchrefl.transport.form_factors import form_factors_for_surface
+from torchrefl.transport.local import local_terms
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
 from torchrefl.transport.patches import texel_patches
+from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance
 
 
 def operator(s, patches, size=2, angle=30.0):
@@ -59,11 +62,9 @@ def test_rows_sum_to_one_and_stay_finite_where_the_patches_lie_in_a_line():
     assert pfloor.any()
 
 
-def test_the_radiosity_level_with_the_linear_reconstruction_has_float64_gradients():
-    from torchrefl.transport.form_factors import form_factors_for_surface
-    from torchrefl.transport.local import local_terms
-    from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance
-
+def small_fold_radiosity():
+    """A 4 x 8 fold under one point light: (surface, observations, local terms, 2 x 2 patches, their form factors
+    from 64 rays each, the patch map)."""
     s = fold_surface(4, 8)
     obs = point_light_observations(
         s.normals, s.positions, torch.tensor([[-40.0, 0.0, 25.0]]), torch.tensor([-150.0, 0.0, 150.0])
@@ -71,6 +72,11 @@ def test_the_radiosity_level_with_the_linear_reconstruction_has_float64_gradient
     terms = local_terms("lambertian", s.normals, obs)
     patches, F = form_factors_for_surface(s, patch_size=2, samples_per_patch=64, split_angle_deg=30.0)
     pmap = PatchMap(patches.texel_patch, s.areas.double(), patches.num_patches)
+    return s, obs, terms, patches, F, pmap
+
+
+def test_the_radiosity_level_with_the_linear_reconstruction_has_float64_gradients():
+    s, obs, terms, patches, F, pmap = small_fold_radiosity()
     R = operator(s, patches)
     pd = torch.full((s.num_texels, 3), 0.6, dtype=torch.float64, requires_grad=True)
     f = lambda x: indirect_irradiance(terms, obs.kappa, x, pmap, F, reconstruct=R)
@@ -101,3 +107,38 @@ def test_on_an_atlas_the_neighbouring_patches_are_on_the_surface():
     facing = np.einsum("mi,mi->m", s.normals.numpy()[t], patches.normals.numpy()[q])
     assert facing.min() > -0.5  # no opposite face
     assert (facing < 0.5).any()  # the faces across the edges
+
+
+def test_a_texel_whose_plane_goes_below_zero_takes_its_patch_value():
+    """A plane through noisy patches can extrapolate below zero (few form-factor rays, a chart's edge); irradiance
+    is never negative, so such a texel takes its own patch's value, the others keep their planes, and the gradients
+    stay float64-exact on both sides."""
+    s, obs, terms, patches, F, pmap = small_fold_radiosity()
+    T, Q = s.num_texels, patches.num_patches
+    own = patches.texel_patch
+    # an operator whose even texels extrapolate far past their patch (2 x own - 3 x the next patch), odd texels exact
+    rows, cols, vals = [], [], []
+    for t in range(T):
+        q = int(own[t])
+        if t % 2 == 0:
+            rows += [t, t]
+            cols += [q, (q + 1) % Q]
+            vals += [2.0, -3.0]
+        else:
+            rows.append(t), cols.append(q), vals.append(1.0)
+    R = torch.sparse_coo_tensor(torch.tensor([rows, cols]), torch.tensor(vals, dtype=torch.float64), (T, Q))
+    pd = torch.full((T, 3), 0.6, dtype=torch.float64, requires_grad=True)
+    patch_H = indirect_irradiance(terms, obs.kappa, pd.detach(), pmap, F)[0]
+    H = indirect_irradiance(terms, obs.kappa, pd.detach(), pmap, F, reconstruct=R)[0]
+    assert (H >= 0).all()
+    H_q = torch.zeros(Q, 3, dtype=torch.float64).index_copy(0, own, patch_H)  # each patch's value
+    planes = 2.0 * H_q[own] - 3.0 * H_q[(own + 1) % Q]
+    even = torch.arange(T) % 2 == 0
+    below = even[:, None] & (planes < 0)
+    assert bool(below.any()) and bool((even[:, None] & (planes > 0)).any())
+    torch.testing.assert_close(H[below], patch_H[below])  # the fallback: the texel's own patch
+    above = even[:, None] & ~below
+    torch.testing.assert_close(H[above], planes[above])  # a plane at or above zero is kept
+    torch.testing.assert_close(H[~even], patch_H[~even])  # odd texels: their plane is their patch
+    f = lambda x: indirect_irradiance(terms, obs.kappa, x, pmap, F, reconstruct=R)[0, :, 0]
+    assert torch.autograd.gradcheck(f, (pd,), eps=1e-6, atol=1e-7)

@@ -13,6 +13,8 @@ patches whose normal is more than `max_angle_deg` from the texel's left out), an
 the texel. A linear field is reproduced exactly, at an edge too. Where the patches do not determine a slope
 (a single patch, or patches in one line) a small ridge on the slope makes it the weighted mean. The result
 is one sparse (T, Q) matrix, built once and applied at every evaluation.
+A texel whose plane goes below zero (noisy patches extrapolated at an edge) takes its own patch's value instead
+(radiosity_level.indirect_irradiance): irradiance is never negative.
 
 The patches around a texel are those of the 3 x 3 blocks of its region around its block (texel_patches' blocks;
 on an atlas its chart's), and the patches of the texels one block side away in the eight directions on the

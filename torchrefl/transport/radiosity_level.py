@@ -128,13 +128,24 @@ def indirect_irradiance(
     if reconstruct is None:
         H = patches.scatter(H.reshape(Q, R, C).permute(1, 0, 2))  # (R, T, 3)
     else:
-        H = _matmul(reconstruct.to(H.dtype), H)
+        H = _at_least_zero(_matmul(reconstruct.to(H.dtype), H), H, patches.texel_patch)
         H = H.reshape(H.shape[0], R, C).permute(1, 0, 2)
     if maps is None:
         return H[:, None] if per_map else H
     if per_map:
         return H.reshape(P, K, T, C)
     return (H.reshape(P, K, T, C) * maps.weights.to(H.dtype)[None, :, :, None]).sum(1)
+
+
+def _at_least_zero(planes: torch.Tensor, patch_values: torch.Tensor, texel_patch: torch.Tensor) -> torch.Tensor:
+    """Texel irradiance (T, R C) from the reconstruction's planes, where a plane goes below zero (it extrapolates noisy
+    patches at a chart's edge when the form factors have few rays) the texel's own patch value (Q, R C) instead:
+    irradiance is never negative, and the patch's is (F, B >= 0)."""
+    negative = planes < 0
+    if not bool(negative.any()):
+        return planes
+    own = patch_values.index_select(0, texel_patch.to(patch_values.device))
+    return torch.where(negative, own, planes)
 
 
 def reflected_indirect(kappa, pd: torch.Tensor, H: torch.Tensor) -> torch.Tensor:
