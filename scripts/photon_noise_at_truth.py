@@ -55,24 +55,30 @@ def renders(cfg, capture_path: str, surface, indirect: bool, seed: int) -> torch
     return torch.stack([surface.from_grid(img) for img in images]).double()
 
 
-def local_fit_within(inputs, target, truth, measured) -> float:
-    """Share of `measured` texels whose Pd, fitted per texel by the local model from the truth, is within 2 %."""
-    local = inputs.local_predict()
-    fit = inputs.fit_mask
-    pd0, ps0, sg0 = truth
-    lp, ls, lg = (torch.log(x.clone()).requires_grad_() for x in (pd0, ps0[:, :1], sg0))
+def local_fit(inputs, target: torch.Tensor, truth) -> torch.Tensor:
+    """Pd (T, 3) of per-texel local fits of target (P, T, 3) started at the truth (LBFGS on log parameters, bounded to
+    [e^-9, e] so that a noisy target cannot run off)."""
+    local, fit = inputs.local_predict(), inputs.fit_mask
+    lp, ls, lg = (torch.log(x.clone()).requires_grad_() for x in (truth[0], truth[1][:, :1], truth[2]))
     opt = torch.optim.LBFGS([lp, ls, lg], max_iter=300, line_search_fn="strong_wolfe", tolerance_grad=1e-12)
 
     def closure():
         opt.zero_grad()
-        pred = local(lp.exp().float(), ls.exp().expand(-1, 3).float(), lg.exp().float()).double()
+        pd, ps, sigma = (x.clamp(-9.0, 1.0).exp() for x in (lp, ls, lg))
+        pred = local(pd.float(), ps.expand(-1, 3).float(), sigma.float()).double()
         loss = (((pred - target) ** 2).sum(-1) * fit).sum() * 255**2 / fit.sum()
         loss.backward()
         return loss
 
     for _ in range(3):
         opt.step(closure)
-    rel = (lp.exp().detach() - pd0).mean(-1) / pd0.mean(-1)
+    return lp.detach().clamp(-9.0, 1.0).exp()
+
+
+def local_fit_within(inputs, target, truth, measured) -> float:
+    """Share of `measured` texels whose Pd, fitted per texel by the local model from the truth, is within 2 %."""
+    pd0 = truth[0]
+    rel = (local_fit(inputs, target, truth) - pd0).mean(-1) / pd0.mean(-1)
     return float((rel[measured].abs() < 0.02).double().mean())
 
 

@@ -39,9 +39,10 @@ from torchrefl.fit.pipeline import level_inputs
 from torchrefl.synthetic.path_tracer import IndirectRenderer
 from torchrefl.synthetic.uv_objects import make_views_object
 from torchrefl.transport.levels.auto import named_level, prepare
-from torchrefl.transport.photon_cache import PhotonCache, specular_per_unit_ps
+from torchrefl.transport.photon_cache import PhotonCache, indirect_radiance, specular_per_unit_ps
 
 sys.path.insert(0, str(Path(__file__).parent))
+from photon_noise_at_truth import local_fit  # noqa: E402
 from tiny_mode import ROOT, TINY_LEVELS, tiny_run  # noqa: E402
 
 BOWL = ROOT / "configs" / "mesh_views_concave.yaml"
@@ -86,8 +87,8 @@ def converged_indirect(cfg, cap, paths: int, seed: int) -> torch.Tensor:
     return torch.from_numpy(out * scale)
 
 
-def level_parts(level, kappa, truth) -> dict[str, torch.Tensor]:
-    """The photon level's indirect light at the truth (P, T, 3) per part."""
+def level_light(level, kappa, truth) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """The photon level's indirect light at the truth (P, T, 3) (photon_cache.indirect_radiance), and its parts."""
     pd, ps, sigma = truth
     cache = level.refresher.cache(pd.float(), ps.float(), sigma.float(), refresh=0).to(torch.float64)
     gathered = int(cache.stats.get("gather_entries", 0))
@@ -98,33 +99,14 @@ def level_parts(level, kappa, truth) -> dict[str, torch.Tensor]:
     def specular(part: slice) -> torch.Tensor:
         sub = PhotonCache(cache.brdf, cache.irradiance, *(x[part] for x in (cache.entry_obs, cache.entry_theta_h)),
                           cache.entry_weight[part])  # fmt: skip
-        return ps.mean(-1, keepdim=True)[None] * specular_per_unit_ps(sub, kappa, sigma)
+        return ps[None] * specular_per_unit_ps(sub, kappa, sigma)
 
-    return {
+    return indirect_radiance(cache, kappa, pd, ps, sigma), {
         "radiosity (all-diffuse paths)": diffuse * exact,
         "photons: irradiance": diffuse * (cache.irradiance_at(pd) - exact),
         "photons: specular entries": specular(slice(0, E - gathered)),
         "specular gather": specular(slice(E - gathered, E)),
     }
-
-
-def local_fit(inputs, target: torch.Tensor, truth) -> torch.Tensor:
-    """Pd (T, 3) of per-texel local fits of target (P, T, 3) started at the truth (LBFGS on log parameters)."""
-    local, fit = inputs.local_predict(), inputs.fit_mask
-    lp, ls, lg = (torch.log(x.clone()).requires_grad_() for x in (truth[0], truth[1][:, :1], truth[2]))
-    opt = torch.optim.LBFGS([lp, ls, lg], max_iter=300, line_search_fn="strong_wolfe", tolerance_grad=1e-12)
-
-    def closure():
-        opt.zero_grad()
-        pd, ps, sigma = (x.clamp(-9.0, 1.0).exp() for x in (lp, ls, lg))  # bounded: a noisy target cannot run off
-        pred = local(pd.float(), ps.expand(-1, 3).float(), sigma.float()).double()
-        loss = (((pred - target) ** 2).sum(-1) * fit).sum() * DN**2 / fit.sum()
-        loss.backward()
-        return loss
-
-    for _ in range(3):
-        opt.step(closure)
-    return lp.detach().clamp(-9.0, 1.0).exp()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -156,9 +138,10 @@ def main(argv: list[str] | None = None) -> int:
     level.refresher.emitter_source = level.radiosity.emitter_source = None  # every texel emits its truth
     kappa = inputs.obs.kappa.double()
     with torch.no_grad():
-        parts = level_parts(level, kappa, truth)
+        photon, parts = level_light(level, kappa, truth)
         direct = inputs.local_predict()(*(x.float() for x in truth)).double()
-    photon = sum(parts.values())
+    if not torch.allclose(sum(parts.values()), photon, rtol=1e-6, atol=1e-9):
+        raise SystemExit("the photon level's parts do not sum to its indirect light: this script is out of date")
     captured = cap.obs.intensity.double() - direct
     noise = float(((runs[0] - runs[1]).mean(-1)[keep] / 2 * DN).pow(2).mean().sqrt())
     print(f"converged render: {paths} paths x 2 per observation, its own noise {noise:.3f} DN RMS")

@@ -252,6 +252,14 @@ def _behind_occluder(X: np.ndarray, source: np.ndarray) -> bool:
 
 
 STEPS = ((0, 1), (0, -1), (1, 0), (-1, 0))
+PLATE_CELLS = [(r, c) for r in range(16, 32) for c in range(16)]  # the plate's texels (row, col) on the atlas
+
+
+def light_and_camera(image: int) -> tuple[np.ndarray, np.ndarray]:
+    """Image `image`'s light position and camera centre (-R^T t), world mm."""
+    cam = CAMERAS[IMAGES[image]["camera"]]
+    light = np.array(LIGHTS[IMAGES[image]["light"]]["position"], dtype=float)
+    return light, -np.asarray(cam["R"], dtype=float).T @ np.asarray(cam["t"], dtype=float)
 
 
 @pytest.mark.parametrize("image", [0, 2])  # the top light: the occluder's shadow falls on the plate
@@ -260,10 +268,8 @@ def test_a_texel_beside_the_occluders_shadow_is_left_out_and_counted(hand, image
     # shadow may have part of its footprint in shadow; one two steps from the shadow (and from the occluder's
     # outline in the image) keeps its observation
     _, cap = hand
-    light = np.array(LIGHTS[IMAGES[image]["light"]]["position"], dtype=float)
-    cam = CAMERAS[IMAGES[image]["camera"]]
-    centre = -np.asarray(cam["R"], dtype=float).T @ np.asarray(cam["t"], dtype=float)
-    cells = [(r, c) for r in range(16, 32) for c in range(16)]
+    light, centre = light_and_camera(image)
+    cells = PLATE_CELLS
     dark = {rc: _behind_occluder(plate_point(*rc), light) for rc in cells}
     hidden = {rc: _behind_occluder(plate_point(*rc), centre) for rc in cells}
     inner = [(r, c) for r in range(18, 30) for c in range(2, 14)]  # away from the plate's outline
@@ -283,10 +289,8 @@ def test_every_lit_texel_has_its_cast_shadow_whether_the_camera_sees_it_or_not(h
     # the interreflection levels light every texel as an emitter with obs.shadowed: a texel the camera does not see
     # (here: under the occluder in camera A's view) still has its shadow from the light, worked out from the geometry
     _, cap = hand
-    light = np.array(LIGHTS[IMAGES[image]["light"]]["position"], dtype=float)
-    cam = CAMERAS[IMAGES[image]["camera"]]
-    centre = -np.asarray(cam["R"], dtype=float).T @ np.asarray(cam["t"], dtype=float)
-    cells = [(r, c) for r in range(16, 32) for c in range(16)]
+    light, centre = light_and_camera(image)
+    cells = PLATE_CELLS
     shadowed = cap.obs.shadowed[image].numpy()
     dark = [rc for rc in cells if _behind_occluder(plate_point(*rc), light)]
     assert [rc for rc in cells if shadowed[texel(cap, *rc)]] == dark
