@@ -13,8 +13,9 @@ from conftest import build_photon_cache, fold_surface, photon_cache_of, photon_t
 from torchrefl.errors import ConfigError
 from torchrefl.transport import cache_build
 from torchrefl.transport.cache_build import build_cache
-from torchrefl.transport.light_maps import light_sources
+from torchrefl.transport.light_maps import LightSources, light_sources
 from torchrefl.transport.photon_cache import indirect_radiance, indirect_radiance_reference
+from torchrefl.transport.photon_hits import shared_hits
 from torchrefl.transport.photon_material import TexelMaterial
 
 
@@ -51,6 +52,35 @@ def test_the_cache_reduced_one_light_at_a_time_is_the_cache_of_all_at_once(photo
     for name in ("irradiance", "entry_obs", "entry_theta_h", "entry_weight"):
         assert getattr(by_light, name).equal(getattr(at_once, name)), name
     assert by_light.stats == at_once.stats
+
+
+def test_images_sharing_lights_reduce_their_lights_hits_without_copying_them_all(photon_traced):
+    """Images that share a light (mesh_views: several cameras per light) reduce that light's hits, seen from their own
+    camera: the cache of build_cache(image_light=...) is bit for bit the cache of the hits copied for every image at
+    once (shared_hits), and it counts the hits traced, not their copies."""
+    s, obs, pt, src, hits, pd, ps, sigma = photon_traced
+    K, T = src.num_maps, s.num_texels
+    image_light = np.array([0, 1, 1, 0, 1])  # five images of the two traced lights, in no particular order
+    images = LightSources(src.positions[image_light], src.weights, src.intensity[image_light])
+    cameras = np.array(
+        [[0.0, 0.0, 400.0], [80.0, 30.0, 380.0], [-60.0, 50.0, 390.0], [20.0, -90.0, 370.0], [5, 5, 420]]
+    )
+    view = cameras[:, None, :] - s.positions.double().numpy()[None]
+    view = torch.from_numpy(view / np.linalg.norm(view, axis=-1, keepdims=True))  # (P, T, 3): each image's own camera
+    keep = torch.rand(5, T, generator=torch.Generator().manual_seed(1)) > 0.2
+    args = (images, pt.areas, s.normals, view, keep, "torrance_sparrow", sigma.numpy(), 10.0, 0.02)
+    kwargs = dict(dtype=torch.float32, smoothing=1.5, grid=(s.neighbours, s.normals), smoothing_normal=0.1)
+    kwargs.update(specular_smoothing=1.0, bin_per_sigma=0.25)
+    lazily = build_cache(hits, *args, image_light=image_light, **kwargs)
+    copied = build_cache(shared_hits(hits, image_light, K), *args, **kwargs)
+    assert lazily.entry_obs.numel() > 100 and lazily.irradiance.shape == (5, T, 3)
+    assert not lazily.irradiance[1].equal(torch.zeros(T, 3)) and lazily.irradiance[1].equal(lazily.irradiance[2])
+    for name in ("irradiance", "entry_obs", "entry_theta_h", "entry_weight"):
+        assert getattr(lazily, name).equal(getattr(copied, name)), name
+    p0, p3 = (lazily.entry_obs // T == p for p in (0, 3))  # one light, two cameras: different view-dependent entries
+    theta0, theta3 = lazily.entry_theta_h[p0], lazily.entry_theta_h[p3]
+    assert p0.any() and p3.any() and (theta0.shape != theta3.shape or not theta0.equal(theta3))
+    assert lazily.stats["stored_hits"] == hits.count and copied.stats["stored_hits"] > 2 * hits.count
 
 
 def test_the_linear_cache_follows_the_emitters_pd():
@@ -137,3 +167,38 @@ def test_leaving_out_the_all_diffuse_paths_keeps_exactly_the_flagged_photons(pho
     torch.testing.assert_close(lin.irradiance_at(pd), left_out.irradiance, rtol=1e-9, atol=1e-12)
     with pytest.raises(ValueError, match="specular_path"):
         build(dataclasses.replace(hits, specular_path=None), diffuse_paths=False)
+
+
+def test_a_trace_that_stores_only_specular_paths_gives_the_gathering_cache_it_gave_before():
+    """With the all-diffuse paths taken from the radiosity level and their specular reflection gathered
+    (diffuse_paths=False, specular_paths_only=True), the other hits carry no weight: a trace that stores only the
+    hits of paths with a specular scattering stores exactly those of the full trace (same photons), far fewer, and
+    the cache built from them is bit for bit the full trace's."""
+    s = fold_surface(12, 24)
+    T = s.num_texels
+    obs = point_light_observations(s.normals, s.positions, LIGHTS, CAMERA, intensity=1e4)
+    pt = photon_tracer(s, "torrance_sparrow")
+    src = light_sources(s, obs, 2)
+    g = torch.Generator().manual_seed(3)
+    sigma = 0.05 + 0.3 * torch.rand(T, generator=g, dtype=torch.float64)
+    mat = TexelMaterial.from_tensors(
+        0.2 + 0.6 * torch.rand(T, 3, generator=g, dtype=torch.float64),
+        0.1 + 0.4 * torch.rand(T, 3, generator=g, dtype=torch.float64),
+        sigma,
+    )
+    trace = lambda only: pt.trace(  # noqa: E731
+        src.positions.reshape(-1, 3), np.repeat(src.intensity, 2, 0), 20_000, mat, seed=5, specular_paths_only=only
+    )
+    full, kept = trace(False), trace(True)
+    wanted = np.flatnonzero(full.specular_path)
+    assert 0 < kept.count == wanted.size < 0.8 * full.count
+    for name in ("source", "texel", "direction", "power", "emitter", "density_weight"):
+        assert np.array_equal(getattr(kept, name), np.take(getattr(full, name), wanted, axis=0)), name
+    assert kept.rays == full.rays and np.array_equal(kept.emitted, full.emitted)
+    args = (src, pt.areas, s.normals, obs.view_dir, obs.valid, "torrance_sparrow", sigma.numpy(), 10.0, 0.02)
+    kwargs = dict(smoothing=1.0, grid=(s.neighbours, s.normals), specular_smoothing=1.0)
+    kwargs.update(diffuse_paths=False, specular_paths_only=True)
+    a, b = build_cache(full, *args, **kwargs), build_cache(kept, *args, **kwargs)
+    assert a.entry_obs.numel() > 100 and float(a.irradiance.abs().sum()) > 0
+    for name in ("irradiance", "entry_obs", "entry_theta_h", "entry_weight"):
+        assert getattr(a, name).equal(getattr(b, name)), name

@@ -102,3 +102,37 @@ def test_the_message_names_the_largest_term():
         me.check_memory(est, 500.0, "x")
     with pytest.raises(MemoryLimitError, match=r"other terms alone exceed"):
         me.check_memory(est, 50.0, "x")
+
+
+def tiny_photon_level(capture: str, photons: int):
+    """The tiny fold's photon level, prepared, with mid-range parameters: (level, params)."""
+    cfg = torchrefl.load_config(
+        tiny.FOLD,
+        tiny.TINY + ["capture.kind=cylindrical_scan", f"capture.path={capture}"]
+        + ["fit.model=photon", f"photon.photons_per_light={photons}"],
+    )  # fmt: skip
+    cap = loader_for("cylindrical_scan").load(Path(capture), cfg, lambda m: None)
+    level = named_level(level_inputs(cfg, cap, lambda m: None)[0])
+    prepare(level)
+    T = cap.surface.num_texels
+    return level, TexelParams(torch.full((T, 3), 0.5), torch.full((T, 3), 0.3), torch.full((T,), 0.15), 0.01, 0.6)
+
+
+def test_the_first_refresh_is_checked_with_the_hits_per_photon_a_pilot_trace_measures(tiny_fold_run, monkeypatch):
+    """Stored hits per photon depend on the object (a closed, bright or glossy one stores more than the constant the
+    up-front estimate assumes): a pilot trace measures them before the first refresh, within 15 % of what that
+    refresh stores, and a refresh whose photons would not fit the free memory is refused before it traces, naming
+    photon.photons_per_light."""
+    level, params = tiny_photon_level(str(tiny_fold_run / "capture"), 200_000)
+    pilot = level.refresher.hits_per_photon(*params.values())
+    level.refresh(params, 0)
+    stats = level.cache.stats
+    measured = stats["stored_hits"] / stats["photons_emitted"]
+    assert measured > 0 and pilot == pytest.approx(measured, rel=0.15)
+    messages = []
+    level.inputs.log = messages.append
+    monkeypatch.setattr(me, "free_mb", lambda: 0.5)  # a machine with half a MiB free
+    level.cache = None
+    with pytest.raises(MemoryLimitError, match=r"lower photon\.photons_per_light"):
+        level.refresh(params, 0)
+    assert level.cache is None and any("hits per photon" in m for m in messages)

@@ -36,7 +36,7 @@ from torchrefl.errors import ConfigError
 from torchrefl.transport.light_maps import LightSources
 from torchrefl.transport.photon_cache import PhotonCache
 from torchrefl.transport.photon_density import SpreadKernel, apply_on_grid, smoothing_matrix
-from torchrefl.transport.photon_hits import PhotonHits
+from torchrefl.transport.photon_hits import PhotonHits, shared_hits
 from torchrefl.transport.specular_bins import BIN_PER_SIGMA, THETA_BIN, light_slices, spread_and_merge
 
 LOBE_CUTOFF = 1e-7
@@ -101,6 +101,7 @@ def build_cache(
     diffuse_paths: bool = True,
     specular_paths_only: bool = False,
     spreader: SpreadKernel | None = None,
+    image_light: np.ndarray | None = None,
 ) -> PhotonCache:
     """Reduce photon hits to the cache.
 
@@ -124,6 +125,10 @@ def build_cache(
     Without emitter_pd the hits are reduced one light at a time (the same cache, bit for bit: a light's hits feed
     only its own observations and its own specular entries, in the same order), so the reduction's temporaries
     are one light's.
+
+    image_light (P,): where images share lights (distinct_lights), the hits are the distinct lights' (source
+    u * K + k) and image p takes light image_light[p]'s; each image's copy of its light's hits is made when that
+    image is reduced, so the hits are held once, not once per image (the same cache as shared_hits' copies).
     """
     receivers = _Receivers(areas, normals, view_dirs, keep, brdf, sigma, sigma_max, min_cos_light)
     options = _Options(
@@ -138,8 +143,11 @@ def build_cache(
         specular_paths_only=specular_paths_only,
         spreader=spreader,
     )
-    if emitter_pd is None and _several_lights(hits, sources):
-        return _build_by_light(hits, sources, receivers, options, dtype, smoothing)
+    K = sources.positions.shape[1]
+    if image_light is not None and emitter_pd is not None:  # the part linear in Pd is built from all hits at once
+        hits, image_light = shared_hits(hits, np.asarray(image_light), K), None
+    if emitter_pd is None and (image_light is not None or _several_lights(hits, sources)):
+        return _build_by_light(hits, sources, receivers, options, dtype, smoothing, image_light)
     return _build_at_once(hits, sources, receivers, options, dtype, smoothing, emitter_pd)
 
 
@@ -238,18 +246,37 @@ def _spread_kernel(options: _Options) -> SpreadKernel:
 
 
 def _build_by_light(
-    hits: PhotonHits, sources: LightSources, receivers: _Receivers, options: _Options, dtype, smoothing: float
+    hits: PhotonHits,
+    sources: LightSources,
+    receivers: _Receivers,
+    options: _Options,
+    dtype,
+    smoothing: float,
+    image_light: np.ndarray | None = None,
 ) -> PhotonCache:
     """build_cache one light at a time (no part linear in Pd): each light's hits reduced alone in float64 and
     unsmoothed, `threads` lights at once (one thread each: a light's reduction is mostly single-threaded numpy),
     their irradiance summed in light order (each light's rows hold its own hits' sums, the others' rows 0) and
-    smoothed once, their specular entries concatenated in light order (spread_and_merge's order)."""
+    smoothed once, their specular entries concatenated in light order (spread_and_merge's order). With image_light
+    (build_cache) a light here is an image, whose hits are its distinct light's, copied when it is reduced."""
     P, K = sources.positions.shape[:2]
     if options.specular_smoothing > 0 and options.spreader is None and options.grid is not None:
         options = replace(options, spreader=_spread_kernel(options))  # built once for all the lights
-    lights = [idx for idx in light_slices(hits.source, K, P) if idx.size]
+    if image_light is None:
+        lights = [(idx, None) for idx in light_slices(hits.source, K, P) if idx.size]
+    else:
+        image_light = np.asarray(image_light)
+        by_light = light_slices(hits.source, K, int(image_light.max()) + 1 if image_light.size else 0)
+        lights = [(by_light[u], p) for p, u in enumerate(image_light.tolist()) if by_light[u].size]
     one, n = replace(options, threads=1), max(1, options.threads)
-    reduce = lambda idx: _build_at_once(hits.take(idx), sources, receivers, one, torch.float64, 0.0, None)  # noqa: E731
+
+    def reduce(item: tuple) -> PhotonCache:
+        idx, image = item
+        part = hits.take(idx)
+        if image is not None:  # the distinct light's hits as this image's (source p * K + k)
+            part = replace(part, source=image * K + part.source % K)
+        return _build_at_once(part, sources, receivers, one, torch.float64, 0.0, None)
+
     irradiance, entries, spread, brdf = None, [], [], None
     for start in range(0, len(lights), n):  # `threads` lights' temporaries alive at a time
         for part in thread_map(reduce, lights[start : start + n], n):
@@ -263,7 +290,7 @@ def _build_by_light(
             irradiance, options.grid, options.smoother, smoothing, options.smoothing_normal
         )[0]
     obs, theta, weight = (torch.cat([e[i] for e in entries]) for i in range(3))
-    stats = _hit_stats(hits, K)
+    stats = _hit_stats(hits, K)  # the hits traced (with image_light, the distinct lights'), not their copies
     if spread:
         stats["specular_photons"] = sum(spread)
     stats["specular_entries"] = int(obs.numel())

@@ -96,12 +96,34 @@ def estimate_memory(
             settings["emitter maps"] = "radiosity.light_maps"
     if level == "photon":
         traced = images if lights_traced is None else lights_traced
-        hits = cfg.photon.photons_per_light * traced * HITS_PER_PHOTON
-        irradiance = images * texels * 3 * 4
-        entries = min(hits * ENTRIES_PER_HIT, images * texels * ENTRIES_PER_OBSERVATION)
-        terms["photons"] = (hits * HIT_PEAK_BYTES + CACHES_ALIVE * (entries * ENTRY_BYTES + irradiance)) / _MB
+        terms["photons"] = photons_mb(cfg.photon.photons_per_light * traced, images, texels)
         settings["photons"] = "photon.photons_per_light"
     return MemoryEstimate(terms, settings)
+
+
+def photons_mb(photons: float, images: int, texels: int, hits_per_photon: float = HITS_PER_PHOTON) -> float:
+    """The MiB a photon refresh of `photons` photons (all lights traced) adds at its peak, with its caches alive, for
+    `images` images of `texels` texels, at `hits_per_photon` stored hits per photon."""
+    hits = photons * hits_per_photon
+    irradiance = images * texels * 3 * 4
+    entries = min(hits * ENTRIES_PER_HIT, images * texels * ENTRIES_PER_OBSERVATION)
+    return (hits * HIT_PEAK_BYTES + CACHES_ALIVE * (entries * ENTRY_BYTES + irradiance)) / _MB
+
+
+def check_photon_memory(hits_per_photon: float, photons: int, images: int, texels: int, log) -> float:
+    """Before the first photon refresh: the photons' term again with the stored hits per photon a pilot trace
+    measured (the up-front estimate assumes HITS_PER_PHOTON, which a closed, bright or glossy object exceeds); logs
+    it and refuses the run (MemoryLimitError) when it exceeds the free memory. Returns the term's MiB."""
+    term = photons_mb(photons, images, texels, hits_per_photon)
+    free = free_mb()
+    log(
+        f"memory: a pilot trace stored {hits_per_photon:.3f} hits per photon (the up-front estimate assumed "
+        f"{HITS_PER_PHOTON:g}): the photon refreshes add about {term:.0f} MiB; "
+        + (f"{free:.0f} MiB free" if free is not None else "free memory unknown")
+    )
+    estimate = MemoryEstimate({"photons": term}, {"photons": "photon.photons_per_light"})
+    check_memory(estimate, free, f"the photon level at {hits_per_photon:.3f} stored hits per photon")
+    return term
 
 
 def cgroup_free_mb() -> float | None:

@@ -56,3 +56,15 @@ class PhotonHits:
     @property
     def count(self) -> int:
         return int(len(self.texel))
+
+
+def shared_hits(hits: PhotonHits, light_of: np.ndarray, K: int) -> PhotonHits:
+    """The hits of the distinct lights' traces (sources u * K + k) as the hits of every image (sources p * K + k):
+    each image gets a copy of its light's hits; emitted (P * K,)."""
+    light = hits.source // K
+    parts = [np.flatnonzero(light == u) for u in light_of]
+    take = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+    image = np.repeat(np.arange(len(light_of)), [len(i) for i in parts])
+    per_source = hits.emitted.reshape(-1, K)
+    source = image * K + hits.source[take] % K
+    return replace(hits.take(take), source=source, emitted=per_source[light_of].reshape(-1))

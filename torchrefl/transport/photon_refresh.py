@@ -3,15 +3,16 @@
 Images that share a light (mesh_views: several views per light) share its photons: the photons of a light depend on
 the light and the parameters only, so each distinct light (its map positions and intensity, compared exactly) is
 traced once per refresh and its hits are counted for every image of that light, in which the cache's view-dependent
-terms are then reduced (shared_hits). A capture whose lights all differ (the cylindrical scan's co-rotating lights)
-traces exactly as before.
+terms are then reduced (build_cache's image_light: each image's copy of the hits is made as that image is reduced,
+so the hits are held once). A capture whose lights all differ (the cylindrical scan's co-rotating lights) traces
+exactly as before.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -23,10 +24,14 @@ from torchrefl.transport.cache_build import build_cache
 from torchrefl.transport.light_maps import LightSources
 from torchrefl.transport.photon_cache import PhotonCache
 from torchrefl.transport.photon_density import SpreadKernel, smoothing_matrix
-from torchrefl.transport.photon_hits import PhotonHits
 from torchrefl.transport.photon_material import TexelMaterial
 from torchrefl.transport.photon_trace import PhotonTracer
 from torchrefl.transport.specular_gather import SpecularGather
+
+#: photons per distinct light of the pilot trace that measures the stored hits per photon before the first refresh
+PILOT_PHOTONS = 20_000
+#: the pilot's refresh number in the tracer's random streams (no refresh uses it)
+PILOT_REFRESH = 1 << 20
 
 
 @dataclass
@@ -84,14 +89,41 @@ class PhotonRefresh:
             self._spreader = SpreadKernel(self.grid[0], self.specular_smoothing, normals, self.smoothing_normal)
         return self._spreader
 
+    @property
+    def _gathers_diffuse_paths(self) -> bool:
+        """Whether the cache takes the all-diffuse paths' light from the radiosity level and gathers their specular
+        reflection (specular_gather): then only the hits of paths with a specular scattering count, and only they
+        are stored."""
+        return self.radiosity_irradiance is not None and self.specular_gather is not None
+
+    def hits_per_photon(self, pd, ps, sigma, photons: int = PILOT_PHOTONS) -> float:
+        """Stored hits per photon emitted, measured by a pilot trace of `photons` photons per distinct light with
+        these parameters (what a refresh stores: PhotonRefresh.cache's trace)."""
+        K = self.sources.positions.shape[1]
+        first, _ = distinct_lights(self.sources)
+        per_map = max(1, math.ceil(min(photons, self.photons_per_light) / K))
+        hits = self.tracer.trace(
+            self.sources.positions[first].reshape(-1, 3),
+            np.repeat(self.sources.intensity[first], K, 0),
+            per_map,
+            TexelMaterial.from_tensors(*self._scattering(pd, ps, sigma)),
+            seed=self.seed,
+            refresh=PILOT_REFRESH,
+            specular_paths_only=self._gathers_diffuse_paths,
+        )
+        return hits.count / max(1, len(first) * K * per_map)
+
+    def _scattering(self, pd, ps, sigma) -> tuple:
+        """The parameters the texels scatter with (with emitter_source: each texel its source's)."""
+        if self.emitter_source is None:
+            return pd, ps, sigma
+        src = self.emitter_source.to(pd.device)
+        return tuple(x[src] if x.shape[0] == src.shape[0] else x for x in (pd, ps, sigma))  # a shared lobe stays
+
     def cache(self, pd, ps, sigma, refresh: int, progress: bool = False) -> PhotonCache:
         """Trace photons with these parameters and reduce them to the cache."""
         release_free_memory()  # the heap's free pages would add to the tracing's peak
-        if self.emitter_source is not None:
-            src = self.emitter_source.to(pd.device)
-            pd, ps, sigma = (
-                x[src] if x.shape[0] == src.shape[0] else x for x in (pd, ps, sigma)
-            )  # a shared lobe stays
+        pd, ps, sigma = self._scattering(pd, ps, sigma)
         P, K = self.sources.positions.shape[:2]
         per_map = max(1, math.ceil(self.photons_per_light / K))
         mat = TexelMaterial.from_tensors(pd, ps, sigma)
@@ -113,10 +145,9 @@ class PhotonRefresh:
                 seed=self.seed,
                 refresh=refresh,
                 progress=tick,
+                specular_paths_only=self._gathers_diffuse_paths,
             )
             traced = time.perf_counter()
-        if U < P:
-            hits = shared_hits(hits, light_of, K)
         cache = build_cache(
             hits,
             self.sources,
@@ -138,7 +169,8 @@ class PhotonRefresh:
             smoother=self.smoother(),
             spreader=self.spreader(),
             diffuse_paths=self.radiosity_irradiance is None,
-            specular_paths_only=self.specular_gather is not None,
+            specular_paths_only=self._gathers_diffuse_paths,
+            image_light=light_of if U < P else None,
         )
         del hits  # reduced: not alive beside the radiosity solve and the gather
         if self.radiosity_irradiance is not None:
@@ -188,15 +220,3 @@ def distinct_lights(sources: LightSources) -> tuple[np.ndarray, np.ndarray]:
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     return first[order], rank[np.asarray(light_of).reshape(-1)]
-
-
-def shared_hits(hits: PhotonHits, light_of: np.ndarray, K: int) -> PhotonHits:
-    """The hits of the distinct lights' traces (sources u * K + k) as the hits of every image (sources p * K + k):
-    each image gets a copy of its light's hits; emitted (P * K,)."""
-    light = hits.source // K
-    parts = [np.flatnonzero(light == u) for u in light_of]
-    take = np.concatenate(parts) if parts else np.zeros(0, np.int64)
-    image = np.repeat(np.arange(len(light_of)), [len(i) for i in parts])
-    per_source = hits.emitted.reshape(-1, K)
-    source = image * K + hits.source[take] % K
-    return replace(hits.take(take), source=source, emitted=per_source[light_of].reshape(-1))

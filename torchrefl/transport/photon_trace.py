@@ -328,10 +328,12 @@ class PhotonTracer:
         n_total: int,
         tables: "ScatterTables",
         rng: np.random.Generator,
+        specular_paths_only: bool = False,
     ) -> tuple[list, int]:
         """n photons of one source (out of n_total for that source); returns ([(texel, wi (3, M), power (3, M),
         emitter, diffuse_per_pd (3, M), collects, specular_path, density_weight) per bounce], rays, back-side hits),
-        float32 / int32 arrays."""
+        float32 / int32 arrays; specular_paths_only: a bounce keeps only its hits whose path had a specular
+        scattering."""
         a = self.landing(source)
         total = float(a.sum())
         stored: list = []
@@ -378,7 +380,7 @@ class PhotonTracer:
                 cos_i = column_dot(n_s, wi)
                 face = prim
                 weight = np.maximum(column_dot(_take3(self._n3, texel), wi), 0) / np.maximum(cos_i, np.float32(1e-6))
-                stored.append((texel, wi, power, emitter, per_pd, collects, path, weight))
+                stored.append(_stored(texel, wi, power, emitter, per_pd, collects, path, weight, specular_paths_only))
             if depth == self.max_bounces:
                 break
             u = rng.random((4, len(texel)), dtype=np.float32)
@@ -398,8 +400,12 @@ class PhotonTracer:
         seed: int,
         refresh: int = 0,
         progress=None,
+        specular_paths_only: bool = False,
     ) -> PhotonHits:
-        """Trace photons_per_source photons from every source (S, 3) with intensities (S, 3)."""
+        """Trace photons_per_source photons from every source (S, 3) with intensities (S, 3). specular_paths_only:
+        store only the hits whose path had a specular scattering (for a cache that takes the all-diffuse paths from
+        the radiosity level and gathers their specular reflection: build_cache(diffuse_paths=False,
+        specular_paths_only=True) gives the other hits no weight); the photons are traced as without it."""
         sources = np.asarray(sources, dtype=np.float64).reshape(-1, 3)
         intensities = np.asarray(intensities, dtype=np.float64).reshape(-1, 3)
         S, N = len(sources), int(photons_per_source)
@@ -413,7 +419,7 @@ class PhotonTracer:
         def work(k: int) -> None:
             s, a, b = units[k]
             rng = np.random.default_rng([int(seed), 0x50, int(refresh), s, a // CHUNK])
-            results[k] = self.trace_chunk(sources[s], intensities[s], b - a, N, tables, rng)
+            results[k] = self.trace_chunk(sources[s], intensities[s], b - a, N, tables, rng, specular_paths_only)
             done[0] += b - a
             if progress is not None:
                 progress(done[0], S * N)
@@ -463,3 +469,13 @@ class PhotonTracer:
             specular_path=gather(6),
             density_weight=gather(7),
         )
+
+
+def _stored(texel, wi, power, emitter, per_pd, collects, path, weight, specular_paths_only: bool) -> tuple:
+    """A bounce's stored arrays (trace_chunk's tuple); specular_paths_only: only the hits whose path had a specular
+    scattering (the others' arrays cut before they are kept)."""
+    if not specular_paths_only:
+        return texel, wi, power, emitter, per_pd, collects, path, weight
+    k = np.flatnonzero(path & collects)
+    cut = lambda a: np.take(a, k, axis=-1)  # noqa: E731 (the vectors are component-major (3, M))
+    return tuple(cut(a) for a in (texel, wi, power, emitter, per_pd, collects, path, weight))

@@ -29,6 +29,7 @@ from torchrefl.transport.final_traces import fresh_traces, image_variance, trace
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, RefitStep, TransportLevel
 from torchrefl.transport.levels.radiosity import SMOOTHING_NORMAL, RadiosityLevel
 from torchrefl.transport.light_maps import light_sources
+from torchrefl.transport.memory_estimate import check_photon_memory
 from torchrefl.transport.pd_precision import median_pd_std
 from torchrefl.transport.photon_cache import (
     indirect_radiance,
@@ -44,7 +45,7 @@ from torchrefl.transport.photon_density import (
     kernel_std,
     photons_for_kernel,
 )
-from torchrefl.transport.photon_refresh import PhotonRefresh
+from torchrefl.transport.photon_refresh import PhotonRefresh, distinct_lights
 from torchrefl.transport.photon_trace import PhotonTracer
 from torchrefl.transport.specular_gather import SpecularGather
 
@@ -273,6 +274,8 @@ class PhotonLevel(TransportLevel):
             if k > 0:
                 self.pd_change.append(float((values[0] - self._traced_pd).double().square().mean().sqrt()))
             self._traced_pd = values[0]
+            if k == 0:
+                self._check_memory(values)
             trace = self.refresher.cache(*values, refresh=k, progress=inp.cfg.output.progress)
             if k >= AVERAGE_FROM:
                 sigma = values[2].detach().cpu().double().numpy()
@@ -288,8 +291,8 @@ class PhotonLevel(TransportLevel):
         self.refresh_at.append(round(time.perf_counter() - self._clock, 2))
         stats = self.cache.stats
         inp.log(
-            f"photon refresh {k}: {stats['photons_emitted']} photons over the images "
-            f"(traced for {stats.get('traced_lights', '?')} distinct lights), {stats['stored_hits']} stored hits, "
+            f"photon refresh {k}: {stats['photons_emitted']} photons traced for "
+            f"{stats.get('traced_lights', '?')} distinct lights, {stats['stored_hits']} stored hits, "
             f"{stats['specular_entries']} specular entries"
             + (
                 f" (+ {stats['gather_entries']} gathered from {stats['gather_rays']} rays)"
@@ -313,6 +316,15 @@ class PhotonLevel(TransportLevel):
             )
         if score < self._best[0]:
             self._best = (score, k, {n: p.detach().clone() for n, p in params.named_parameters()}, self.cache)
+
+    def _check_memory(self, values) -> None:
+        """Refuse (MemoryLimitError) refreshes that would not fit, with the stored hits per photon a pilot trace
+        measures at the start's parameters."""
+        inp = self.inputs
+        traced = len(distinct_lights(self.refresher.sources)[0]) * self.refresher.sources.num_maps
+        per_map = math.ceil(self.refresher.photons_per_light / self.refresher.sources.num_maps)
+        hits = self.refresher.hits_per_photon(*values)
+        check_photon_memory(hits, traced * per_map, inp.obs.num_lights, inp.surface.num_texels, inp.log)
 
     def converged(self, params) -> str | None:
         """After a refit of an averaged cache, before its refresh: done when the refit moved Pd (RMS, as the refresh
