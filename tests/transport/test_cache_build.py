@@ -54,10 +54,10 @@ def test_the_cache_reduced_one_light_at_a_time_is_the_cache_of_all_at_once(photo
     assert by_light.stats == at_once.stats
 
 
-def test_images_sharing_lights_reduce_their_lights_hits_without_copying_them_all(photon_traced):
+def test_images_sharing_lights_reduce_their_lights_hits_without_copying_them_all(photon_traced, monkeypatch):
     """Images that share a light (mesh_views: several cameras per light) reduce that light's hits, seen from their own
-    camera: the cache of build_cache(image_light=...) is bit for bit the cache of the hits copied for every image at
-    once (shared_hits), and it counts the hits traced, not their copies."""
+    camera: the cache of build_cache(image_light=...) is bit for bit the cache of the hits copied for every image
+    (shared_hits) and reduced all at once, and it counts the hits traced, not their copies."""
     s, obs, pt, src, hits, pd, ps, sigma = photon_traced
     K, T = src.num_maps, s.num_texels
     image_light = np.array([0, 1, 1, 0, 1])  # five images of the two traced lights, in no particular order
@@ -72,6 +72,7 @@ def test_images_sharing_lights_reduce_their_lights_hits_without_copying_them_all
     kwargs = dict(dtype=torch.float32, smoothing=1.5, grid=(s.neighbours, s.normals), smoothing_normal=0.1)
     kwargs.update(specular_smoothing=1.0, bin_per_sigma=0.25)
     lazily = build_cache(hits, *args, image_light=image_light, **kwargs)
+    monkeypatch.setattr(cache_build, "_several_lights", lambda *a: False)  # every image's copies at once
     copied = build_cache(shared_hits(hits, image_light, K), *args, **kwargs)
     assert lazily.entry_obs.numel() > 100 and lazily.irradiance.shape == (5, T, 3)
     assert not lazily.irradiance[1].equal(torch.zeros(T, 3)) and lazily.irradiance[1].equal(lazily.irradiance[2])

@@ -255,46 +255,63 @@ def _build_by_light(
     image_light: np.ndarray | None = None,
 ) -> PhotonCache:
     """build_cache one light at a time (no part linear in Pd): each light's hits reduced alone in float64 and
-    unsmoothed, `threads` lights at once (one thread each: a light's reduction is mostly single-threaded numpy),
-    their irradiance summed in light order (each light's rows hold its own hits' sums, the others' rows 0) and
-    smoothed once, their specular entries concatenated in light order (spread_and_merge's order). With image_light
-    (build_cache) a light here is an image, whose hits are its distinct light's, copied when it is reduced."""
+    unsmoothed, `threads` lights at once (one thread each: a light's reduction is mostly single-threaded numpy), its
+    irradiance written to its images' rows and smoothed once, their specular entries concatenated in image order
+    (spread_and_merge's order). With image_light (build_cache) a light's irradiance is reduced once for all its
+    images (it does not depend on the view) and its specular entries once per image."""
     P, K = sources.positions.shape[:2]
+    T = int(receivers.areas.shape[0])
     if options.specular_smoothing > 0 and options.spreader is None and options.grid is not None:
         options = replace(options, spreader=_spread_kernel(options))  # built once for all the lights
     if image_light is None:
-        lights = [(idx, None) for idx in light_slices(hits.source, K, P) if idx.size]
+        lights = [(idx, [p]) for p, idx in enumerate(light_slices(hits.source, K, P)) if idx.size]
     else:
         image_light = np.asarray(image_light)
         by_light = light_slices(hits.source, K, int(image_light.max()) + 1 if image_light.size else 0)
-        lights = [(by_light[u], p) for p, u in enumerate(image_light.tolist()) if by_light[u].size]
+        lights = [(idx, np.flatnonzero(image_light == u).tolist()) for u, idx in enumerate(by_light) if idx.size]
     one, n = replace(options, threads=1), max(1, options.threads)
-
-    def reduce(item: tuple) -> PhotonCache:
-        idx, image = item
-        part = hits.take(idx)
-        if image is not None:  # the distinct light's hits as this image's (source p * K + k)
-            part = replace(part, source=image * K + part.source % K)
-        return _build_at_once(part, sources, receivers, one, torch.float64, 0.0, None)
-
-    irradiance, entries, spread, brdf = None, [], [], None
+    reduce = lambda item: _reduce_light(hits.take(item[0]), item[1], sources, receivers, one, T)  # noqa: E731
+    irradiance = torch.zeros(P, T, 3, dtype=torch.float64)
+    entries, spread = {}, []
     for start in range(0, len(lights), n):  # `threads` lights' temporaries alive at a time
-        for part in thread_map(reduce, lights[start : start + n], n):
-            irradiance = part.irradiance if irradiance is None else irradiance.add_(part.irradiance)
-            entries.append((part.entry_obs, part.entry_theta_h, part.entry_weight))
-            if "specular_photons" in part.stats:
-                spread.append(part.stats["specular_photons"])
-            brdf = part.brdf
+        for (_, images), (H, parts, count) in zip(
+            lights[start : start + n], thread_map(reduce, lights[start : start + n], n)
+        ):
+            irradiance[images] = torch.from_numpy(H)
+            entries.update(zip(images, parts))
+            spread += count
     if smoothing > 0:
         irradiance = _smooth_irradiance(
             irradiance, options.grid, options.smoother, smoothing, options.smoothing_normal
         )[0]
-    obs, theta, weight = (torch.cat([e[i] for e in entries]) for i in range(3))
+    ordered = [entries[p] for p in sorted(entries)]
+    empty = (
+        torch.zeros(0, dtype=torch.long),
+        torch.zeros(0, dtype=torch.float64),
+        torch.zeros(0, 3, dtype=torch.float64),
+    )
+    obs, theta, weight = (torch.cat([e[i] for e in ordered] or [empty[i]]) for i in range(3))
     stats = _hit_stats(hits, K)  # the hits traced (with image_light, the distinct lights'), not their copies
     if spread:
         stats["specular_photons"] = sum(spread)
     stats["specular_entries"] = int(obs.numel())
-    return PhotonCache(brdf, irradiance.to(dtype), obs, theta.to(dtype), weight.to(dtype), stats=stats)
+    return PhotonCache(receivers.brdf, irradiance.to(dtype), obs, theta.to(dtype), weight.to(dtype), stats=stats)
+
+
+def _reduce_light(hits: PhotonHits, images: list, sources: LightSources, receivers: _Receivers, options: _Options, T):
+    """One light's hits reduced for each of its images (their source's map k = source % K; the image is not read from
+    the source): (H (T, 3) float64 the light's irradiance per texel, each image's specular entries (obs, theta_h,
+    weight) in float64, the photons spread_and_merge counted per image that has entries)."""
+    _, flux, _ = _photon_flux(hits, sources, receivers.areas, T)
+    t = np.asarray(hits.texel)
+    H, _ = _photon_irradiance(hits, flux, t, T, options.diffuse_paths, options.specular_paths_only)
+    parts, counts = [], []
+    for p in images:
+        entries, count = _cache_entries(hits, flux, p * T + t, receivers, options, T, torch.float64)
+        parts.append(entries)
+        if count is not None:
+            counts.append(count)
+    return H, parts, counts
 
 
 def _lobe_hits(hits: PhotonHits, keep, obs_idx, lobe: bool, specular_paths_only: bool) -> np.ndarray:

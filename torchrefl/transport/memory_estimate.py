@@ -5,7 +5,8 @@ The estimate adds, to what the process holds already (the capture, the observati
 builds, from the capture's size: texels T, images P, distinct lights traced, photons per light, patches Q, emitter
 maps K. Each term is its arrays' bytes times the copies alive at once (COPIES_*), the constants measured on the
 fold (docs/results/performance.md, "Memory"). The check refuses a run whose estimate exceeds the free memory with a
-MemoryLimitError naming the setting of the largest term and the value that would fit.
+MemoryLimitError naming the setting of the largest term and the value that would fit. The photons' term is checked
+again before the first refresh with the stored hits per photon a pilot trace measures (check_photon_memory).
 """
 
 from __future__ import annotations
@@ -31,8 +32,9 @@ FORM_FACTOR_BYTES_PER_RAY = 48
 #: bytes per (image, emitter map, texel): the maps' irradiance, the per-map indirect irradiance and radiance of one
 #: radiosity solve (3 float64 channels each)
 EMITTER_BYTES = 3 * 3 * 8
-#: stored photon hits per photon emitted (second and later bounces; photons leaving the object store none): 0.13 on
-#: the tiny fold (scripts/tiny_mode.py), see docs/results/performance.md for the full fold
+#: stored photon hits per photon emitted, assumed up front (second and later bounces; photons leaving the object store
+#: none; with the specular gather only those of paths with a specular scattering): 0.056 on the full fold, 0.34 in the
+#: bowl (docs/results/performance.md); a pilot trace measures it before the first refresh (check_photon_memory)
 HITS_PER_PHOTON = 0.15
 #: peak bytes per stored hit while a refresh traces and reduces: the hits' arrays and the bounces' batches they are
 #: gathered from at the end of a trace (the reduction runs one light at a time, so its temporaries are a light's)
