@@ -127,8 +127,9 @@ def build_cache(
     are one light's.
 
     image_light (P,): where images share lights (distinct_lights), the hits are the distinct lights' (source
-    u * K + k) and image p takes light image_light[p]'s; each image's copy of its light's hits is made when that
-    image is reduced, so the hits are held once, not once per image (the same cache as shared_hits' copies).
+    u * K + k) and image p takes light image_light[p]'s: a light's hits are reduced once for the irradiance of all its
+    images (it does not depend on the camera) and once per image for the specular entries, and held once, not once
+    per image (the same cache as shared_hits' copies).
     """
     receivers = _Receivers(areas, normals, view_dirs, keep, brdf, sigma, sigma_max, min_cos_light)
     options = _Options(
