@@ -170,27 +170,15 @@ def test_leaving_out_the_all_diffuse_paths_keeps_exactly_the_flagged_photons(pho
         build(dataclasses.replace(hits, specular_path=None), diffuse_paths=False)
 
 
-def test_a_trace_that_stores_only_specular_paths_gives_the_gathering_cache_it_gave_before():
+def test_a_trace_that_stores_only_specular_paths_gives_the_gathering_cache_it_gave_before(photon_traced):
     """With the all-diffuse paths taken from the radiosity level and their specular reflection gathered
     (diffuse_paths=False, specular_paths_only=True), the other hits carry no weight: a trace that stores only the
     hits of paths with a specular scattering stores exactly those of the full trace (same photons), far fewer, and
     the cache built from them is bit for bit the full trace's."""
-    s = fold_surface(12, 24)
-    T = s.num_texels
-    obs = point_light_observations(s.normals, s.positions, LIGHTS, CAMERA, intensity=1e4)
-    pt = photon_tracer(s, "torrance_sparrow")
-    src = light_sources(s, obs, 2)
-    g = torch.Generator().manual_seed(3)
-    sigma = 0.05 + 0.3 * torch.rand(T, generator=g, dtype=torch.float64)
-    mat = TexelMaterial.from_tensors(
-        0.2 + 0.6 * torch.rand(T, 3, generator=g, dtype=torch.float64),
-        0.1 + 0.4 * torch.rand(T, 3, generator=g, dtype=torch.float64),
-        sigma,
-    )
-    trace = lambda only: pt.trace(  # noqa: E731
-        src.positions.reshape(-1, 3), np.repeat(src.intensity, 2, 0), 20_000, mat, seed=5, specular_paths_only=only
-    )
-    full, kept = trace(False), trace(True)
+    s, obs, pt, src, full, pd, ps, sigma = photon_traced  # conftest.trace_photons: 3 000 photons per map, seed 0
+    mat = TexelMaterial.from_tensors(pd, ps, sigma)
+    intensity = np.repeat(src.intensity, src.num_maps, 0)
+    kept = pt.trace(src.positions.reshape(-1, 3), intensity, 3000, mat, seed=0, specular_paths_only=True)
     wanted = np.flatnonzero(full.specular_path)
     assert 0 < kept.count == wanted.size < 0.8 * full.count
     for name in ("source", "texel", "direction", "power", "emitter", "density_weight"):

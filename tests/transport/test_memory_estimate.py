@@ -40,19 +40,24 @@ def test_a_chunked_local_fit_is_estimated_by_its_largest_chunk():
     assert chunked == pytest.approx((whole + 2**22 * me.FIT_BYTES_PER_OBSERVATION) / 2**20) and chunked < dense / 2
 
 
-def photon_level_growth(capture: str, photons: int) -> dict:
-    """The peak resident memory (MiB) that preparing the tiny fold's photon level and three refreshes add (the third
-    averaged with the second, the best kept: the caches the fit holds), measured after a first level has warmed the
-    process (thread pools and their heaps are not the level's), with the level's estimate and counts."""
+def tiny_photon_inputs(capture: str, photons: int):
+    """The tiny fold's capture as the photon level's inputs at `photons` per light, and mid-range parameters."""
     cfg = torchrefl.load_config(
         tiny.FOLD,
         tiny.TINY + ["capture.kind=cylindrical_scan", f"capture.path={capture}"]
         + ["fit.model=photon", f"photon.photons_per_light={photons}"],
     )  # fmt: skip
     cap = loader_for("cylindrical_scan").load(Path(capture), cfg, lambda m: None)
-    inputs = level_inputs(cfg, cap, lambda m: None)[0]
     T = cap.surface.num_texels
     params = TexelParams(torch.full((T, 3), 0.5), torch.full((T, 3), 0.3), torch.full((T,), 0.15), 0.01, 0.6)
+    return level_inputs(cfg, cap, lambda m: None)[0], params
+
+
+def photon_level_growth(capture: str, photons: int) -> dict:
+    """The peak resident memory (MiB) that preparing the tiny fold's photon level and three refreshes add (the third
+    averaged with the second, the best kept: the caches the fit holds), measured after a first level has warmed the
+    process (thread pools and their heaps are not the level's), with the level's estimate and counts."""
+    inputs, params = tiny_photon_inputs(capture, photons)
     warm = named_level(inputs)
     prepare(warm)
     warm.refresh(params, 0)
@@ -71,7 +76,7 @@ def photon_level_growth(capture: str, photons: int) -> dict:
         "largest": estimate.largest(),
         "averaged": level.cache.stats["averaged_traces"],
         "emitted": level.cache.stats["photons_emitted"],
-        "lights": cap.obs.num_lights,
+        "lights": inputs.obs.num_lights,
     }
 
 
@@ -104,26 +109,14 @@ def test_the_message_names_the_largest_term():
         me.check_memory(est, 50.0, "x")
 
 
-def tiny_photon_level(capture: str, photons: int):
-    """The tiny fold's photon level, prepared, with mid-range parameters: (level, params)."""
-    cfg = torchrefl.load_config(
-        tiny.FOLD,
-        tiny.TINY + ["capture.kind=cylindrical_scan", f"capture.path={capture}"]
-        + ["fit.model=photon", f"photon.photons_per_light={photons}"],
-    )  # fmt: skip
-    cap = loader_for("cylindrical_scan").load(Path(capture), cfg, lambda m: None)
-    level = named_level(level_inputs(cfg, cap, lambda m: None)[0])
-    prepare(level)
-    T = cap.surface.num_texels
-    return level, TexelParams(torch.full((T, 3), 0.5), torch.full((T, 3), 0.3), torch.full((T,), 0.15), 0.01, 0.6)
-
-
 def test_the_first_refresh_is_checked_with_the_hits_per_photon_a_pilot_trace_measures(tiny_fold_run, monkeypatch):
     """Stored hits per photon depend on the object (a closed, bright or glossy one stores more than the constant the
     up-front estimate assumes): a pilot trace measures them before the first refresh, within 15 % of what that
     refresh stores, and a refresh whose photons would not fit the free memory is refused before it traces, naming
     photon.photons_per_light."""
-    level, params = tiny_photon_level(str(tiny_fold_run / "capture"), 200_000)
+    inputs, params = tiny_photon_inputs(str(tiny_fold_run / "capture"), 200_000)
+    level = named_level(inputs)
+    prepare(level)
     pilot = level.refresher.hits_per_photon(*params.values())
     level.refresh(params, 0)
     stats = level.cache.stats
