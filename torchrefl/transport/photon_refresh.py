@@ -3,9 +3,11 @@
 Images that share a light (mesh_views: several views per light) share its photons: the photons of a light depend on
 the light and the parameters only, so each distinct light (its map positions and intensity, compared exactly) is
 traced once per refresh and its hits are counted for every image of that light, in which the cache's view-dependent
-terms are then reduced (build_cache's image_light: each image's copy of the hits is made as that image is reduced,
-so the hits are held once). A capture whose lights all differ (the cylindrical scan's co-rotating lights) traces
-exactly as before.
+terms are then reduced (build_cache's image_light: a light's hits, held once, are reduced once for the irradiance of
+all its images and once per image for the specular entries). A capture whose lights all differ (the cylindrical
+scan's co-rotating lights) traces exactly as before. Where the cache takes the all-diffuse paths from the radiosity
+level and gathers their specular reflection, the trace stores only the hits of paths with a specular scattering
+(the others carry no weight there).
 """
 
 from __future__ import annotations
