@@ -45,6 +45,7 @@ class FlatScene:
         self.ps = torch.full((T, 3), 0.2, dtype=torch.float64)
         self.sigma = torch.full((T,), 0.15, dtype=torch.float64)
         self.estimated = torch.ones(T, dtype=torch.bool)
+        self.unobserved = torch.zeros(T, dtype=torch.bool)
         self.noise_dn = torch.full((3,), 0.5, dtype=torch.float64)
         self.ranges = ParameterRanges(4.0, 0.01, 0.6)
 
@@ -200,4 +201,28 @@ def test_a_near_repeat_highlight_gains_less_than_a_first_highlight_elsewhere():
     assert 0.0 < state.gain(repeat, 0) <= bound
     assert 0.0 < state.gain(planner.light, 0) <= bound  # the near-repeat
     assert state.gain(planner.light, 1) > bound
+    assert planner.choose(1).chosen == [1]
+
+
+def test_a_first_observation_of_a_texel_the_run_never_observed_counts():
+    """The run's two lights (UP and 10 mm beside it) reach only the upward group; the tilted group has no estimate. As
+    unobserved texels (planning.run_scene: predicted at a stand-in, no information yet) they count in the mirror
+    light's information, which brings them their first observations and highlights: it gains more than it does
+    without them (texels the fit set aside, where it only adds to the upward group) and more than a light beside UP."""
+    lights = np.stack([UP, UP + [10.0, 0.0, 0.0]])
+    spec = torch.tensor([2] * 4 + [0] * 4)
+    candidates = np.stack([UP + [0.0, 10.0, 0.0], MIRROR])
+    scene = FlatScene(lights, spec, spec >= 2)
+    scene.estimated[4:] = False
+    set_aside = Planner(scene, candidates)
+    assert set_aside.info[4:].abs().sum() == 0.0 and set_aside.light.texels[1].tolist() == [0, 1, 2, 3]
+    before = TexelState(scene, set_aside.info.clone()).gain(set_aside.light, 1)
+    scene.unobserved[4:] = True
+    planner = Planner(scene, candidates)
+    tilted = planner.light.texels[1] >= 4
+    assert planner.light.texels[1][tilted].tolist() == [4, 5, 6, 7]
+    assert planner.light.specular[1][tilted].tolist() == [1] * 4
+    state = TexelState(scene, planner.info.clone())
+    assert state.gain(planner.light, 1) > before + 1.0
+    assert state.gain(planner.light, 1) > state.gain(planner.light, 0) > 0.0
     assert planner.choose(1).chosen == [1]

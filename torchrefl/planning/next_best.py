@@ -4,7 +4,9 @@ For every candidate light (planning.run_scene: the loader's geometry of the ligh
 camera's and the light's Embree visibility, i.e. cast shadows), the fitted model (transport.local: direct light)
 predicts each texel's image; an observation counts as the fitter would count it (fit.observe): seen, lit, not
 shadowed, n.v and n.l above reflectance.min_cos_view / min_cos_light, not saturated (a predicted channel at or above
-the scan's saturation level), on an estimated texel; it is strong-specular (T_spec, core.observation_classes) when
+the scan's saturation level), on an estimated texel or one no fitted observation reached (`unobserved`: predicted at
+the stand-in of planning.run_scene, with no information yet, so a light that brings it its first observations
+counts); it is strong-specular (T_spec, core.observation_classes) when
 its half-angle is at most reflectance.theta_specular_deg. Its Fisher information is fit.uncertainty's: J J^T /
 noise^2 with J = d(255 i_hat) / d(Pd, Ps, sigma) of the texel's own parameters at the estimate.
 
@@ -71,7 +73,7 @@ SCORE = "sum over texels of log(var_before / var_after) of Ps (largest channel) 
 class PlanningScene(Protocol):
     """What the planner reads of a fitted run (planning.run_scene.RunScene for a scan,
     planning.views_run_scene.ViewsRunScene for mesh_views): cfg, run (its minnaert_k), normals (T, 3), the estimate
-    pd, ps, sigma, estimated, lobe_measured, n_specular, lights (P, 3) the run's own light positions,
+    pd, ps, sigma, estimated, unobserved, lobe_measured, n_specular, lights (P, 3) the run's own light positions,
     saturation_level, noise_dn, ranges; observations(positions (M, 3)): the geometry of M candidate lights, light
     after light, images_per_light rows each; fitted_observations(chunk): the run's own fitted images' geometry, in
     Observations of at most chunk lights' images."""
@@ -150,7 +152,7 @@ def observation_information(
     with torch.no_grad():
         saturated = (model(scene.pd, scene.ps, scene.sigma) >= scene.saturation_level).any(-1)
     fit = obs.valid & (terms.cos_v > rc.min_cos_view) & (terms.cos_l > rc.min_cos_light) & ~saturated
-    fit &= scene.estimated[None]
+    fit &= (scene.estimated | scene.unobserved)[None]
     spec = classify(terms.theta_h, fit, rc.theta_diffuse_deg, rc.theta_specular_deg) == T_SPEC
     J = jacobian(model, scene.pd, scene.ps, scene.sigma).dense().double()
     texels, infos, specular = [], [], []

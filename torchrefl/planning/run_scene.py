@@ -9,6 +9,11 @@ A light's predicted observations (`observations`) are the loader's: Embree visib
 
 The sensor noise is the run's (metrics.json `uncertainty.noise_dn`, what its stds were computed with), else
 capture.noise_dn.
+
+Texels the run has no estimate of because no fitted observation reached them (coverage "none"; not those the fit set
+aside as untrusted or misfit) are `unobserved`: a candidate light may bring them their first observations, and the
+planner predicts them at a stand-in, the median of the estimated texels' parameters (the object's typical
+material), since it knows nothing closer.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from torchrefl.capture.scan_yaml import read_scan_yaml
 from torchrefl.config import Config, load_config, resolve_path
 from torchrefl.core.observations import Observations
 from torchrefl.errors import ConfigError, RunFolderError
-from torchrefl.fit.initialise import COVER_FULL
+from torchrefl.fit.initialise import COVER_FULL, COVER_NONE
 from torchrefl.fit.pipeline import held_out
 from torchrefl.fit.uncertainty import ParameterRanges
 from torchrefl.report.run_result import CONFIG, RunResult, load_run
@@ -41,13 +46,14 @@ DEFAULT_SATURATION = 0.995
 class RunScene:
     """A fitted scan seen by a planner, over the T texels of its surface.
 
-    run: the RunResult; cfg: its resolved Config; geometry: the scan's ScanGeometry (the fit's texels);
-    pd (T, 3), ps (T, C), sigma (T,): the estimate (the fit's dtype, 0 where none); estimated (T,) bool: texels with an
-    estimate; lobe_measured (T,) bool: Ps, sigma from the texel's own observations; n_specular (T,) the fitted
-    strong-specular (T_spec) observations; lights (P, 3) head-frame positions [lateral, vertical, radial] mm of the
-    lights the run fitted; intensity (3,) the light table's radiant intensity (a candidate's); kappa (3,) the run's;
-    saturation_level: sensor fraction at which an observation is saturated; noise_dn (3,) per channel, 8-bit DN;
-    ranges: the uncertainty's broad prior."""
+    run: the RunResult; cfg: its resolved Config; geometry: the scan's ScanGeometry (the fit's texels); pd (T, 3),
+    ps (T, C), sigma (T,): the estimate (the fit's dtype; at an unobserved texel the stand-in, module docstring; 0
+    at the other texels without one); estimated (T,) bool: texels with an estimate; unobserved (T,) bool: texels
+    without one that no fitted observation reached; lobe_measured (T,) bool: Ps, sigma from the texel's own
+    observations; n_specular (T,) the fitted strong-specular (T_spec) observations; lights (P, 3) head-frame
+    positions [lateral, vertical, radial] mm of the lights the run fitted; intensity (3,) the light table's radiant
+    intensity (a candidate's); kappa (3,) the run's; saturation_level: sensor fraction at which an observation is
+    saturated; noise_dn (3,) per channel, 8-bit DN; ranges: the uncertainty's broad prior."""
 
     run: RunResult
     cfg: Config
@@ -56,6 +62,7 @@ class RunScene:
     ps: torch.Tensor
     sigma: torch.Tensor
     estimated: torch.Tensor
+    unobserved: torch.Tensor
     lobe_measured: torch.Tensor
     n_specular: torch.Tensor
     lights: np.ndarray
@@ -114,23 +121,32 @@ class TexelEstimate:
     ps: torch.Tensor
     sigma: torch.Tensor
     estimated: torch.Tensor
+    unobserved: torch.Tensor
     lobe_measured: torch.Tensor
     n_specular: torch.Tensor
 
 
 def texel_estimate(run: RunResult, index: np.ndarray, dtype: torch.dtype) -> TexelEstimate:
-    """The run's maps at the texels' flat grid indices index (T,), in dtype (0 where there is no estimate)."""
-    flat = lambda a: torch.from_numpy(np.asarray(a).reshape(-1, *a.shape[2:])[index]).to(dtype)
-    estimated = torch.from_numpy(run.mask.reshape(-1)[index])
-    keep = estimated[:, None].to(dtype)
+    """The run's maps at the texels' flat grid indices index (T,), in dtype: the estimate, the stand-in (the
+    estimated texels' median) at the unobserved texels (module docstring), 0 at the other texels without one."""
+    grid = lambda a: np.asarray(a).reshape(-1, *np.shape(a)[2:])[index]
+    estimated = torch.from_numpy(grid(run.mask))
+    coverage = None if run.coverage is None else torch.from_numpy(grid(run.coverage).astype(np.int64))
+    unobserved = ~estimated if coverage is None else ~estimated & (coverage == COVER_NONE)
+    unobserved &= bool(estimated.any())  # no stand-in without an estimated texel
     if run.lobe_measured is not None:
-        lobe = torch.from_numpy(run.lobe_measured.reshape(-1)[index]) & estimated
+        lobe = torch.from_numpy(grid(run.lobe_measured)) & estimated
     else:
-        lobe = torch.from_numpy(run.coverage.reshape(-1)[index] == COVER_FULL) & estimated
-    n_spec = torch.from_numpy(run.n_specular.reshape(-1)[index]) if run.n_specular is not None else lobe * 2
-    return TexelEstimate(
-        flat(run.pd) * keep, flat(run.ps) * keep, flat(run.sigma) * keep[:, 0], estimated, lobe, n_spec.long()
-    )
+        lobe = (coverage == COVER_FULL) & estimated
+    n_spec = torch.from_numpy(grid(run.n_specular)) if run.n_specular is not None else lobe * 2
+    maps = []
+    for a in (run.pd, run.ps, run.sigma):
+        x = torch.from_numpy(grid(a)).to(dtype)
+        x = torch.where(estimated.view(-1, *[1] * (x.dim() - 1)), x, 0.0)
+        if unobserved.any():
+            x[unobserved] = x[estimated].median(0).values
+        maps.append(x)
+    return TexelEstimate(*maps, estimated, unobserved, lobe, n_spec.long())
 
 
 def capture_folder(run: RunResult, cfg: Config) -> Path:
@@ -189,6 +205,7 @@ def load_run_scene(run_dir: str | Path) -> RunScene:
         ps=est.ps,
         sigma=est.sigma,
         estimated=est.estimated,
+        unobserved=est.unobserved,
         lobe_measured=est.lobe_measured,
         n_specular=est.n_specular,
         lights=lights,

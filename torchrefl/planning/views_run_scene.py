@@ -60,8 +60,8 @@ class ViewsRunScene:
     run, cfg: the RunResult and its resolved Config; geometry: the atlas (the fit's texels); meta: the capture
     folder's cameras, lights and images (mm); tracer: the mesh's Embree scene; frame: the texels' points, normals and
     steps as the loader traces them; views: the CameraView of each camera in `cameras` (the indices of meta.cameras
-    that see some texel); fitted: images.json indices of the run's fitted
-    images; pd, ps, sigma, estimated, lobe_measured, n_specular: the estimate (planning.run_scene.TexelEstimate);
+    that see some texel); fitted: images.json indices of the run's fitted images; pd, ps, sigma, estimated,
+    unobserved, lobe_measured, n_specular: the estimate (planning.run_scene.TexelEstimate);
     lights (P, 3) world mm: the distinct positions of the fitted images' point lights; intensity (3,): a
     candidate's radiant intensity; kappa (3,); saturation_level; noise_dn (3,) DN; ranges: the broad prior."""
 
@@ -78,6 +78,7 @@ class ViewsRunScene:
     ps: torch.Tensor
     sigma: torch.Tensor
     estimated: torch.Tensor
+    unobserved: torch.Tensor
     lobe_measured: torch.Tensor
     n_specular: torch.Tensor
     lights: np.ndarray
@@ -238,6 +239,7 @@ def views_run_scene(run: RunResult, cfg: Config) -> ViewsRunScene:
         ps=est.ps,
         sigma=est.sigma,
         estimated=est.estimated,
+        unobserved=est.unobserved,
         lobe_measured=est.lobe_measured,
         n_specular=est.n_specular,
         lights=np.asarray(meta.lights.position[point], dtype=np.float64).reshape(-1, 3),
