@@ -8,7 +8,13 @@ from conftest import dome_scene, point_light_observations
 
 from torchrefl.transport.local import local_terms, predict
 from torchrefl.transport.radiosity import solve_radiosity
-from torchrefl.transport.radiosity_level import PatchMap, indirect_irradiance, inverse_radiosity, predict_radiosity
+from torchrefl.transport.radiosity_level import (
+    PatchMap,
+    distinct_emitters,
+    indirect_irradiance,
+    inverse_radiosity,
+    predict_radiosity,
+)
 
 
 def scene(T=24, seed=0):
@@ -237,3 +243,25 @@ def test_a_separate_solve_matrix_solves_with_it_and_gathers_with_f():
     assert torch.autograd.gradcheck(
         lambda p: indirect_irradiance(t6, o6.kappa, p, p6, F6, F_solve=G6), (pd6.clone().requires_grad_(),)
     )
+
+
+def test_images_that_share_a_light_are_solved_once_each():
+    """Images of one light from several cameras (the mesh_views kind) have the same direct irradiance: they are
+    grouped (distinct_emitters) and solved once per group, with the same H as one solve per image; the cameras do
+    not matter (the images here differ in their view directions)."""
+    nrm, pos, lights, cam = dome_scene(T=24, seed=0)
+    L = lights[[0, 9, 0, 18, 9]]  # images 0 and 2 share a light, 1 and 4 another
+    obs = point_light_observations(nrm, pos, L, cam)
+    g = torch.Generator().manual_seed(1)
+    obs.view_dir = torch.nn.functional.normalize(
+        obs.view_dir[None] + 0.2 * torch.randn(5, 24, 3, generator=g, dtype=torch.float64), dim=-1
+    )
+    terms = local_terms("torrance_sparrow", torch.as_tensor(nrm), obs)
+    _, _, patches, F, pd = scene()
+    groups = distinct_emitters(terms, obs.kappa)
+    assert groups.first.tolist() == [0, 1, 3] and groups.inverse.tolist() == [0, 1, 0, 2, 1] and groups.shared
+    H = indirect_irradiance(terms, obs.kappa, pd, patches, F, emitters=groups)
+    torch.testing.assert_close(H, indirect_irradiance(terms, obs.kappa, pd, patches, F), rtol=1e-12, atol=1e-15)
+    assert torch.equal(H[0], H[2]) and torch.equal(H[1], H[4]) and not torch.equal(H[0], H[1])
+    distinct = point_light_observations(nrm, pos, lights[[0, 9, 18]], cam)
+    assert not distinct_emitters(local_terms("torrance_sparrow", torch.as_tensor(nrm), distinct), obs.kappa).shared

@@ -106,10 +106,13 @@ def indirect_irradiance(
     F_solve: torch.Tensor | None = None,
     per_map: bool = False,
     reconstruct: torch.Tensor | None = None,
+    emitters: "DistinctEmitters | None" = None,
     **solver,
 ) -> torch.Tensor:
     """(P, T, 3) diffuse interreflected irradiance H at every texel for texel Pd (T, 3); with maps, the
-    emitters are lit from each map's source and H interpolates between maps (module doc). F_solve: other
+    emitters are lit from each map's source and H interpolates between maps (module doc). emitters (without
+    maps): the images' distinct direct irradiances (distinct_emitters), solved once each and H copied to the images
+    that share one (None = one solve per image). F_solve: other
     (cheaper, noisier) form factors of the same patches for the solve B = rho (E + F_solve B), F then only
     gathers H = F B (None = F for both): B's noise averages out over the many emitters a patch gathers from,
     while the gather's noise is what each texel sees. per_map: return (P, K, T, 3), H at every texel with
@@ -118,7 +121,8 @@ def indirect_irradiance(
     takes its patch's H."""
     rho = patches.mean(pd[None])[0].clamp(max=RHO_MAX)  # (Q, 3)
     if maps is None:
-        E = patches.mean(direct_irradiance(terms, kappa))  # (P, Q, 3)
+        E = direct_irradiance(terms, kappa)
+        E = patches.mean(E if emitters is None else E.index_select(0, emitters.first.to(E.device)))  # (P or R, Q, 3)
     else:
         P, K, T, C = maps.irradiance.shape
         E = patches.mean(maps.irradiance.to(pd.dtype).reshape(P * K, T, C))  # (P K, Q, 3)
@@ -131,10 +135,42 @@ def indirect_irradiance(
         H = _at_least_zero(_matmul(reconstruct.to(H.dtype), H), H, patches.texel_patch)
         H = H.reshape(H.shape[0], R, C).permute(1, 0, 2)
     if maps is None:
+        if emitters is not None:
+            H = H.index_select(0, emitters.inverse.to(H.device))  # (P, T, 3)
         return H[:, None] if per_map else H
     if per_map:
         return H.reshape(P, K, T, C)
     return (H.reshape(P, K, T, C) * maps.weights.to(H.dtype)[None, :, :, None]).sum(1)
+
+
+@dataclass
+class DistinctEmitters:
+    """The images whose direct irradiance is the same (images of one light from several cameras): first (R,) long
+    one image of each distinct irradiance, inverse (P,) long the distinct irradiance of each image."""
+
+    first: torch.Tensor
+    inverse: torch.Tensor
+
+    @property
+    def shared(self) -> bool:
+        """Some images share their direct irradiance (fewer solves than images)."""
+        return len(self.first) < len(self.inverse)
+
+
+def distinct_emitters(terms: LocalTerms, kappa) -> DistinctEmitters:
+    """The DistinctEmitters of the images of terms: equal when their direct irradiance over every texel is equal
+    bit for bit (an image's irradiance does not depend on its camera: every texel's, seen or not, is the light's)."""
+    E = direct_irradiance(terms, kappa)
+    _, inverse = torch.unique(E.reshape(E.shape[0], -1), dim=0, return_inverse=True)
+    R = int(inverse.max()) + 1 if inverse.numel() else 0
+    P = torch.arange(len(inverse), device=inverse.device)
+    first = torch.full((R,), len(inverse), dtype=torch.long, device=inverse.device).scatter_reduce(
+        0, inverse, P, reduce="amin"
+    )
+    order = torch.argsort(first)  # the distinct irradiances in the order of their first image
+    rank = torch.empty_like(order)
+    rank[order] = torch.arange(R, device=order.device)
+    return DistinctEmitters(first[order].cpu(), rank[inverse].cpu())
 
 
 def _at_least_zero(planes: torch.Tensor, patch_values: torch.Tensor, texel_patch: torch.Tensor) -> torch.Tensor:

@@ -21,8 +21,10 @@ from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, Transpor
 from torchrefl.transport.light_maps import light_sources
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
 from torchrefl.transport.radiosity_level import (
+    DistinctEmitters,
     PatchMap,
     direct_irradiance,
+    distinct_emitters,
     emitter_maps,
     indirect_irradiance,
     inverse_radiosity,
@@ -95,6 +97,7 @@ class RadiosityLevel(TransportLevel):
                 self.maps = emitter_maps(
                     sources, surface.positions, surface.normals, tracer, cfg.geometry.shadow_offset_mm
                 )
+        self.emitter_groups = self._distinct_emitters(inp)
         self._reconstruct = None
         self.note = self._describe(patches, rc) + self._reconstruction(patches)
         inp.log(self.note)
@@ -125,6 +128,12 @@ class RadiosityLevel(TransportLevel):
                 else ""
             )
             + (f", {self.maps.weights.shape[0]} emitter maps per light" if self.maps is not None else "")
+            + (
+                f"; {len(self.emitter_groups.inverse)} images share {len(self.emitter_groups.first)} direct "
+                "irradiances (one solve each)"
+                if self.emitter_groups is not None
+                else ""
+            )
             + f"; inverse radiosity (eq. 4.7) determined {int(self._determined.sum())} patches"
         )
 
@@ -154,7 +163,16 @@ class RadiosityLevel(TransportLevel):
         level.inputs = inputs
         level._local = inputs.local_predict()
         level.maps = None
+        level.emitter_groups = level._distinct_emitters(inputs)
         return level
+
+    def _distinct_emitters(self, inputs: LevelInputs) -> DistinctEmitters | None:
+        """The images' distinct direct irradiances when some images share one (static lights photographed by
+        several cameras), else None: one solve per image."""
+        if self.maps is not None:
+            return None
+        emitters = distinct_emitters(inputs.terms, inputs.obs.kappa)
+        return emitters if emitters.shared else None
 
     def use_emitters(self, source: torch.Tensor) -> None:
         self.emitter_source = source
@@ -175,6 +193,7 @@ class RadiosityLevel(TransportLevel):
             self.F_solve,
             per_map=per_map,
             reconstruct=self._reconstruct,
+            emitters=self.emitter_groups,
             **self.solver,
         )
         return H
@@ -194,6 +213,7 @@ class RadiosityLevel(TransportLevel):
             self.F_solve,
             per_map=True,
             reconstruct=self._reconstruct,
+            emitters=self.emitter_groups,
             **self.solver,
         )
         if self.maps is None:
