@@ -205,10 +205,11 @@ def test_a_near_repeat_highlight_gains_less_than_a_first_highlight_elsewhere():
 
 
 def test_a_first_observation_of_a_texel_the_run_never_observed_counts():
-    """The run's two lights (UP and 10 mm beside it) reach only the upward group; the tilted group has no estimate. As
-    unobserved texels (planning.run_scene: predicted at a stand-in, no information yet) they count in the mirror
-    light's information, which brings them their first observations and highlights: it gains more than it does
-    without them (texels the fit set aside, where it only adds to the upward group) and more than a light beside UP."""
+    """The run's two lights (UP and 10 mm beside it) measured only the upward group; the tilted group has no estimate.
+    As unobserved texels (planning.run_scene: predicted at a stand-in, no information yet, even where the planner's
+    prediction of the run's own lights would reach them) they count in the mirror light's information, which brings
+    them their first observations and highlights: it gains more than it does without them (texels the fit set aside,
+    where it only adds to the upward group) and more than a light beside UP."""
     lights = np.stack([UP, UP + [10.0, 0.0, 0.0]])
     spec = torch.tensor([2] * 4 + [0] * 4)
     candidates = np.stack([UP + [0.0, 10.0, 0.0], MIRROR])
@@ -219,6 +220,7 @@ def test_a_first_observation_of_a_texel_the_run_never_observed_counts():
     before = TexelState(scene, set_aside.info.clone()).gain(set_aside.light, 1)
     scene.unobserved[4:] = True
     planner = Planner(scene, candidates)
+    assert planner.info[4:].abs().sum() == 0.0  # the run's lights' predicted observations of them do not count
     tilted = planner.light.texels[1] >= 4
     assert planner.light.texels[1][tilted].tolist() == [4, 5, 6, 7]
     assert planner.light.specular[1][tilted].tolist() == [1] * 4

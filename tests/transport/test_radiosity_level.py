@@ -263,5 +263,16 @@ def test_images_that_share_a_light_are_solved_once_each():
     H = indirect_irradiance(terms, obs.kappa, pd, patches, F, emitters=groups)
     torch.testing.assert_close(H, indirect_irradiance(terms, obs.kappa, pd, patches, F), rtol=1e-12, atol=1e-15)
     assert torch.equal(H[0], H[2]) and torch.equal(H[1], H[4]) and not torch.equal(H[0], H[1])
+    # lights in an order torch.unique does not keep: the groups follow the images' order
+    obs2 = point_light_observations(nrm, pos, lights[[18, 9, 0, 9, 18, 0]], cam)
+    terms2 = local_terms("torrance_sparrow", torch.as_tensor(nrm), obs2)
+    groups2 = distinct_emitters(terms2, obs2.kappa)
+    assert groups2.first.tolist() == [0, 1, 2] and groups2.inverse.tolist() == [0, 1, 2, 1, 0, 2]
+    torch.testing.assert_close(
+        indirect_irradiance(terms2, obs2.kappa, pd, patches, F, emitters=groups2),
+        indirect_irradiance(terms2, obs2.kappa, pd, patches, F),
+        rtol=1e-12,
+        atol=1e-15,
+    )
     distinct = point_light_observations(nrm, pos, lights[[0, 9, 18]], cam)
     assert not distinct_emitters(local_terms("torrance_sparrow", torch.as_tensor(nrm), distinct), obs.kappa).shared

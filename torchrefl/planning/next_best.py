@@ -237,13 +237,15 @@ class TexelState:
 
 
 def current_information(scene: RunScene) -> torch.Tensor:
-    """(T, K, K) the information of the run's own fitted lights at the estimate."""
+    """(T, K, K) the information of the run's own fitted lights at the estimate; none at the unobserved texels (no
+    fitted observation reached them, whatever the prediction at their stand-in says)."""
     T, K = len(scene.sigma), 4 + scene.ps.shape[1]
     info = torch.zeros(T, K, K, dtype=torch.float64)
     for obs in scene.fitted_observations(CHUNK):
         own = observation_information(scene, obs, 1)
         for idx, block in zip(own.texels, own.info):
             info[idx] += block
+    info[scene.unobserved] = 0.0
     return info
 
 

@@ -12,8 +12,8 @@ capture.noise_dn.
 
 Texels the run has no estimate of because no fitted observation reached them (coverage "none"; not those the fit set
 aside as untrusted or misfit) are `unobserved`: a candidate light may bring them their first observations, and the
-planner predicts them at a stand-in, the median of the estimated texels' parameters (the object's typical
-material), since it knows nothing closer.
+planner predicts them at a stand-in, the median of the estimated texels' parameters, per channel (the object's
+typical material), since it knows nothing closer.
 """
 
 from __future__ import annotations
@@ -128,16 +128,20 @@ class TexelEstimate:
 
 def texel_estimate(run: RunResult, index: np.ndarray, dtype: torch.dtype) -> TexelEstimate:
     """The run's maps at the texels' flat grid indices index (T,), in dtype: the estimate, the stand-in (the
-    estimated texels' median) at the unobserved texels (module docstring), 0 at the other texels without one."""
+    estimated texels' median, per channel) at the unobserved texels (module docstring), 0 at the other texels
+    without one. A run without a coverage map has no unobserved texel."""
     grid = lambda a: np.asarray(a).reshape(-1, *np.shape(a)[2:])[index]
     estimated = torch.from_numpy(grid(run.mask))
     coverage = None if run.coverage is None else torch.from_numpy(grid(run.coverage).astype(np.int64))
-    unobserved = ~estimated if coverage is None else ~estimated & (coverage == COVER_NONE)
+    # without a coverage map the texels set aside (untrusted, misfit) cannot be told from the unobserved: none is
+    unobserved = torch.zeros_like(estimated) if coverage is None else ~estimated & (coverage == COVER_NONE)
     unobserved &= bool(estimated.any())  # no stand-in without an estimated texel
     if run.lobe_measured is not None:
         lobe = torch.from_numpy(grid(run.lobe_measured)) & estimated
-    else:
+    elif coverage is not None:
         lobe = (coverage == COVER_FULL) & estimated
+    else:
+        lobe = torch.zeros_like(estimated)
     n_spec = torch.from_numpy(grid(run.n_specular)) if run.n_specular is not None else lobe * 2
     maps = []
     for a in (run.pd, run.ps, run.sigma):

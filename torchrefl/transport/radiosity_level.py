@@ -121,8 +121,12 @@ def indirect_irradiance(
     takes its patch's H."""
     rho = patches.mean(pd[None])[0].clamp(max=RHO_MAX)  # (Q, 3)
     if maps is None:
-        E = direct_irradiance(terms, kappa)
-        E = patches.mean(E if emitters is None else E.index_select(0, emitters.first.to(E.device)))  # (P or R, Q, 3)
+        diffuse = (
+            terms.diffuse
+            if emitters is None
+            else terms.diffuse.index_select(0, emitters.first.to(terms.diffuse.device))
+        )
+        E = patches.mean(diffuse * (math.pi / kappa))  # (P or R, Q, 3): direct_irradiance of those images
     else:
         P, K, T, C = maps.irradiance.shape
         E = patches.mean(maps.irradiance.to(pd.dtype).reshape(P * K, T, C))  # (P K, Q, 3)
@@ -159,9 +163,10 @@ class DistinctEmitters:
 
 def distinct_emitters(terms: LocalTerms, kappa) -> DistinctEmitters:
     """The DistinctEmitters of the images of terms: equal when their direct irradiance over every texel is equal
-    bit for bit (an image's irradiance does not depend on its camera: every texel's, seen or not, is the light's)."""
+    bit for bit (with a Lambertian diffuse term, the interreflection levels', an image's irradiance does not depend
+    on its camera: every texel's, seen or not, is the light's; a camera-dependent term groups nothing)."""
     E = direct_irradiance(terms, kappa)
-    _, inverse = torch.unique(E.reshape(E.shape[0], -1), dim=0, return_inverse=True)
+    _, inverse = torch.unique(E.flatten(1), dim=0, return_inverse=True)
     R = int(inverse.max()) + 1 if inverse.numel() else 0
     P = torch.arange(len(inverse), device=inverse.device)
     first = torch.full((R,), len(inverse), dtype=torch.long, device=inverse.device).scatter_reduce(
