@@ -4,7 +4,7 @@ value of its own is left out, by its projected size worked out by hand."""
 import numpy as np
 
 from torchrefl.capture.cameras import Cameras
-from torchrefl.capture.views_sampling import NARROW_PX, SMALL, camera_view
+from torchrefl.capture.views_sampling import NARROW_PX, SMALL, camera_view, narrow_warning
 from torchrefl.core.rays import RayTracer
 from torchrefl.core.texel_grid import TexelGrid
 
@@ -96,3 +96,16 @@ def test_a_sliver_on_a_continuing_face_is_kept_and_one_whose_support_leaves_the_
     tilted[2 * 5 + 3] = [np.sin(np.radians(40)), 0.0, np.cos(np.radians(40))]  # texel (2, 3)
     beside = view(grid, tilted)
     assert not beside.seen[2 * 5 + 2] and beside.seen[1 * 5 + 1]  # (2, 2) borders it, (1, 1) does not
+
+
+def test_an_atlas_finer_than_the_images_resolve_is_named():
+    """Texels left out as narrower than NARROW_PX in every image that shows them are counted against the texels some
+    image faces (not those facing away from every camera); above half of them a warning names capture.texture_size
+    instead of leaving a mostly empty fit unexplained."""
+    seen, narrow = np.zeros((2, 10), dtype=bool), np.zeros((2, 10), dtype=bool)
+    seen[:, :3] = True  # 3 texels seen, 4 narrow in both images, 3 left out for other reasons (facing away)
+    narrow[:, 3:7] = True
+    (named,) = narrow_warning(seen, narrow)
+    assert named.startswith("4 of the 7 texels the images face (57%)") and "capture.texture_size" in named
+    seen[0, 3] = True  # one of them seen in one image: 3 of 7 left, no warning
+    assert narrow_warning(seen, narrow) == []

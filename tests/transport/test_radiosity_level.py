@@ -263,6 +263,8 @@ def test_images_that_share_a_light_are_solved_once_each():
     H = indirect_irradiance(terms, obs.kappa, pd, patches, F, emitters=groups)
     torch.testing.assert_close(H, indirect_irradiance(terms, obs.kappa, pd, patches, F), rtol=1e-12, atol=1e-15)
     assert torch.equal(H[0], H[2]) and torch.equal(H[1], H[4]) and not torch.equal(H[0], H[1])
+    grouped = lambda x: indirect_irradiance(terms, obs.kappa, x, patches, F, emitters=groups)  # noqa: E731
+    assert torch.autograd.gradcheck(grouped, (pd.clone().requires_grad_(),))
     # lights in an order torch.unique does not keep: the groups follow the images' order
     obs2 = point_light_observations(nrm, pos, lights[[18, 9, 0, 9, 18, 0]], cam)
     terms2 = local_terms("torrance_sparrow", torch.as_tensor(nrm), obs2)

@@ -29,13 +29,13 @@ from torchrefl.capture.shadow_edges import face_neighbours, shadow_edge_observat
 from torchrefl.capture.truth import TRUTH, load_truth
 from torchrefl.capture.view_folder import ViewFolder, read_view_folder
 from torchrefl.capture.views_sampling import (
-    NARROW_PX,
     OUTSIDE,
     REASON_KEYS,
     SMALL,
     CameraView,
     camera_view,
     footprint_values,
+    narrow_warning,
 )
 from torchrefl.config import Config, read_yaml_mapping
 from torchrefl.core.observations import Observations
@@ -204,9 +204,6 @@ class ImageRows:
 
 #: the reasons a camera does not see a texel (views_sampling.CameraView.reasons), in ImageRows.unseen's order
 UNSEEN = list(REASON_KEYS)
-#: warn when more than this share of the texels the images face is seen by no image yet was too narrow in one (an
-#: atlas too fine; an atlas's smallest texels, e.g. near a UV sphere's poles, leave out 14-27 % on the bundled scenes)
-NARROW_SHARE = 0.5
 
 
 def _footprint_flag(flags: np.ndarray, view: CameraView, T: int) -> np.ndarray:
@@ -349,23 +346,6 @@ def _content_warnings(rows: ImageRows, paths: list) -> list[str]:
     return warnings
 
 
-def narrow_warning(rows: ImageRows) -> list[str]:
-    """A warning when more than NARROW_SHARE of the texels that some image faces and frames is seen by no image and
-    narrower than NARROW_PX in some image (it would be seen, were the texels larger): capture.texture_size finer
-    than the images resolve."""
-    seen = rows.seen.any(0)
-    narrow = ~seen & rows.not_seen(UNSEEN.index(SMALL)).any(0)
-    n = int(narrow.sum())
-    shown = n + int(seen.sum())  # the texels some image faces and frames (the rest no atlas size would show)
-    if not shown or n <= NARROW_SHARE * shown:
-        return []
-    return [
-        f"{n} of the {shown} texels the images face ({n / shown:.0%}) are seen by no image because they are narrower "
-        f"than {NARROW_PX:g} px in them: capture.texture_size is finer than the images resolve (a coarser atlas, "
-        "e.g. half the size, gives each texel 4x the pixels)"
-    ]
-
-
 def _albedo_check(rows: ImageRows, valid: np.ndarray, lights, light_of: list, kappa: np.ndarray) -> np.ndarray:
     """capture.checks.implied_albedo_check of the rows; returns the (P, T) float32 falloff (1 / dist^2 for a point
     light, 1 for a directional one)."""
@@ -429,7 +409,8 @@ def load_views_observations(
     _check_projects(rows, meta, geom)
     if not valid.any():
         observations_left(valid, _removed(rows, saturation), where)
-    warnings = narrow_warning(rows) + _content_warnings(rows, [meta.paths[i] for i in chosen])
+    warnings = narrow_warning(rows.seen, rows.not_seen(UNSEEN.index(SMALL)))
+    warnings += _content_warnings(rows, [meta.paths[i] for i in chosen])
     falloff = _albedo_check(rows, valid, lights, light_of, kappa)
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(cfg.torch_dtype)  # noqa: E731
     point = lights.point[light_of]

@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from torchrefl.core.distinct_rows import distinct_rows
 from torchrefl.core.memory import release_free_memory
 from torchrefl.core.progress import bar
 from torchrefl.transport.cache_build import build_cache
@@ -216,9 +217,4 @@ def distinct_lights(sources: LightSources) -> tuple[np.ndarray, np.ndarray]:
     """The distinct lights among the images of `sources`: first (U,) the first image of each distinct light (its
     K map positions and intensity equal bit for bit), light_of (P,) each image's distinct light, 0..U-1."""
     P = sources.positions.shape[0]
-    key = np.concatenate([sources.positions.reshape(P, -1), sources.intensity.reshape(P, -1)], axis=1)
-    _, first, light_of = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first)  # distinct lights in order of their first image
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    return first[order], rank[np.asarray(light_of).reshape(-1)]
+    return distinct_rows(np.concatenate([sources.positions.reshape(P, -1), sources.intensity.reshape(P, -1)], axis=1))

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from torchrefl.core.distinct_rows import distinct_rows
 from torchrefl.core.point_light import point_light
 from torchrefl.transport.local import LocalTerms, predict
 from torchrefl.transport.radiosity import _matmul, solve_radiosity
@@ -65,9 +66,10 @@ class PatchMap:
         return y.index_select(-2, self.texel_patch)
 
 
-def direct_irradiance(terms: LocalTerms, kappa: torch.Tensor) -> torch.Tensor:
-    """(P, T, 3) Y falloff vis max(n.l, 0) from the local terms."""
-    return terms.diffuse * (math.pi / kappa)
+def direct_irradiance(terms: LocalTerms, kappa: torch.Tensor, images: torch.Tensor | None = None) -> torch.Tensor:
+    """(P, T, 3) Y falloff vis max(n.l, 0) from the local terms; images (R,) long: of those images only (R, T, 3)."""
+    diffuse = terms.diffuse if images is None else terms.diffuse.index_select(0, images.to(terms.diffuse.device))
+    return diffuse * (math.pi / kappa)
 
 
 @dataclass
@@ -121,12 +123,8 @@ def indirect_irradiance(
     takes its patch's H."""
     rho = patches.mean(pd[None])[0].clamp(max=RHO_MAX)  # (Q, 3)
     if maps is None:
-        diffuse = (
-            terms.diffuse
-            if emitters is None
-            else terms.diffuse.index_select(0, emitters.first.to(terms.diffuse.device))
-        )
-        E = patches.mean(diffuse * (math.pi / kappa))  # (P or R, Q, 3): direct_irradiance of those images
+        images = None if emitters is None else emitters.first
+        E = patches.mean(direct_irradiance(terms, kappa, images))  # (P or R, Q, 3)
     else:
         P, K, T, C = maps.irradiance.shape
         E = patches.mean(maps.irradiance.to(pd.dtype).reshape(P * K, T, C))  # (P K, Q, 3)
@@ -165,17 +163,8 @@ def distinct_emitters(terms: LocalTerms, kappa) -> DistinctEmitters:
     """The DistinctEmitters of the images of terms: equal when their direct irradiance over every texel is equal
     bit for bit (with a Lambertian diffuse term, the interreflection levels', an image's irradiance does not depend
     on its camera: every texel's, seen or not, is the light's; a camera-dependent term groups nothing)."""
-    E = direct_irradiance(terms, kappa)
-    _, inverse = torch.unique(E.flatten(1), dim=0, return_inverse=True)
-    R = int(inverse.max()) + 1 if inverse.numel() else 0
-    P = torch.arange(len(inverse), device=inverse.device)
-    first = torch.full((R,), len(inverse), dtype=torch.long, device=inverse.device).scatter_reduce(
-        0, inverse, P, reduce="amin"
-    )
-    order = torch.argsort(first)  # the distinct irradiances in the order of their first image
-    rank = torch.empty_like(order)
-    rank[order] = torch.arange(R, device=order.device)
-    return DistinctEmitters(first[order].cpu(), rank[inverse].cpu())
+    first, of = distinct_rows(direct_irradiance(terms, kappa).detach().cpu().numpy())
+    return DistinctEmitters(torch.from_numpy(first).long(), torch.from_numpy(of).long())
 
 
 def _at_least_zero(planes: torch.Tensor, patch_values: torch.Tensor, texel_patch: torch.Tensor) -> torch.Tensor:
