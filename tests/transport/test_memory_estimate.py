@@ -25,7 +25,7 @@ tiny = load_script("tiny_mode")
 def test_terms_grow_with_what_they_hold():
     cfg = torchrefl.load_config(tiny.FOLD)
     small = me.estimate_memory(cfg, 10_000, 10, "photon", 10, 8)
-    assert set(small.terms) == {"fit", "form factors", "emitter maps", "photons"}
+    assert set(small.terms) == {"fit", "form factors", "emitter maps", "photons", "density kernels"}
     assert set(me.estimate_memory(cfg, 10_000, 10, "local").terms) == {"fit"}
     twice = me.estimate_memory(cfg, 10_000, 10, "photon", 20, 8)  # twice the lights traced: twice the hits
     assert twice.terms["photons"] > 1.5 * small.terms["photons"] and twice.terms["fit"] == small.terms["fit"]
@@ -90,6 +90,50 @@ def test_the_photon_estimate_is_within_a_factor_of_a_measured_refresh(tiny_fold_
     assert got["averaged"] == 2 and got["emitted"] == photons * got["lights"]
     assert got["largest"] == "photons"
     assert got["estimate"] / 2.5 < got["added"] < 2.5 * got["estimate"], got
+
+
+def density_kernels_growth(rows: int, cols: int, std: float) -> dict:
+    """The peak resident memory (MiB) that building the photon level's density kernels (the irradiance smoother and
+    the specular spread, both at `std` texels) adds on a rows x cols grid, and the estimate's term for them."""
+    import numpy as np
+
+    from torchrefl.core.texel_grid import TexelGrid
+    from torchrefl.transport.photon_density import SpreadKernel, smoothing_matrix
+
+    T = rows * cols
+    grid, normals = TexelGrid(np.arange(T), (rows, cols)), np.tile([0.0, 0.0, 1.0], (T, 1))
+    cfg = torchrefl.load_config(None, [f"photon.smoothing={std}", f"photon.specular_smoothing={std}"])
+    release_free_memory()
+    before = resident_mb()
+    reset_peak()
+    smoother = smoothing_matrix(grid, std, normals, 0.3)
+    SpreadKernel(grid, std, normals, 0.3)
+    added = peak_resident_mb() - before
+    return {"added": added, "estimate": me.kernels_mb(cfg, T), "entries": int(smoother.values().numel())}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the peak is reset through /proc")
+def test_the_density_kernels_are_estimated_by_what_building_them_takes():
+    """On a 250 x 250 grid at 2 texels (169 smoother and 25 spread window slots per texel) the estimate's term covers
+    the kernels' build and is not twice it. The smoother's former build (a COO tensor from per-offset parts, then
+    coalesced) took about 110 bytes a slot, over three times the term: a 300 000-texel atlas at the automatic
+    kernel's cap (4 texels, 625 slots) was killed for want of 20 GB there."""
+    got = run_fresh(__file__, "density_kernels_growth", 250, 250, 2.0)
+    assert got["entries"] > 0.9 * 250 * 250 * 169
+    assert got["estimate"] / 2 < got["added"] <= got["estimate"], got
+
+
+def test_density_kernels_that_would_not_fit_are_named_with_what_narrows_them():
+    """The automatic kernels widen as photons per texel fall (to their cap), and their term with them; where it is the
+    largest, the refusal names the kernels' settings and the photons that narrow them."""
+    few, many = (torchrefl.load_config(None, [f"photon.photons_per_light={n}"]) for n in (400_000, 16_000_000))
+    assert me.kernels_mb(few, 30_000) > 5 * me.kernels_mb(many, 30_000)
+    wide = torchrefl.load_config(None, ["photon.smoothing=12"])
+    est = me.estimate_memory(wide, 200_000, 10, "photon", 10)
+    assert est.largest() == "density kernels"
+    named = r"lower photon\.smoothing and photon\.specular_smoothing .*photons_per_light"
+    with pytest.raises(MemoryLimitError, match=named):
+        me.check_memory(est, 8_000.0, "the test's run")
 
 
 def test_a_run_over_the_free_memory_is_refused_with_the_setting(tmp_path, monkeypatch):

@@ -138,7 +138,7 @@ def test_on_an_atlas_the_kernel_gathers_on_the_surface_not_from_charts_beside_it
     p, chart = s.positions.numpy(), s.extras["chart"]
 
     def reach(M):
-        i, j = M.coalesce().indices().numpy()
+        i, j = M.to_sparse_coo().indices().numpy()
         return np.linalg.norm(p[i] - p[j], axis=1), chart[i] != chart[j]
 
     d, cross = reach(smoothing_matrix(s.neighbours, 1.0))

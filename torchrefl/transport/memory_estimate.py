@@ -18,6 +18,7 @@ from pathlib import Path
 from torchrefl.config import Config
 from torchrefl.core.memory import available_mb
 from torchrefl.errors import MemoryLimitError
+from torchrefl.transport.photon_density import density_kernels, window_slots
 
 _MB = 2.0**20
 #: bytes per (image, texel) of the fit beyond the capture: predictions, residuals, the level's indirect terms, the LM
@@ -44,6 +45,10 @@ HIT_PEAK_BYTES = 150
 #: fold 0.05 per hit); each takes ENTRY_BYTES in every cache alive (int64 observation, float32 theta_h and 3
 #: weights); the cache average merges them one light at a time (a light's temporaries)
 ENTRIES_PER_HIT, ENTRIES_PER_OBSERVATION, ENTRY_BYTES = 2, 16, 24
+#: bytes per window slot (texel x window offset, photon_density.window_slots) while the density kernels are built: the
+#: smoother's rows before they are compacted (it keeps 13), the spread's copies and their sort (it keeps 51); measured
+#: on a 300 x 300 grid at 2 texels
+SMOOTHER_BYTES_PER_SLOT, SPREAD_BYTES_PER_SLOT = 32, 68
 #: caches alive at the peak: the previous trace, the cache the fit used (the best, usually), the new trace, and
 #: their average
 CACHES_ALIVE = 4
@@ -100,7 +105,20 @@ def estimate_memory(
         traced = images if lights_traced is None else lights_traced
         terms["photons"] = photons_mb(cfg.photon.photons_per_light * traced, images, texels)
         settings["photons"] = "photon.photons_per_light"
+        terms["density kernels"] = kernels_mb(cfg, texels)
+        settings["density kernels"] = (
+            "photon.smoothing and photon.specular_smoothing (texels; null: automatic, narrower with more "
+            "photon.photons_per_light)"
+        )
     return MemoryEstimate(terms, settings)
+
+
+def kernels_mb(cfg: Config, texels: int) -> float:
+    """The MiB the photon level's density kernels (photon_density.smoothing_matrix and SpreadKernel, built once at the
+    first refresh) take while they are built, at the config's kernel widths for `texels` texels."""
+    pc = cfg.photon
+    smoother, spread = window_slots(*density_kernels(pc.photons_per_light, texels, pc.smoothing, pc.specular_smoothing))
+    return texels * (smoother * SMOOTHER_BYTES_PER_SLOT + spread * SPREAD_BYTES_PER_SLOT) / _MB
 
 
 def photons_mb(photons: float, images: int, texels: int, hits_per_photon: float = HITS_PER_PHOTON) -> float:

@@ -20,6 +20,7 @@ smooth_on_grid, kornia's filter on the grid image, is the plain-grid reference t
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import torch
@@ -43,6 +44,30 @@ def kernel_std(photons_per_light: int, texels: int, kernel_photons: int) -> floa
     light's photons_per_light spread over `texels` (a photon map's gather of a fixed photon count, made global:
     resolution-free, and narrower the more photons are traced)."""
     return math.sqrt(kernel_photons * texels / (4.0 * math.pi * max(photons_per_light, 1)))
+
+
+def density_kernels(photons_per_light: int, texels: int, smoothing, specular_smoothing) -> tuple[float, float]:
+    """The density kernels' std in texels (irradiance, specular): photon.smoothing and specular_smoothing as given, or
+    where None the automatic ones (kernel_std) capped at MAX_AUTO_SMOOTHING and MAX_AUTO_SPECULAR_SMOOTHING."""
+    irradiance = (
+        min(kernel_std(photons_per_light, texels, KERNEL_PHOTONS), MAX_AUTO_SMOOTHING)
+        if smoothing is None
+        else float(smoothing)
+    )
+    specular = (
+        min(kernel_std(photons_per_light, texels, SPECULAR_KERNEL_PHOTONS), MAX_AUTO_SPECULAR_SMOOTHING)
+        if specular_smoothing is None
+        else float(specular_smoothing)
+    )
+    return irradiance, specular
+
+
+def window_slots(smoothing: float, specular_smoothing: float) -> tuple[int, int]:
+    """Window offsets per texel of smoothing_matrix at std `smoothing` and of SpreadKernel at `specular_smoothing`
+    (0 where the std is not positive: no operator)."""
+    smoother = (2 * math.ceil(3 * smoothing) + 1) ** 2 if smoothing > 0 else 0
+    spread = (2 * max(1, int(round(specular_smoothing))) + 1) ** 2 if specular_smoothing > 0 else 0
+    return smoother, spread
 
 
 def photons_for_kernel(std: float, texels: int, kernel_photons: int) -> int:
@@ -134,22 +159,54 @@ def smoothing_matrix(
     radius = int(math.ceil(3 * sigma))
     kernel = _grid_neighbours(neighbours, sigma, radius, normals, normal_sigma)
     offsets = window_offsets(radius)
+    # texel by texel (rows) and offset by offset (columns): the operator's entries in place, 12 bytes a slot, with no
+    # list of parts, concatenation or COO sort beside them (those took about 100 bytes an entry: 20 GB for a
+    # 300 000-texel atlas at a 4-texel kernel)
+    cols = np.full((T, len(offsets)), -1, dtype=np.int32 if T < 2**31 else np.int64)
+    vals = np.zeros((T, len(offsets)))
     moments = np.zeros((T, 3, 3))
-    parts = []
-    for (dy, dx), (to, w) in zip(offsets, kernel(np.arange(T))):
+    for k, ((dy, dx), (to, w)) in enumerate(zip(offsets, kernel(np.arange(T)))):
         keep = np.flatnonzero((to >= 0) & (w > 0))
         wk = np.take(w, keep)
         design = np.array([1.0, dy, dx])
         moments[keep] += wk[:, None, None] * np.outer(design, design)
-        parts.append((keep, np.take(to, keep), wk, design))
+        cols[keep, k] = np.take(to, keep)
+        vals[keep, k] = wk
     e1 = plane_intercept_rows(moments, SLOPE_RIDGE)  # the radiosity level's reconstruction solves the same plane
-    rows = np.concatenate([p[0] for p in parts])
-    cols = np.concatenate([p[1] for p in parts])
-    vals = np.concatenate([wk * (np.take(e1, keep, axis=0) @ design) for keep, _, wk, design in parts])
-    vals = vals / np.bincount(rows, weights=vals, minlength=T)[rows]  # one up to round-off: make it exact
-    return torch.sparse_coo_tensor(
-        torch.from_numpy(np.stack([rows, cols])), torch.from_numpy(vals), (T, T), check_invariants=False
-    ).coalesce()
+    del moments
+    total = np.zeros(T)  # each row's sum, added offset by offset
+    for k, (dy, dx) in enumerate(offsets):
+        keep = np.flatnonzero(cols[:, k] >= 0)
+        v = np.take(vals[:, k], keep) * (np.take(e1, keep, axis=0) @ np.array([1.0, dy, dx]))
+        vals[keep, k] = v
+        total[keep] += v
+    present = cols >= 0
+    np.divide(vals, total[:, None], out=vals, where=present)  # rows sum to one up to round-off: make it exact
+    return _csr_rows(cols, vals, present, T)
+
+
+def _csr_rows(cols: np.ndarray, vals: np.ndarray, present: np.ndarray, T: int) -> torch.Tensor:
+    """The sparse CSR (T, T) operator of row t's entries (cols[t, k], vals[t, k]) where present[t, k], with each row's
+    columns sorted and repeated columns summed (what a COO tensor's coalesce gives), int32 indices where they fit."""
+    counts = present.sum(1)
+    col, val = cols[present], vals[present]  # row by row
+    row = np.repeat(np.arange(T, dtype=col.dtype), counts)
+    if not np.all((row[1:] != row[:-1]) | (col[1:] > col[:-1])):  # a window's order is not the columns' (an atlas)
+        order = np.argsort(row.astype(np.int64) * T + col, kind="stable")
+        col, val = np.take(col, order), np.take(val, order)
+        del order
+        new = np.ones(col.size, dtype=bool)
+        np.logical_or(col[1:] != col[:-1], row[1:] != row[:-1], out=new[1:])
+        if not new.all():  # a texel reached by two offsets (an atlas walk across a seam): one entry, summed
+            val = np.bincount(np.cumsum(new) - 1, weights=val)
+            col, row = col[new], row[new]
+            counts = np.bincount(row, minlength=T)
+    crow = np.concatenate([[0], np.cumsum(counts)]).astype(col.dtype)
+    with warnings.catch_warnings():  # torch calls its CSR support beta
+        warnings.simplefilter("ignore", UserWarning)
+        return torch.sparse_csr_tensor(
+            torch.from_numpy(crow), torch.from_numpy(col), torch.from_numpy(val), (T, T), check_invariants=False
+        )
 
 
 def apply_on_grid(matrix: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
@@ -195,7 +252,7 @@ class SpreadKernel:
             offset.append(np.full(keep.size, k, dtype=np.int16))
         src = np.concatenate(src)
         order = np.argsort(src, kind="stable")  # texel by texel, each texel's copies in the window's order
-        self.to = np.take(np.concatenate(to), order)
+        self.to = np.take(np.concatenate(to), order).astype(np.int32 if n < 2**31 else np.int64)  # 4 bytes a copy
         self.weight = np.take(np.concatenate(weight), order) / np.take(mass, self.to)
         self.offset = np.take(np.concatenate(offset), order)
         self.start = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=n))])

@@ -40,8 +40,7 @@ from torchrefl.transport.photon_cache import (
 from torchrefl.transport.photon_density import (
     KERNEL_PHOTONS,
     MAX_AUTO_SMOOTHING,
-    MAX_AUTO_SPECULAR_SMOOTHING,
-    SPECULAR_KERNEL_PHOTONS,
+    density_kernels,
     kernel_std,
     photons_for_kernel,
 )
@@ -199,11 +198,7 @@ class PhotonLevel(TransportLevel):
         pc = self.inputs.cfg.photon
         n = pc.photons_per_light
         auto = kernel_std(n, texels, KERNEL_PHOTONS)
-        auto_s = kernel_std(n, texels, SPECULAR_KERNEL_PHOTONS)
-        self.smoothing = min(auto, MAX_AUTO_SMOOTHING) if pc.smoothing is None else float(pc.smoothing)
-        self.specular_smoothing = (
-            min(auto_s, MAX_AUTO_SPECULAR_SMOOTHING) if pc.specular_smoothing is None else float(pc.specular_smoothing)
-        )
+        self.smoothing, self.specular_smoothing = density_kernels(n, texels, pc.smoothing, pc.specular_smoothing)
         note = f"density kernels {self.smoothing:.2f} texels (irradiance), {self.specular_smoothing:.2f} (specular)"
         if pc.smoothing is None and auto > 1.25 * MAX_AUTO_SMOOTHING:  # under 64 % of the kernel's photons
             need = photons_for_kernel(MAX_AUTO_SMOOTHING, texels, KERNEL_PHOTONS)
