@@ -92,9 +92,9 @@ def test_the_photon_estimate_is_within_a_factor_of_a_measured_refresh(tiny_fold_
     assert got["estimate"] / 2.5 < got["added"] < 2.5 * got["estimate"], got
 
 
-def density_kernels_growth(rows: int, cols: int, std: float) -> dict:
-    """The peak resident memory (MiB) that building the photon level's density kernels (the irradiance smoother and
-    the specular spread, both at `std` texels) adds on a rows x cols grid, and the estimate's term for them."""
+def density_kernels_growth(rows: int, cols: int, std: float, specular_std: float) -> dict:
+    """The peak resident memory (MiB) that building the photon level's density kernels (the irradiance smoother at
+    `std` texels, the specular spread at `specular_std`) adds on a rows x cols grid, and the estimate's term."""
     import numpy as np
 
     from torchrefl.core.texel_grid import TexelGrid
@@ -102,24 +102,24 @@ def density_kernels_growth(rows: int, cols: int, std: float) -> dict:
 
     T = rows * cols
     grid, normals = TexelGrid(np.arange(T), (rows, cols)), np.tile([0.0, 0.0, 1.0], (T, 1))
-    cfg = torchrefl.load_config(None, [f"photon.smoothing={std}", f"photon.specular_smoothing={std}"])
+    cfg = torchrefl.load_config(None, [f"photon.smoothing={std}", f"photon.specular_smoothing={specular_std}"])
     release_free_memory()
     before = resident_mb()
     reset_peak()
     smoother = smoothing_matrix(grid, std, normals, 0.3)
-    SpreadKernel(grid, std, normals, 0.3)
+    SpreadKernel(grid, specular_std, normals, 0.3)
     added = peak_resident_mb() - before
     return {"added": added, "estimate": me.kernels_mb(cfg, T), "entries": int(smoother.values().numel())}
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the peak is reset through /proc")
 def test_the_density_kernels_are_estimated_by_what_building_them_takes():
-    """On a 250 x 250 grid at 2 texels (169 smoother and 25 spread window slots per texel) the estimate's term covers
-    the kernels' build and is not twice it. The smoother's former build (a COO tensor from per-offset parts, then
-    coalesced) took about 110 bytes a slot, over three times the term: a 300 000-texel atlas at the automatic
-    kernel's cap (4 texels, 625 slots) was killed for want of 20 GB there."""
-    got = run_fresh(__file__, "density_kernels_growth", 250, 250, 2.0)
-    assert got["entries"] > 0.9 * 250 * 250 * 169
+    """On a 250 x 250 grid at the automatic kernels' caps (4 texels: 625 smoother window slots per texel; the spread's
+    3 texels: 49) the estimate's term covers the kernels' build and is not twice it. The smoother's former build (a
+    COO tensor from per-offset parts, then coalesced) took about 110 bytes a slot, eight times its term: a
+    313 808-texel atlas at this kernel was killed for want of 20 GB there."""
+    got = run_fresh(__file__, "density_kernels_growth", 250, 250, 4.0, 3.0)
+    assert got["entries"] > 0.9 * 250 * 250 * 625
     assert got["estimate"] / 2 < got["added"] <= got["estimate"], got
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 from torchrefl.config import Config
 from torchrefl.core.memory import available_mb
 from torchrefl.errors import MemoryLimitError
-from torchrefl.transport.photon_density import density_kernels, window_slots
+from torchrefl.transport.photon_density import ROW_CHUNK_SLOTS, density_kernels, window_slots
 
 _MB = 2.0**20
 #: bytes per (image, texel) of the fit beyond the capture: predictions, residuals, the level's indirect terms, the LM
@@ -45,10 +45,10 @@ HIT_PEAK_BYTES = 150
 #: fold 0.05 per hit); each takes ENTRY_BYTES in every cache alive (int64 observation, float32 theta_h and 3
 #: weights); the cache average merges them one light at a time (a light's temporaries)
 ENTRIES_PER_HIT, ENTRIES_PER_OBSERVATION, ENTRY_BYTES = 2, 16, 24
-#: bytes per window slot (texel x window offset, photon_density.window_slots) while the density kernels are built: the
-#: smoother's rows before they are compacted (it keeps 13), the spread's copies and their sort (it keeps 51); measured
-#: on a 300 x 300 grid at 2 texels
-SMOOTHER_BYTES_PER_SLOT, SPREAD_BYTES_PER_SLOT = 32, 68
+#: bytes per window slot (texel x window offset, photon_density.window_slots) of the density kernels while they are
+#: built: the smoother keeps 12 a slot it fills and builds ROW_CHUNK_SLOTS of them at a time (about 24 a slot of the
+#: chunk beside them); the spread's copies and their sort take 68 (it keeps 14); measured on a 300 x 300 grid
+SMOOTHER_BYTES_PER_SLOT, SMOOTHER_CHUNK_BYTES_PER_SLOT, SPREAD_BYTES_PER_SLOT = 14, 24, 68
 #: caches alive at the peak: the previous trace, the cache the fit used (the best, usually), the new trace, and
 #: their average
 CACHES_ALIVE = 4
@@ -118,7 +118,8 @@ def kernels_mb(cfg: Config, texels: int) -> float:
     first refresh) take while they are built, at the config's kernel widths for `texels` texels."""
     pc = cfg.photon
     smoother, spread = window_slots(*density_kernels(pc.photons_per_light, texels, pc.smoothing, pc.specular_smoothing))
-    return texels * (smoother * SMOOTHER_BYTES_PER_SLOT + spread * SPREAD_BYTES_PER_SLOT) / _MB
+    chunk = min(texels * smoother, ROW_CHUNK_SLOTS) * SMOOTHER_CHUNK_BYTES_PER_SLOT
+    return (texels * (smoother * SMOOTHER_BYTES_PER_SLOT + spread * SPREAD_BYTES_PER_SLOT) + chunk) / _MB
 
 
 def photons_mb(photons: float, images: int, texels: int, hits_per_photon: float = HITS_PER_PHOTON) -> float:

@@ -35,6 +35,8 @@ SPECULAR_KERNEL_PHOTONS = 5_000  # the same for the spread of the specular entri
 # neighbours per texel and entry
 MAX_AUTO_SMOOTHING = 4.0
 MAX_AUTO_SPECULAR_SMOOTHING = 3.0
+#: smoothing_matrix builds the window rows of at most this many slots (texel x window offset) at once
+ROW_CHUNK_SLOTS = 1 << 23
 #: smoothing_matrix's ridge on the plane's slopes, per unit weight (slopes in irradiance per texel)
 SLOPE_RIDGE = 1e-3
 
@@ -159,13 +161,38 @@ def smoothing_matrix(
     radius = int(math.ceil(3 * sigma))
     kernel = _grid_neighbours(neighbours, sigma, radius, normals, normal_sigma)
     offsets = window_offsets(radius)
-    # texel by texel (rows) and offset by offset (columns): the operator's entries in place, 12 bytes a slot, with no
-    # list of parts, concatenation or COO sort beside them (those took about 100 bytes an entry: 20 GB for a
-    # 300 000-texel atlas at a 4-texel kernel)
-    cols = np.full((T, len(offsets)), -1, dtype=np.int32 if T < 2**31 else np.int64)
-    vals = np.zeros((T, len(offsets)))
-    moments = np.zeros((T, 3, 3))
-    for k, ((dy, dx), (to, w)) in enumerate(zip(offsets, kernel(np.arange(T)))):
+    K = len(offsets)
+    index = np.int32 if T < 2**31 else np.int64
+    # the entries, written a chunk of rows at a time into arrays sized for every window slot: the pages never written
+    # are never resident, so the build takes what the operator keeps (12 bytes an entry) and one chunk's temporaries
+    # (a COO tensor from per-offset parts took about 110 bytes a slot: 20 GB for a 313 808-texel atlas at 4 texels)
+    col_all, val_all = np.empty(T * K, dtype=index), np.empty(T * K)
+    counts, nnz = np.zeros(T, dtype=np.int64), 0
+    step = max(1, ROW_CHUNK_SLOTS // K)
+    for start in range(0, T, step):
+        rows = np.arange(start, min(T, start + step))
+        col, val, counts[rows] = _window_rows(rows, kernel, offsets, index, T)
+        col_all[nnz : nnz + col.size], val_all[nnz : nnz + col.size] = col, val
+        nnz += col.size
+    crow = np.concatenate([[0], np.cumsum(counts)]).astype(index)
+    with warnings.catch_warnings():  # torch calls its CSR support beta
+        warnings.simplefilter("ignore", UserWarning)
+        return torch.sparse_csr_tensor(
+            torch.from_numpy(crow),
+            torch.from_numpy(col_all[:nnz]),
+            torch.from_numpy(val_all[:nnz]),
+            (T, T),
+            check_invariants=False,
+        )
+
+
+def _window_rows(rows: np.ndarray, kernel, offsets: list, index, T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """smoothing_matrix's rows `rows` (n,): (their entries' columns and values, row by row with each row's columns
+    sorted and repeated columns summed, as a COO tensor's coalesce gives them; the entries per row (n,))."""
+    n = rows.size
+    cols, vals = np.full((n, len(offsets)), -1, dtype=index), np.zeros((n, len(offsets)))
+    moments = np.zeros((n, 3, 3))
+    for k, ((dy, dx), (to, w)) in enumerate(zip(offsets, kernel(rows))):
         keep = np.flatnonzero((to >= 0) & (w > 0))
         wk = np.take(w, keep)
         design = np.array([1.0, dy, dx])
@@ -174,7 +201,7 @@ def smoothing_matrix(
         vals[keep, k] = wk
     e1 = plane_intercept_rows(moments, SLOPE_RIDGE)  # the radiosity level's reconstruction solves the same plane
     del moments
-    total = np.zeros(T)  # each row's sum, added offset by offset
+    total = np.zeros(n)  # each row's sum, added offset by offset
     for k, (dy, dx) in enumerate(offsets):
         keep = np.flatnonzero(cols[:, k] >= 0)
         v = np.take(vals[:, k], keep) * (np.take(e1, keep, axis=0) @ np.array([1.0, dy, dx]))
@@ -182,31 +209,20 @@ def smoothing_matrix(
         total[keep] += v
     present = cols >= 0
     np.divide(vals, total[:, None], out=vals, where=present)  # rows sum to one up to round-off: make it exact
-    return _csr_rows(cols, vals, present, T)
-
-
-def _csr_rows(cols: np.ndarray, vals: np.ndarray, present: np.ndarray, T: int) -> torch.Tensor:
-    """The sparse CSR (T, T) operator of row t's entries (cols[t, k], vals[t, k]) where present[t, k], with each row's
-    columns sorted and repeated columns summed (what a COO tensor's coalesce gives), int32 indices where they fit."""
     counts = present.sum(1)
     col, val = cols[present], vals[present]  # row by row
-    row = np.repeat(np.arange(T, dtype=col.dtype), counts)
+    del cols, vals
+    row = np.repeat(np.arange(n), counts)
     if not np.all((row[1:] != row[:-1]) | (col[1:] > col[:-1])):  # a window's order is not the columns' (an atlas)
-        order = np.argsort(row.astype(np.int64) * T + col, kind="stable")
+        order = np.argsort(row * T + col, kind="stable")
         col, val = np.take(col, order), np.take(val, order)
-        del order
         new = np.ones(col.size, dtype=bool)
-        np.logical_or(col[1:] != col[:-1], row[1:] != row[:-1], out=new[1:])
+        np.logical_or(col[1:] != col[:-1], np.take(row, order)[1:] != np.take(row, order)[:-1], out=new[1:])
         if not new.all():  # a texel reached by two offsets (an atlas walk across a seam): one entry, summed
             val = np.bincount(np.cumsum(new) - 1, weights=val)
-            col, row = col[new], row[new]
-            counts = np.bincount(row, minlength=T)
-    crow = np.concatenate([[0], np.cumsum(counts)]).astype(col.dtype)
-    with warnings.catch_warnings():  # torch calls its CSR support beta
-        warnings.simplefilter("ignore", UserWarning)
-        return torch.sparse_csr_tensor(
-            torch.from_numpy(crow), torch.from_numpy(col), torch.from_numpy(val), (T, T), check_invariants=False
-        )
+            col = col[new]
+            counts = np.bincount(np.take(row, order)[new], minlength=n)
+    return col, val, counts
 
 
 def apply_on_grid(matrix: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
