@@ -166,8 +166,9 @@ class SpecularGather:
         (P, K, T, 3) of every texel with light p at map k's source, map_weights (K, T) (each texel's weights
         over the maps: photon_level.map_weights), and sigma (T,) (the merge bins' widths).
 
-        The samples of a texel are grouped per theta_h bin (the bins of specular_bins.merge_entries) once for all
-        lights; per light a group's weight is the sum of its samples' G L / (N pdf) and its theta_h their mean
+        The samples of a texel are grouped per theta_h bin (the bins of specular_bins.merge_entries) once for the
+        images that share its view (a scan's) and per image where each has its own (mesh_views: an image reads only
+        its own view's samples); per image a group's weight is the sum of its samples' G L / (N pdf) and its theta_h their mean
         weighted by that (as merge_entries weighs photons). Sorted by light, texel and bin."""
         R = np.asarray(radiance, dtype=np.float64)
         P, K, T, _ = R.shape
@@ -175,25 +176,35 @@ class SpecularGather:
         if Wm.shape != (K, T):
             raise ValueError(f"specular gather: map weights of shape {Wm.shape}, expected {(K, T)}")
         order = np.argsort(-np.abs(Wm), axis=0, kind="stable")[: max(1, int((Wm != 0).sum(0).max(initial=0)))]
-        t, hit, w = samples.texel, samples.hit, samples.weight
+        t = samples.texel
         empty = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3))
         if not t.size:
             return empty
-        nb = BINS_PER_OBSERVATION
         bins = theta_bins(samples.theta_h, np.take(np.asarray(sigma, dtype=np.float64), t))
-        key = (t * nb + bins) * (P + 1) + (samples.view_light + 1)
-        uniq, group = torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)
+        obs, th, wt = [], [], []
+        for images, sel in _image_samples(samples.view_light, P):
+            part = self._image_entries(samples, sel, bins, images, R, Wm, order)
+            for out, x in zip((obs, th, wt), part):
+                out.extend(x)
+        return np.concatenate(obs), np.concatenate(th), np.concatenate(wt)
+
+    def _image_entries(self, samples: GatherSamples, sel, bins, images, R, Wm, order) -> tuple[list, list, list]:
+        """entries' part for the images `images` from the samples sel (their view's): per image, its observations'
+        groups of samples per theta_h bin (obs, theta_h, weight), sorted by texel and bin."""
+        P, K, T, _ = R.shape
+        t, hit, w, theta_h = (np.take(x, sel) for x in (samples.texel, samples.hit, samples.weight, samples.theta_h))
+        nb = BINS_PER_OBSERVATION
+        uniq, group = torch.unique(torch.from_numpy(t * nb + np.take(bins, sel)), sorted=True, return_inverse=True)
         uniq, group = uniq.numpy(), group.numpy()
         G = len(uniq)
-        g_texel = uniq // (P + 1) // nb
-        g_light = uniq % (P + 1) - 1
+        g_texel = uniq // nb
         wsum = np.bincount(group, weights=w, minlength=G)
-        g_theta = np.bincount(group, weights=w * samples.theta_h, minlength=G) / np.maximum(wsum, 1e-300)
+        g_theta = np.bincount(group, weights=w * theta_h, minlength=G) / np.maximum(wsum, 1e-300)
         # each sample's maps and their weights: radiance of the texel hit with the light where t's image put it
         k_s = [np.take(order[j], t) for j in range(order.shape[0])]
         a_s = [Wm[k, t] * w for k in k_s]
         obs, th, wt = [], [], []
-        for p in range(P):
+        for p in images:
             flat = R[p].reshape(K * T, 3).T  # (3, K T), component-major
             L = np.zeros((3, t.size))
             for k, a in zip(k_s, a_s):
@@ -203,11 +214,21 @@ class SpecularGather:
             msum = np.bincount(group, weights=m, minlength=G)
             theta = np.where(
                 msum > 0,
-                np.bincount(group, weights=m * samples.theta_h, minlength=G) / np.where(msum > 0, msum, 1.0),
+                np.bincount(group, weights=m * theta_h, minlength=G) / np.where(msum > 0, msum, 1.0),
                 g_theta,
             )
-            gk = np.flatnonzero(self.keep[p, g_texel] & ((g_light < 0) | (g_light == p)) & (vals.max(-1) > 0))
+            gk = np.flatnonzero(self.keep[p, g_texel] & (vals.max(-1) > 0))
             obs.append(p * T + g_texel[gk])
             th.append(theta[gk])
             wt.append(vals[gk])
-        return np.concatenate(obs), np.concatenate(th), np.concatenate(wt)
+        return obs, th, wt
+
+
+def _image_samples(view_light: np.ndarray, P: int) -> list[tuple[range | list, np.ndarray]]:
+    """(images, samples) pairs: every image reads every sample where the texels' view is shared (view_light -1), else
+    each image its own view's samples (view_light p), in the samples' order."""
+    if not (view_light >= 0).any():
+        return [(range(P), np.arange(view_light.size))]
+    order = np.argsort(view_light, kind="stable")
+    ends = np.searchsorted(np.take(view_light, order), np.arange(P), side="right")
+    return [([p], order[begin:end]) for p, (begin, end) in enumerate(zip([0, *ends[:-1].tolist()], ends.tolist()))]
