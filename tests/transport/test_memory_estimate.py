@@ -29,6 +29,9 @@ def test_terms_grow_with_what_they_hold():
     assert set(me.estimate_memory(cfg, 10_000, 10, "local").terms) == {"fit"}
     twice = me.estimate_memory(cfg, 10_000, 10, "photon", 20, 8)  # twice the lights traced: twice the hits
     assert twice.terms["photons"] > 1.5 * small.terms["photons"] and twice.terms["fit"] == small.terms["fit"]
+    # a hit has specular entries in every image of its light: 40 images of 6 lights hold more than 40 of 40
+    shared, own = (me.photons_mb(1e7, 40, 300_000, 0.35, lights=n) for n in (6, 40))
+    assert shared > 2 * own
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the peak is reset through /proc")

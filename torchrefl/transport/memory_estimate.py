@@ -40,9 +40,10 @@ HITS_PER_PHOTON = 0.15
 #: peak bytes per stored hit while a refresh traces and reduces: the hits' arrays and the bounces' batches they are
 #: gathered from at the end of a trace (the reduction runs one light at a time, so its temporaries are a light's)
 HIT_PEAK_BYTES = 150
-#: specular entries: about 2 per stored hit (the photons' and the gather's), at most 16 per (image, texel) once
-#: merged into half-angle bins (the fold: 11-12.6 M entries for 5.5-5.7 M hits and 20 x 34 449 observations; the tiny
-#: fold 0.05 per hit); each takes ENTRY_BYTES in every cache alive (int64 observation, float32 theta_h and 3
+#: specular entries: about 2 per stored hit and image of its light (the photons' and the gather's), at most 16 per
+#: (image, texel) once merged into half-angle bins (the fold, one image a light: 11-12.6 M entries for 5.5-5.7 M
+#: hits and 20 x 34 449 observations; a 313 808-texel bowl, 40 images of 6 lights: 44.7 M for 3.4 M hits, 13 a hit;
+#: the tiny fold 0.05 per hit); each takes ENTRY_BYTES in every cache alive (int64 observation, float32 theta_h and 3
 #: weights); the cache average merges them one light at a time (a light's temporaries)
 ENTRIES_PER_HIT, ENTRIES_PER_OBSERVATION, ENTRY_BYTES = 2, 16, 24
 #: bytes per window slot (texel x window offset, photon_density.window_slots) of the density kernels while they are
@@ -103,7 +104,7 @@ def estimate_memory(
             settings["emitter maps"] = "radiosity.light_maps"
     if level == "photon":
         traced = images if lights_traced is None else lights_traced
-        terms["photons"] = photons_mb(cfg.photon.photons_per_light * traced, images, texels)
+        terms["photons"] = photons_mb(cfg.photon.photons_per_light * traced, images, texels, lights=traced)
         settings["photons"] = "photon.photons_per_light"
         terms["density kernels"] = kernels_mb(cfg, texels)
         settings["density kernels"] = (
@@ -122,20 +123,27 @@ def kernels_mb(cfg: Config, texels: int) -> float:
     return (texels * (smoother * SMOOTHER_BYTES_PER_SLOT + spread * SPREAD_BYTES_PER_SLOT) + chunk) / _MB
 
 
-def photons_mb(photons: float, images: int, texels: int, hits_per_photon: float = HITS_PER_PHOTON) -> float:
-    """The MiB a photon refresh of `photons` photons (all lights traced) adds at its peak, with its caches alive, for
-    `images` images of `texels` texels, at `hits_per_photon` stored hits per photon."""
+def photons_mb(
+    photons: float, images: int, texels: int, hits_per_photon: float = HITS_PER_PHOTON, lights: int | None = None
+) -> float:
+    """The MiB a photon refresh of `photons` photons (all `lights` distinct lights traced; default one per image) adds
+    at its peak, with its caches alive, for `images` images of `texels` texels, at `hits_per_photon` stored hits per
+    photon."""
     hits = photons * hits_per_photon
     irradiance = images * texels * 3 * 4
-    entries = min(hits * ENTRIES_PER_HIT, images * texels * ENTRIES_PER_OBSERVATION)
+    # a hit has specular entries in each image of its light
+    per_light = images / max(1, lights if lights is not None else images)
+    entries = min(hits * ENTRIES_PER_HIT * per_light, images * texels * ENTRIES_PER_OBSERVATION)
     return (hits * HIT_PEAK_BYTES + CACHES_ALIVE * (entries * ENTRY_BYTES + irradiance)) / _MB
 
 
-def check_photon_memory(hits_per_photon: float, photons: int, images: int, texels: int, log) -> float:
+def check_photon_memory(
+    hits_per_photon: float, photons: int, images: int, texels: int, log, lights: int | None = None
+) -> float:
     """Before the first photon refresh: the photons' term again with the stored hits per photon a pilot trace
     measured (the up-front estimate assumes HITS_PER_PHOTON, which a closed, bright or glossy object exceeds); logs
     it and refuses the run (MemoryLimitError) when it exceeds the free memory. Returns the term's MiB."""
-    term = photons_mb(photons, images, texels, hits_per_photon)
+    term = photons_mb(photons, images, texels, hits_per_photon, lights)
     free = free_mb()
     log(
         f"memory: a pilot trace stored {hits_per_photon:.3f} hits per photon (the up-front estimate assumed "

@@ -168,8 +168,8 @@ class SpecularGather:
 
         The samples of a texel are grouped per theta_h bin (the bins of specular_bins.merge_entries) once for the
         images that share its view (a scan's) and per image where each has its own (mesh_views: an image reads only
-        its own view's samples); per image a group's weight is the sum of its samples' G L / (N pdf) and its theta_h their mean
-        weighted by that (as merge_entries weighs photons). Sorted by light, texel and bin."""
+        its own view's samples); per image a group's weight is the sum of its samples' G L / (N pdf) and its theta_h
+        their mean weighted by that (as merge_entries weighs photons). Sorted by image, texel and bin."""
         R = np.asarray(radiance, dtype=np.float64)
         P, K, T, _ = R.shape
         Wm = np.asarray(map_weights, dtype=np.float64)

@@ -316,10 +316,11 @@ class PhotonLevel(TransportLevel):
         """Refuse (MemoryLimitError) refreshes that would not fit, with the stored hits per photon a pilot trace
         measures at the start's parameters."""
         inp = self.inputs
-        traced = len(distinct_lights(self.refresher.sources)[0]) * self.refresher.sources.num_maps
+        lights = len(distinct_lights(self.refresher.sources)[0])
+        traced = lights * self.refresher.sources.num_maps
         per_map = math.ceil(self.refresher.photons_per_light / self.refresher.sources.num_maps)
         hits = self.refresher.hits_per_photon(*values)
-        check_photon_memory(hits, traced * per_map, inp.obs.num_lights, inp.surface.num_texels, inp.log)
+        check_photon_memory(hits, traced * per_map, inp.obs.num_lights, inp.surface.num_texels, inp.log, lights)
 
     def converged(self, params) -> str | None:
         """After a refit of an averaged cache, before its refresh: done when the refit moved Pd (RMS, as the refresh
