@@ -64,11 +64,21 @@ def density_kernels(photons_per_light: int, texels: int, smoothing, specular_smo
     return irradiance, specular
 
 
+def smoother_radius(sigma: float) -> int:
+    """smoothing_matrix's window radius (texels) at std sigma."""
+    return int(math.ceil(3 * sigma))
+
+
+def spread_radius(sigma: float) -> int:
+    """SpreadKernel's window radius (texels) at std sigma: truncated near the std to bound the copies per entry."""
+    return max(1, int(round(sigma)))
+
+
 def window_slots(smoothing: float, specular_smoothing: float) -> tuple[int, int]:
     """Window offsets per texel of smoothing_matrix at std `smoothing` and of SpreadKernel at `specular_smoothing`
     (0 where the std is not positive: no operator)."""
-    smoother = (2 * math.ceil(3 * smoothing) + 1) ** 2 if smoothing > 0 else 0
-    spread = (2 * max(1, int(round(specular_smoothing))) + 1) ** 2 if specular_smoothing > 0 else 0
+    smoother = (2 * smoother_radius(smoothing) + 1) ** 2 if smoothing > 0 else 0
+    spread = (2 * spread_radius(specular_smoothing) + 1) ** 2 if specular_smoothing > 0 else 0
     return smoother, spread
 
 
@@ -158,7 +168,7 @@ def smoothing_matrix(
     (SLOPE_RIDGE) keeps them determined where the neighbours lie in a line; the weights can be negative at an
     edge."""
     T = neighbours.num_texels
-    radius = int(math.ceil(3 * sigma))
+    radius = smoother_radius(sigma)
     kernel = _grid_neighbours(neighbours, sigma, radius, normals, normal_sigma)
     offsets = window_offsets(radius)
     K = len(offsets)
@@ -215,13 +225,13 @@ def _window_rows(rows: np.ndarray, kernel, offsets: list, index, T: int) -> tupl
     row = np.repeat(np.arange(n), counts)
     if not np.all((row[1:] != row[:-1]) | (col[1:] > col[:-1])):  # a window's order is not the columns' (an atlas)
         order = np.argsort(row * T + col, kind="stable")
-        col, val = np.take(col, order), np.take(val, order)
+        col, val, row = np.take(col, order), np.take(val, order), np.take(row, order)
         new = np.ones(col.size, dtype=bool)
-        np.logical_or(col[1:] != col[:-1], np.take(row, order)[1:] != np.take(row, order)[:-1], out=new[1:])
+        np.logical_or(col[1:] != col[:-1], row[1:] != row[:-1], out=new[1:])
         if not new.all():  # a texel reached by two offsets (an atlas walk across a seam): one entry, summed
             val = np.bincount(np.cumsum(new) - 1, weights=val)
             col = col[new]
-            counts = np.bincount(np.take(row, order)[new], minlength=n)
+            counts = np.bincount(row[new], minlength=n)
     return col, val, counts
 
 
@@ -256,7 +266,7 @@ class SpreadKernel:
 
     def __init__(self, neighbours: TexelNeighbours, sigma: float, normals=None, normal_sigma: float = 0.0):
         n = neighbours.num_texels
-        kernel = _grid_neighbours(neighbours, sigma, max(1, int(round(sigma))), normals, normal_sigma)
+        kernel = _grid_neighbours(neighbours, sigma, spread_radius(sigma), normals, normal_sigma)
         mass = np.zeros(n)
         src, to, weight, offset = [], [], [], []
         for k, (t_to, w) in enumerate(kernel(np.arange(n))):

@@ -41,7 +41,7 @@ from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.errors import ConfigError
 from torchrefl.transport.cache_build import LOBE_CUTOFF
 from torchrefl.transport.photon_trace import PhotonTracer
-from torchrefl.transport.specular_bins import BINS_PER_OBSERVATION, theta_bins
+from torchrefl.transport.specular_bins import BINS_PER_OBSERVATION, light_slices, theta_bins
 
 WIDEN = 1.25  # sampling roughness over the texel's roughness at the refresh
 
@@ -229,6 +229,4 @@ def _image_samples(view_light: np.ndarray, P: int) -> list[tuple[range | list, n
     each image its own view's samples (view_light p), in the samples' order."""
     if not (view_light >= 0).any():
         return [(range(P), np.arange(view_light.size))]
-    order = np.argsort(view_light, kind="stable")
-    ends = np.searchsorted(np.take(view_light, order), np.arange(P), side="right")
-    return [([p], order[begin:end]) for p, (begin, end) in enumerate(zip([0, *ends[:-1].tolist()], ends.tolist()))]
+    return [([p], idx) for p, idx in enumerate(light_slices(view_light, 1, P))]
