@@ -236,33 +236,47 @@ def test_entries_with_moving_lights_match_a_per_sample_reference(glossy_fold):
     assert (got[T:][~keep[1]] == 0).all() and want.max() > 0
 
 
-def test_images_with_their_own_views_take_only_their_own_samples(glossy_fold):
-    """Per-image views (P, T, 3), as the mesh_views kind has them: each image's directions are drawn for its view, and
-    its entries are the per-sample sum over its own samples only (the merge's tolerance), never another image's;
-    entries() reads each image's samples alone (it once read every sample for every image)."""
+@pytest.mark.parametrize(
+    "tilts, view_of",
+    [
+        ([[0.0, 0.15, 0.0], [0.1, 0.0, 0.0], [0.0, 0.0, 0.0]], [0, 1, 2]),  # three cameras
+        ([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.1, 0.0, 0.0]], [0, 0, 1]),  # one camera under two lights, and another
+    ],
+)
+def test_each_image_reads_its_own_views_samples_with_its_own_light(glossy_fold, tilts, view_of):
+    """Per-image views (P, T, 3), as the mesh_views kind has them: directions are drawn once per distinct view (images
+    whose views are equal bit for bit, a camera's under several lights, share them: the rays of two views, not three
+    images'), and each image's entries are the per-sample sum over its own view's samples with its own radiance, at
+    its own predicted observations only (the merge's tolerance), never another view's; entries() reads each view's
+    samples alone (it once read every sample for every image)."""
     f = glossy_fold
     s = f["s"]
     T, P = s.num_texels, 3
     rng = np.random.default_rng(2)
     radiance = rng.uniform(0.1, 1.0, (P, 1, T, 1)) * np.array([1.0, 0.8, 0.6])
     v0 = f["obs"].view_dir.numpy().reshape(-1, T, 3)[0]
-    tilt = np.array([[0.0, 0.15, 0.0], [0.1, 0.0, 0.0], [0.0, 0.0, 0.0]])
-    views = np.stack([v0 + d for d in tilt])
+    views = np.stack([v0 + np.array(d) for d in tilts])
     views /= np.linalg.norm(views, axis=-1, keepdims=True)
     keep = np.stack([f["obs"].valid[0].numpy()] * P) & (np.arange(T) % P != np.arange(P)[:, None])
     g = SpecularGather(f["pt"], views, keep, BRDF, 8, 0.02, 0.6, seed=3)
+    assert g.view_of.tolist() == view_of
     smp = g.directions(np.full(T, SIGMA))
-    assert set(np.unique(smp.view_light)) == set(range(P))
+    V = max(view_of) + 1
+    assert set(np.unique(smp.view)) == set(range(V))
+    wanted = [keep[np.array(view_of) == v].any(0).sum() for v in range(V)]
+    assert 4 * sum(wanted) < smp.rays <= 8 * sum(wanted)
     obs, theta, w = g.entries(smp, radiance, np.ones((1, T)), np.full(T, SIGMA))
     D = lambda th: brdf_mod.specular_lobe(BRDF, torch.as_tensor(th), torch.tensor(SIGMA)).numpy()
     got = np.zeros((P * T, 3))
     np.add.at(got, obs, D(theta)[:, None] * w)
     want = np.zeros((P * T, 3))
     for i in range(len(smp.texel)):
-        p, t = smp.view_light[i], smp.texel[i]
-        want[p * T + t] += D(smp.theta_h[i]) * smp.weight[i] * radiance[p, 0, smp.hit[i]]
+        t = smp.texel[i]
+        for p in np.flatnonzero(g.view_of == smp.view[i]):
+            if keep[p, t]:
+                want[p * T + t] += D(smp.theta_h[i]) * smp.weight[i] * radiance[p, 0, smp.hit[i]]
     np.testing.assert_allclose(got, want, rtol=1e-2, atol=2e-3 * want.max())
-    assert (got[~keep.reshape(-1)] == 0).all() and want.max() > 0
+    assert (got[~keep.reshape(-1)] == 0).all() and all(want[p * T : (p + 1) * T].max() > 0 for p in range(P))
 
 
 @pytest.mark.parametrize("sigma", [0.01, 0.6])

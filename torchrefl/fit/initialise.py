@@ -94,12 +94,12 @@ def texel_lobes(
     pd, ps, sigma = cf.pd.clone(), cf.ps.clamp(0, ps_max), cf.sigma.clone()
     known, error, take = cf.spec_determined.clone(), None, torch.zeros_like(defined)
     if sigma_search > 0 and terms.brdf != "lambertian":
+        evidence = (n_spec >= 2) & defined
         grid = sigma_grid(sigma_min, sigma_max, sigma_search)
-        pd_s, ps_s, sg_s, err_s = profile_search(terms, intensity, fit_mask, grid, ps_channels, ps_max=ps_max)
+        pd_s, ps_s, sg_s, err_s = _searched(terms, intensity, fit_mask, evidence, grid, ps_channels, ps_max)
         with torch.no_grad():
             r0 = (predict(terms, cf.pd, ps, sigma) - intensity) * fit_mask[..., None]
             err0 = (r0 * r0).sum((0, 2))
-        evidence = (n_spec >= 2) & defined
         take = evidence & (~cf.spec_determined | (err_s < err0))
         pd = torch.where(take[:, None], pd_s.to(pd.dtype), pd)
         ps = torch.where(take[:, None], ps_s.to(ps.dtype), ps)
@@ -107,6 +107,32 @@ def texel_lobes(
         known = cf.spec_determined | take
         error = torch.where(take, err_s.to(err0.dtype), err0)
     return TexelLobes(pd, ps, sigma, known, error, take, defined, cf.pd_from_diffuse, cf.spec_determined)
+
+
+def _searched(terms: LocalTerms, intensity, fit_mask, evidence, grid, ps_channels: int, ps_max: float):
+    """profile_search's (pd, ps, sigma, error) over all texels, searched at the texels with evidence (T,) only, each
+    under the images with a fitted observation of any of them (the others are 0 and infinitely wrong): a texel's
+    search reads its own observations only, and on a large mesh_views capture most texels lack specular evidence
+    and most (image, texel) pairs are no observation."""
+    T = int(evidence.shape[0])
+    texels = evidence.nonzero()[:, 0]
+    images = fit_mask.index_select(1, texels).any(1).nonzero()[:, 0]
+    dt = intensity.dtype
+    pd, ps = (
+        torch.zeros(T, 3, dtype=dt, device=intensity.device),
+        torch.zeros(T, ps_channels, dtype=dt, device=intensity.device),
+    )
+    sigma, err = (
+        torch.ones(T, dtype=dt, device=intensity.device),
+        torch.full((T,), float("inf"), dtype=dt, device=intensity.device),
+    )
+    if not len(texels) or not len(images):
+        return pd, ps, sigma, err
+    pick = lambda x: x.index_select(1, texels).index_select(0, images)  # noqa: E731
+    found = profile_search(
+        terms.subset(texels, images), pick(intensity), pick(fit_mask), grid, ps_channels, ps_max=ps_max
+    )
+    return tuple(full.index_copy(0, texels, part.to(full.dtype)) for full, part in zip((pd, ps, sigma, err), found))
 
 
 def initialise_local(

@@ -37,7 +37,6 @@ from torchrefl.fit.uncertainty import (
     texel_evidence,
     uncertainty_of,
 )
-from torchrefl.transport.levels.base import LOCAL_TENSORS
 from torchrefl.transport.local import LocalTerms
 from torchrefl.transport.memory_estimate import FIT_BYTES_PER_OBSERVATION, estimate_memory, free_mb
 from torchrefl.transport.texel_model import TexelModel
@@ -121,9 +120,7 @@ def texel_chunks(cfg: Config, texels: int, fitted: torch.Tensor, log) -> Optiona
 
 def chunk_terms(terms: LocalTerms, chunk: TexelChunk) -> LocalTerms:
     """The local terms of the chunk's images and texels."""
-    pick = lambda x: _pick(x, chunk)  # noqa: E731
-    spread = None if terms.spread is None else pick(terms.spread)
-    return LocalTerms(terms.brdf, *(pick(getattr(terms, k)) for k in LOCAL_TENSORS), terms.diffuse_exponent, spread)
+    return terms.subset(chunk.texels, chunk.images)
 
 
 def _pick(x: torch.Tensor, chunk: TexelChunk) -> torch.Tensor:

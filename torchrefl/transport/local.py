@@ -47,13 +47,9 @@ class LocalTerms:
     def num_lights(self) -> int:
         return int(self.theta_h.shape[0])
 
-    def texels(self, index: torch.Tensor) -> "LocalTerms":
-        """The terms of the texels index (n,) long only (each texel's terms are its own: the model of a subset); these
-        terms themselves, not a copy, where index is every texel in order."""
-        T = int(self.theta_h.shape[1])
-        if len(index) == T and bool((index.cpu() == torch.arange(T)).all()):
-            return self
-        pick = lambda x: x.index_select(1, index.to(x.device))
+    def subset(self, texels: torch.Tensor, images: torch.Tensor) -> "LocalTerms":
+        """The terms of the texels (n,) long under the images (m,) long only."""
+        pick = lambda x: x.index_select(1, texels.to(x.device)).index_select(0, images.to(x.device))  # noqa: E731
         return LocalTerms(
             self.brdf,
             pick(self.theta_h),
@@ -64,6 +60,14 @@ class LocalTerms:
             self.diffuse_exponent,
             None if self.spread is None else pick(self.spread),
         )
+
+    def texels(self, index: torch.Tensor) -> "LocalTerms":
+        """The terms of the texels index (n,) long only (each texel's terms are its own: the model of a subset); these
+        terms themselves, not a copy, where index is every texel in order."""
+        T = int(self.theta_h.shape[1])
+        if len(index) == T and bool((index.cpu() == torch.arange(T)).all()):
+            return self
+        return self.subset(index, torch.arange(self.num_lights))
 
 
 def light_scale(obs: Observations) -> torch.Tensor:

@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from torchrefl.core import brdf as brdf_mod
+from torchrefl.core.distinct_rows import distinct_rows
 from torchrefl.core.lobe_sampling import row_dot, sample_mixture
 from torchrefl.core.rqmc import sobol_base, toroidal_shift
 from torchrefl.errors import ConfigError
@@ -51,14 +52,14 @@ class GatherSamples:
     """One refresh's gather directions, for every texel with a predicted observation.
 
     texel (S,) int64 receiving texel; hit (S,) int64 texel hit; theta_h (S,) angle between n_t and the
-    half vector of (l, v_t); weight (S,) G / (N pdf) (per unit radiance); view_light (S,) int64 the light whose
-    view the direction was drawn for, or -1 where every light shares the texel's view."""
+    half vector of (l, v_t); weight (S,) G / (N pdf) (per unit radiance); view (S,) int64 the distinct view
+    (SpecularGather.view_of) the direction was drawn for, or -1 where every image shares the texel's view."""
 
     texel: np.ndarray
     hit: np.ndarray
     theta_h: np.ndarray
     weight: np.ndarray
-    view_light: np.ndarray
+    view: np.ndarray
     rays: int
 
 
@@ -67,7 +68,8 @@ class SpecularGather:
 
     tracer: the photon level's PhotonTracer (Embree scene, texel lookup, face normals, origin offset);
     view_dirs (T, 3) or (P, T, 3); keep (P, T) bool predicted observations; brdf: the fitter's model;
-    samples: directions per texel (and per light where the view depends on the light); min_cos_light:
+    samples: directions per texel (and per distinct view where the images' views differ: images whose views are
+    equal bit for bit, a camera's under its several lights, share their directions); min_cos_light:
     directions at or below this n.l carry no specular term (as in the photon entries and the fit);
     sigma_max: the fit's upper bound of sigma (caps the sampling roughness).
     """
@@ -92,6 +94,10 @@ class SpecularGather:
         self.tracer = tracer
         self.view = np.asarray(view_dirs, dtype=np.float64)
         self.keep = np.asarray(keep, dtype=bool)
+        # (V,) an image of each distinct view and (P,) each image's view (per-image views only)
+        self.view_first, self.view_of = (
+            (None, None) if self.view.ndim == 2 else distinct_rows(self.view.reshape(len(self.view), -1))
+        )
         self.brdf = brdf
         self.samples = int(samples)
         self.min_cos_light = float(min_cos_light)
@@ -109,10 +115,10 @@ class SpecularGather:
         groups = (
             [(-1, self.keep.any(0), self.view)]
             if self.view.ndim == 2
-            else [(p, self.keep[p], self.view[p]) for p in range(self.keep.shape[0])]
+            else [(g, self.keep[self.view_of == g].any(0), self.view[p]) for g, p in enumerate(self.view_first)]
         )
         parts, rays = [], 0
-        for light, wanted, view in groups:
+        for group, wanted, view in groups:
             texels = np.flatnonzero(wanted)
             if not texels.size:
                 continue
@@ -150,7 +156,7 @@ class SpecularGather:
                     hit.astype(np.int64)[a],
                     theta[a],
                     geom[a] / (N * pdf[a]),
-                    np.full(a.size, light, dtype=np.int64),
+                    np.full(a.size, group, dtype=np.int64),
                 )
             )
         if not parts:
@@ -182,7 +188,7 @@ class SpecularGather:
             return empty
         bins = theta_bins(samples.theta_h, np.take(np.asarray(sigma, dtype=np.float64), t))
         obs, th, wt = [], [], []
-        for images, sel in _image_samples(samples.view_light, P):
+        for images, sel in _image_samples(samples.view, self.view_of, P):
             part = self._image_entries(samples, sel, bins, images, R, Wm, order)
             for out, x in zip((obs, th, wt), part):
                 out.extend(x)
@@ -224,9 +230,10 @@ class SpecularGather:
         return obs, th, wt
 
 
-def _image_samples(view_light: np.ndarray, P: int) -> list[tuple[range | list, np.ndarray]]:
-    """(images, samples) pairs: every image reads every sample where the texels' view is shared (view_light -1), else
-    each image its own view's samples (view_light p), in the samples' order."""
-    if not (view_light >= 0).any():
-        return [(range(P), np.arange(view_light.size))]
-    return [([p], idx) for p, idx in enumerate(light_slices(view_light, 1, P))]
+def _image_samples(view: np.ndarray, view_of: np.ndarray | None, P: int) -> list[tuple[range | list, np.ndarray]]:
+    """(images, samples) pairs: every image reads every sample where the texels' view is shared (view -1), else the
+    images of each distinct view (view_of (P,)) that view's samples, in the samples' order."""
+    if view_of is None or not (view >= 0).any():
+        return [(range(P), np.arange(view.size))]
+    V = len(np.unique(view_of))
+    return [(np.flatnonzero(view_of == g).tolist(), idx) for g, idx in enumerate(light_slices(view, 1, V))]
