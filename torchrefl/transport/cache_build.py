@@ -272,19 +272,21 @@ def _build_by_light(
         lights = [(idx, np.flatnonzero(image_light == u).tolist()) for u, idx in enumerate(by_light) if idx.size]
     one, n = replace(options, threads=1), max(1, options.threads)
     reduce = lambda item: _reduce_light(hits.take(item[0]), item[1], sources, receivers, one, T)  # noqa: E731
-    irradiance = torch.zeros(P, T, 3, dtype=torch.float64)
+    per_light = torch.zeros(len(lights), T, 3, dtype=torch.float64)  # a light's irradiance, the same in its images
     entries, spread = {}, []
     for start in range(0, len(lights), n):  # `threads` lights' temporaries alive at a time
-        for (_, images), (H, parts, count) in zip(
-            lights[start : start + n], thread_map(reduce, lights[start : start + n], n)
-        ):
-            irradiance[images] = torch.from_numpy(H)
+        done = thread_map(reduce, lights[start : start + n], n)
+        for j, ((_, images), (H, parts, count)) in enumerate(zip(lights[start : start + n], done), start):
+            per_light[j] = torch.from_numpy(H)
             entries.update(zip(images, parts))
             spread += count
-    if smoothing > 0:
-        irradiance = _smooth_irradiance(
-            irradiance, options.grid, options.smoother, smoothing, options.smoothing_normal
-        )[0]
+    if smoothing > 0:  # linear and per column: smoothed once per light, not per image
+        per_light = _smooth_irradiance(per_light, options.grid, options.smoother, smoothing, options.smoothing_normal)[
+            0
+        ]
+    irradiance = torch.zeros(P, T, 3, dtype=torch.float64)
+    for j, (_, images) in enumerate(lights):
+        irradiance[images] = per_light[j]
     ordered = [entries[p] for p in sorted(entries)]
     empty = (
         torch.zeros(0, dtype=torch.long),

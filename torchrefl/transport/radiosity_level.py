@@ -128,13 +128,13 @@ def indirect_irradiance(
     else:
         P, K, T, C = maps.irradiance.shape
         E = patches.mean(maps.irradiance.to(pd.dtype).reshape(P * K, T, C))  # (P K, Q, 3)
-    B = solve_radiosity(rho, E, F if F_solve is None else F_solve.to(F.dtype), **solver)  # (P or P K, Q, 3)
+    B = solve_radiosity(rho, E, F if F_solve is None else F_solve, **solver)  # (P or P K, Q, 3)
     R, Q, C = B.shape
-    H = _matmul(F.to(B.dtype), B.permute(1, 0, 2).reshape(Q, R * C))  # (Q, R C)
+    H = _matmul(F, B.permute(1, 0, 2).reshape(Q, R * C))  # (Q, R C)
     if reconstruct is None:
         H = patches.scatter(H.reshape(Q, R, C).permute(1, 0, 2))  # (R, T, 3)
     else:
-        H = _at_least_zero(_matmul(reconstruct.to(H.dtype), H), H, patches.texel_patch)
+        H = _at_least_zero(_matmul(reconstruct, H), H, patches.texel_patch)
         H = H.reshape(H.shape[0], R, C).permute(1, 0, 2)
     if maps is None:
         if emitters is not None:

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import torch
 
+from torchrefl.transport.radiosity import nonzeros, row_sums
 from torchrefl.transport.radiosity_level import reflected_indirect
 
 
@@ -43,8 +44,8 @@ def choose_level(
     numbers: dict = {"noise_floor_dn": noise_floor_dn}
     if not has_mesh:
         return LevelChoice("local", "no depth in the capture: interreflection cannot be modelled", numbers)
-    nnz = int(F._nnz()) if F.is_sparse else int((F != 0).sum())
-    rows = (torch.sparse.sum(F, dim=1).to_dense() if F.is_sparse else F.sum(1)).double()
+    nnz = nonzeros(F)
+    rows = row_sums(F).double()
     numbers.update(form_factor_nonzeros=nnz, max_form_factor_row_sum=float(rows.max()) if rows.numel() else 0.0)
     if nnz == 0:
         return LevelChoice("local", "no texel sees another (all form factors are zero)", numbers)

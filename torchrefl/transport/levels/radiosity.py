@@ -20,6 +20,7 @@ from torchrefl.transport.form_factors import form_factors_for_surface
 from torchrefl.transport.levels.base import IndirectTerms, LevelInputs, TransportLevel
 from torchrefl.transport.light_maps import light_sources
 from torchrefl.transport.patch_reconstruction import linear_reconstruction
+from torchrefl.transport.radiosity import nonzeros, sparse_operator
 from torchrefl.transport.radiosity_level import (
     DistinctEmitters,
     PatchMap,
@@ -42,10 +43,6 @@ INIT_PASSES = 3
 SOLVER = {"method": "auto", "tol": 1e-7, "max_iter": 500, "direct_max": 800}
 #: the density kernel's normal test (radians): neighbours across a fold or crease do not share irradiance
 SMOOTHING_NORMAL = 0.1
-
-
-def _nonzeros(M: torch.Tensor) -> int:
-    return int(M._nnz()) if M.is_sparse else int((M != 0).sum())
 
 
 class RadiosityLevel(TransportLevel):
@@ -77,7 +74,7 @@ class RadiosityLevel(TransportLevel):
             split_angle_deg=SPLIT_ANGLE_DEG,
         )
         self.patches = PatchMap(patches.texel_patch, surface.areas.double(), patches.num_patches)
-        self.F = F.to(obs.intensity.dtype)
+        self.F = sparse_operator(F)
         self.F_solve = None
         if rc.solve_samples is not None and rc.solve_samples != rc.hemisphere_samples:
             _, F_solve = form_factors_for_surface(
@@ -88,7 +85,7 @@ class RadiosityLevel(TransportLevel):
                 seed=cfg.seed + 1,
                 split_angle_deg=SPLIT_ANGLE_DEG,
             )
-            self.F_solve = F_solve.to(obs.intensity.dtype)
+            self.F_solve = sparse_operator(F_solve)
         self.solver = SOLVER
         self.maps = None
         if obs.light_positions is not None and rc.light_maps > 1:
@@ -121,12 +118,8 @@ class RadiosityLevel(TransportLevel):
         )
         return (
             f"radiosity: {patches.num_patches} patches of {rc.patch_size}x{rc.patch_size} texels{split}, "
-            f"{rc.hemisphere_samples} hemisphere rays each, {_nonzeros(self.F)} non-zero form factors"
-            + (
-                f" (the solve's: {rc.solve_samples} rays, {_nonzeros(self.F_solve)})"
-                if self.F_solve is not None
-                else ""
-            )
+            f"{rc.hemisphere_samples} hemisphere rays each, {nonzeros(self.F)} non-zero form factors"
+            + (f" (the solve's: {rc.solve_samples} rays, {nonzeros(self.F_solve)})" if self.F_solve is not None else "")
             + (f", {self.maps.weights.shape[0]} emitter maps per light" if self.maps is not None else "")
             + (
                 f"; {len(self.emitter_groups.inverse)} images share {len(self.emitter_groups.first)} direct "
@@ -142,15 +135,17 @@ class RadiosityLevel(TransportLevel):
         s, size = self.inputs.surface, self.inputs.cfg.radiosity.patch_size
         if size == 1:
             return ""
-        self._reconstruct = linear_reconstruction(
-            s.neighbours,
-            s.positions.double().numpy(),
-            s.normals.double().numpy(),
-            patches.texel_patch.numpy(),
-            patches.centres.numpy(),
-            patches.normals.numpy(),
-            size,
-            SPLIT_ANGLE_DEG,
+        self._reconstruct = sparse_operator(
+            linear_reconstruction(
+                s.neighbours,
+                s.positions.double().numpy(),
+                s.normals.double().numpy(),
+                patches.texel_patch.numpy(),
+                patches.centres.numpy(),
+                patches.normals.numpy(),
+                size,
+                SPLIT_ANGLE_DEG,
+            )
         )
         return "; texel irradiance from a plane through the neighbouring patches' (radiosity.reconstruction)"
 
