@@ -66,14 +66,20 @@ def test_specular_entries_are_spread_and_merged_per_light_as_all_at_once():
     np.testing.assert_allclose(w, ref[2], rtol=1e-12)
 
 
+@pytest.mark.parametrize("runs", [None, 2])
 @pytest.mark.parametrize("spread", [3, 400_000, 2**60])
-def test_sorted_inverse_is_the_rank_among_the_sorted_distinct_pairs(spread):
-    """Dense slots (few observations) and the sort (observations spread wide) give the rank of (obs, bin) among the
-    distinct pairs, bins below 0 and past the last included (a merged entry's mean angle can leave [0, pi / 2])."""
+def test_sorted_inverse_is_the_rank_among_the_sorted_distinct_pairs(spread, runs):
+    """Dense slots (few observations) and the sort (observations spread wide; in any order, or in a few sorted runs
+    as the cache average has them) give the rank of (obs, bin) among the distinct pairs, bins below 0 and past the last
+    included (a merged entry's mean angle can leave [0, pi / 2])."""
     rng = np.random.default_rng(spread)
     obs = 1000 + rng.integers(0, spread, 5000)
     bins = rng.integers(-3, 40, 5000)
     bins[:3] = [500, -700, 393]
+    if runs is not None:
+        parts = np.array_split(np.arange(obs.size), runs)
+        order = np.concatenate([p[np.lexsort((bins[p], obs[p]))] for p in parts])
+        obs, bins = obs[order], bins[order]
     pairs = sorted(set(zip(obs.tolist(), bins.tolist())))
     rank = {pair: i for i, pair in enumerate(pairs)}
     expected = [rank[pair] for pair in zip(obs.tolist(), bins.tolist())]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import torch
 
 THETA_BIN = 0.004  # radians; merged photons differ in theta_h by less than this, or by
 BIN_PER_SIGMA = 0.25  # less than this fraction of the receiving texel's current roughness where that is wider
@@ -60,6 +61,11 @@ def merge_entries(
 DENSE_SLOTS_PER_ENTRY = 4
 
 
+#: sorted_inverse merges sorted runs (timsort) while there are at most one per this many keys, and sorts anew beyond
+#: (5 M keys: 0.07 s for 2 runs, 0.79 s for 16 k runs, 0.84 s by torch.unique, 1.7 s by timsort in random order)
+RUN_SORT_MAX_RUNS_PER_ENTRY = 256
+
+
 def sorted_inverse(obs: np.ndarray, bins: np.ndarray) -> np.ndarray:
     """(M,) int64 the rank of each entry's (obs, bin) (M,) int64 among the distinct pairs in sorted order (obs, then
     bin). Counted over the dense slots of (obs - min obs, bin - min bin) where they are few (one light's entries:
@@ -76,8 +82,11 @@ def sorted_inverse(obs: np.ndarray, bins: np.ndarray) -> np.ndarray:
         new = np.empty(obs.size, dtype=bool)
         new[0] = False
         if slots < 2**62:
-            # a stable sort (timsort) merges the sorted runs of merged entries (the cache average's two) in linear time
             key = (obs - lo) * nb + (bins - b0)
+            if np.count_nonzero(key[1:] < key[:-1]) > obs.size // RUN_SORT_MAX_RUNS_PER_ENTRY:
+                # many runs (a spread's copies): a full sort, torch's is about 2x numpy's
+                return torch.unique(torch.from_numpy(key), sorted=True, return_inverse=True)[1].numpy()
+            # a stable sort (timsort) merges the sorted runs of merged entries (the cache average's two) in linear time
             order = np.argsort(key, kind="stable")
             k = np.take(key, order)
             np.not_equal(k[1:], k[:-1], out=new[1:])
