@@ -70,13 +70,13 @@ def test_direct_iterative_and_sparse_agree():
     c = solve_radiosity(rho, E, F.to_sparse(), method="iterative", tol=1e-13)
     torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
     torch.testing.assert_close(a, c, rtol=1e-10, atol=1e-12)
-    csr = sparse_operator(F.to_sparse())  # as the levels keep it: CSR, float64, int32 indices
+    csr = sparse_operator(F.to_sparse(), torch.float64)  # as the levels keep it: CSR in the fit's dtype, int32 indices
     assert csr.layout == torch.sparse_csr and csr.col_indices().dtype == torch.int32
     for method in ("direct", "iterative"):
         torch.testing.assert_close(a, solve_radiosity(rho, E, csr, method=method, tol=1e-13), rtol=1e-10, atol=1e-12)
     torch.testing.assert_close(row_sums(csr), F.sum(1))
-    # a float32 solve with the float64 operator: float32 results, within float32's precision of the float64 ones
-    d = solve_radiosity(rho.float(), E.float(), csr, method="iterative")
+    # a float32 fit's solve with its float32 operator: float32 results, within float32's precision of float64's
+    d = solve_radiosity(rho.float(), E.float(), sparse_operator(F.to_sparse(), torch.float32), method="iterative")
     assert d.dtype == torch.float32
     torch.testing.assert_close(d.double(), a, rtol=2e-5, atol=1e-6)
 
@@ -85,7 +85,7 @@ def test_direct_iterative_and_sparse_agree():
 def test_gradcheck_with_a_csr_operator(method):
     A, F = random_reciprocal(Q=6)
     F[F < 0.02] = 0
-    csr = sparse_operator(F.to_sparse())
+    csr = sparse_operator(F.to_sparse(), torch.float64)
     g = torch.Generator().manual_seed(6)
     rho = (0.2 + 0.6 * torch.rand(6, 2, generator=g, dtype=torch.float64)).requires_grad_()
     E = torch.rand(2, 6, 2, generator=g, dtype=torch.float64).requires_grad_()

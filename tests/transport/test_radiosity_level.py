@@ -246,11 +246,12 @@ def test_a_separate_solve_matrix_solves_with_it_and_gathers_with_f():
 
 
 def test_operators_kept_as_csr_give_the_dense_results_and_gradients():
-    """The levels keep F, F_solve and the reconstruction as CSR float64 operators (radiosity.sparse_operator): H equals
-    the dense matrices' in float64, in float32 to float32's precision (in float32's dtype), and gradcheck passes."""
+    """The levels keep F, F_solve and the reconstruction as CSR operators in the fit's dtype
+    (radiosity.sparse_operator): H equals the dense matrices' in float64, a float32 fit's (float32 operators) to
+    float32's precision, and gradcheck passes."""
     obs, terms, patches, F, pd = scene()
     F2 = scene(seed=3)[3]
-    csr = lambda M: sparse_operator(M.to_sparse())  # noqa: E731
+    csr = lambda M, dtype=torch.float64: sparse_operator(M.to_sparse(), dtype)  # noqa: E731
     dense = indirect_irradiance(terms, obs.kappa, pd, patches, F, F_solve=F2)
     torch.testing.assert_close(
         indirect_irradiance(terms, obs.kappa, pd, patches, csr(F), F_solve=csr(F2)), dense, rtol=1e-10, atol=1e-13
@@ -258,7 +259,9 @@ def test_operators_kept_as_csr_give_the_dense_results_and_gradients():
     t32 = type(terms)(
         terms.brdf, *(getattr(terms, k).float() for k in ("theta_h", "cos_l", "cos_v", "diffuse", "specular"))
     )
-    low = indirect_irradiance(t32, obs.kappa.float(), pd.float(), patches, csr(F), F_solve=csr(F2))
+    low = indirect_irradiance(
+        t32, obs.kappa.float(), pd.float(), patches, csr(F, torch.float32), F_solve=csr(F2, torch.float32)
+    )
     assert low.dtype == torch.float32
     torch.testing.assert_close(low.double(), dense, rtol=1e-5, atol=1e-7)
     o6, t6, p6, F6, pd6 = scene(T=6)

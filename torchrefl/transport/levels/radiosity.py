@@ -74,7 +74,7 @@ class RadiosityLevel(TransportLevel):
             split_angle_deg=SPLIT_ANGLE_DEG,
         )
         self.patches = PatchMap(patches.texel_patch, surface.areas.double(), patches.num_patches)
-        self.F = sparse_operator(F)
+        self.F = sparse_operator(F, obs.intensity.dtype)
         self.F_solve = None
         if rc.solve_samples is not None and rc.solve_samples != rc.hemisphere_samples:
             _, F_solve = form_factors_for_surface(
@@ -85,7 +85,7 @@ class RadiosityLevel(TransportLevel):
                 seed=cfg.seed + 1,
                 split_angle_deg=SPLIT_ANGLE_DEG,
             )
-            self.F_solve = sparse_operator(F_solve)
+            self.F_solve = sparse_operator(F_solve, obs.intensity.dtype)
         self.solver = SOLVER
         self.maps = None
         if obs.light_positions is not None and rc.light_maps > 1:
@@ -145,7 +145,8 @@ class RadiosityLevel(TransportLevel):
                 patches.normals.numpy(),
                 size,
                 SPLIT_ANGLE_DEG,
-            )
+            ),
+            self.inputs.obs.intensity.dtype,
         )
         return "; texel irradiance from a plane through the neighbouring patches' (radiosity.reconstruction)"
 
