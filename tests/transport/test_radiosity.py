@@ -81,6 +81,21 @@ def test_direct_iterative_and_sparse_agree():
     torch.testing.assert_close(d.double(), a, rtol=2e-5, atol=1e-6)
 
 
+def test_a_float64_solve_with_a_float32_operator_is_float64_and_within_float32s_precision():
+    """A CSR operator multiplies in its own dtype: a float64 right-hand side with a float32 operator (a float32 fit's
+    form factors in a float64 computation) gives float64 results within float32's precision of the exact ones, and
+    the iteration converges at its tolerance."""
+    A, F = random_reciprocal(Q=50, leak=0.05)
+    F[F < 0.005] = 0
+    g = torch.Generator().manual_seed(7)
+    rho = 0.5 + 0.45 * torch.rand(50, 3, generator=g, dtype=torch.float64)
+    E = torch.rand(2, 50, 3, generator=g, dtype=torch.float64)
+    exact = solve_radiosity(rho, E, F, method="direct")
+    got = solve_radiosity(rho, E, sparse_operator(F.to_sparse(), torch.float32), method="iterative", tol=1e-9)
+    assert got.dtype == torch.float64
+    torch.testing.assert_close(got, exact, rtol=1e-4, atol=1e-6)
+
+
 @pytest.mark.parametrize("method", ["direct", "iterative"])
 def test_gradcheck_with_a_csr_operator(method):
     A, F = random_reciprocal(Q=6)

@@ -281,9 +281,9 @@ def _build_by_light(
             entries.update(zip(images, parts))
             spread += count
     if smoothing > 0:  # linear and per column: smoothed once per light, not per image
-        per_light = _smooth_irradiance(per_light, options.grid, options.smoother, smoothing, options.smoothing_normal)[
-            0
-        ]
+        per_light, _ = _smooth_irradiance(
+            per_light, options.grid, options.smoother, smoothing, options.smoothing_normal
+        )
     irradiance = torch.zeros(P, T, 3, dtype=torch.float64)
     for j, (_, images) in enumerate(lights):
         irradiance[images] = per_light[j]

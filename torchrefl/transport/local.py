@@ -47,9 +47,13 @@ class LocalTerms:
     def num_lights(self) -> int:
         return int(self.theta_h.shape[0])
 
-    def subset(self, texels: torch.Tensor, images: torch.Tensor) -> "LocalTerms":
-        """The terms of the texels (n,) long under the images (m,) long only."""
-        pick = lambda x: x.index_select(1, texels.to(x.device)).index_select(0, images.to(x.device))  # noqa: E731
+    def subset(self, texels: torch.Tensor, images: torch.Tensor | None = None) -> "LocalTerms":
+        """The terms of the texels (n,) long under the images (m,) long only (None: every image)."""
+
+        def pick(x: torch.Tensor) -> torch.Tensor:
+            x = x.index_select(1, texels.to(x.device))
+            return x if images is None else x.index_select(0, images.to(x.device))
+
         return LocalTerms(
             self.brdf,
             pick(self.theta_h),
@@ -67,7 +71,7 @@ class LocalTerms:
         T = int(self.theta_h.shape[1])
         if len(index) == T and bool((index.cpu() == torch.arange(T)).all()):
             return self
-        return self.subset(index, torch.arange(self.num_lights))
+        return self.subset(index)
 
 
 def light_scale(obs: Observations) -> torch.Tensor:

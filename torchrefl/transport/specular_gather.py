@@ -235,5 +235,5 @@ def _image_samples(view: np.ndarray, view_of: np.ndarray | None, P: int) -> list
     images of each distinct view (view_of (P,)) that view's samples, in the samples' order."""
     if view_of is None or not (view >= 0).any():
         return [(range(P), np.arange(view.size))]
-    V = len(np.unique(view_of))
+    V = int(view_of.max()) + 1
     return [(np.flatnonzero(view_of == g).tolist(), idx) for g, idx in enumerate(light_slices(view, 1, V))]
